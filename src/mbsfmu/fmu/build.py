@@ -1,0 +1,331 @@
+"""Build an FMI 2.0 co-simulation FMU from a scene.
+
+The FMU is a pythonfmu FMU whose resources hold
+
+* ``mbsfmu_spec.json`` - the normalized scene (``scene.spec``),
+* ``mbsfmu_rt_<hash>/`` - a renamed copy of the *runtime* part of mbsfmu (no YAML loading, no
+  sympy, no plotting; ``bodies/`` only for scenes with elastic bodies),
+* ``mbsfmu_<name>_<hash>.py`` - the generated Fmi2Slave script (from ``slave.py.in``),
+
+and whose ``modelDescription.xml`` is written here (pythonfmu's own one is incomplete: no units,
+no ModelStructure/InitialUnknowns, ...).
+"""
+from __future__ import annotations
+
+import datetime
+import hashlib
+import importlib
+import importlib.util
+import io
+import json
+import re
+import sys
+import tempfile
+import uuid
+import warnings
+import zipfile
+from pathlib import Path
+from xml.dom.minidom import parseString
+from xml.etree.ElementTree import Element, SubElement, tostring
+
+SPEC_FILE = "mbsfmu_spec.json"
+TEMPLATE = Path(__file__).with_name("slave.py.in")
+PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
+
+# Runtime parts of the package copied into every FMU (missing optional entries are skipped).
+RUNTIME_ALWAYS = ("errors.py", "expr.py", "simulation.py", "kinematics", "equations", "integrators")
+RUNTIME_ELASTIC = ("bodies",)
+# Never needed at FMU run time.
+FORBIDDEN_IMPORTS = ("yaml", "sympy", "matplotlib", "tqdm")
+
+LOG_CATEGORIES = {
+    "logStatusWarning": "Log messages with fmi2Warning status.",
+    "logStatusDiscard": "Log messages with fmi2Discard status.",
+    "logStatusError": "Log messages with fmi2Error status.",
+    "logStatusFatal": "Log messages with fmi2Fatal status.",
+    "logAll": "Log all messages.",
+}
+
+# SI base-unit exponents of the units mbsfmu uses (FMI 2.0 BaseUnit attributes).
+UNITS = {
+    "1": {},
+    "m": {"m": 1},
+    "rad": {"rad": 1},
+    "kg": {"kg": 1},
+    "s": {"s": 1},
+    "N": {"kg": 1, "m": 1, "s": -2},
+    "N.m": {"kg": 1, "m": 2, "s": -2},
+    "m/s": {"m": 1, "s": -1},
+    "rad/s": {"rad": 1, "s": -1},
+    "m/s2": {"m": 1, "s": -2},
+    "rad/s2": {"rad": 1, "s": -2},
+    "kg.m2": {"kg": 1, "m": 2},
+    "N/m": {"kg": 1, "s": -2},
+    "N.s/m": {"kg": 1, "s": -1},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    "kg/m": {"kg": 1, "m": -1},
+    "N.m2": {"kg": 1, "m": 3, "s": -2},
+}
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+        return version("mbsfmu")
+    except Exception:  # not installed (source checkout)
+        return "0.1"
+
+
+def _has_elastic(obj) -> bool:
+    if isinstance(obj, dict):
+        if obj.get("elastic"):
+            return True
+        return any(_has_elastic(v) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return any(_has_elastic(v) for v in obj)
+    return False
+
+
+def _runtime_files(root: Path, elastic: bool) -> dict[str, bytes]:
+    """{relative posix path: content} of the runtime sources (only ``*.py``)."""
+    files: dict[str, bytes] = {}
+    for entry in RUNTIME_ALWAYS + (RUNTIME_ELASTIC if elastic else ()):
+        p = root / entry
+        if p.is_file():
+            files[entry] = p.read_bytes()
+        elif p.is_dir():
+            for f in sorted(p.rglob("*.py")):
+                if "__pycache__" in f.parts:
+                    continue
+                files[f.relative_to(root).as_posix()] = f.read_bytes()
+            if not (p / "__init__.py").exists():
+                files[f"{entry}/__init__.py"] = b""
+    if "simulation.py" not in files:
+        raise RuntimeError(f"mbsfmu runtime incomplete: no simulation.py in {root}")
+    files["__init__.py"] = b'"""mbsfmu run-time (copied into an FMU by mbsfmu.fmu.build)."""\n'
+    return files
+
+
+def forbidden_imports(files: dict[str, bytes]) -> list[str]:
+    """'path: module' for each import of a module the FMU must not need at run time."""
+    pat = re.compile(r"^\s*(?:import|from)\s+(" + "|".join(FORBIDDEN_IMPORTS) + r")\b", re.M)
+    rel = re.compile(r"^\s*from\s+\.+\s*(scene|fmu|bench|cli)\b|^\s*from\s+\.\.?(scene|fmu|bench|cli)\b",
+                     re.M)
+    found = []
+    for path, content in files.items():
+        text = content.decode("utf-8", "replace")
+        found += [f"{path}: {m.group(1)}" for m in pat.finditer(text)]
+        found += [f"{path}: .{m.group(1) or m.group(2)}" for m in rel.finditer(text)]
+    return found
+
+
+def _hash(*parts: bytes) -> str:
+    h = hashlib.sha256()
+    for p in parts:
+        h.update(len(p).to_bytes(8, "little"))
+        h.update(p)
+    return h.hexdigest()
+
+
+def _load_scene(scene_or_path):
+    if isinstance(scene_or_path, (str, Path)):
+        from ..scene import load
+        return load(scene_or_path)
+    return scene_or_path
+
+
+def build_fmu(scene_or_path, outdir=".", *, runtime_root=None) -> Path:
+    """Build ``<outdir>/<name>.fmu`` from a scene (a YAML path or a loaded scene with ``.spec``).
+
+    ``runtime_root`` (for tests) replaces the directory the runtime sources are copied from.
+    Returns the path of the written FMU.
+    """
+    scene = _load_scene(scene_or_path)
+    spec = scene.spec if hasattr(scene, "spec") else scene
+    spec = json.loads(json.dumps(spec))  # plain JSON data, exactly what the FMU will read
+    name = getattr(scene, "name", None) or spec["name"]
+    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
+        raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
+    root = Path(runtime_root) if runtime_root is not None else PACKAGE_ROOT
+    files = _runtime_files(root, _has_elastic(spec.get("bodies")))
+    bad = forbidden_imports(files)
+    if bad:
+        warnings.warn("mbsfmu runtime imports modules not available/wanted at FMU run time: "
+                      + "; ".join(bad), RuntimeWarning, stacklevel=2)
+
+    version = _version()
+    spec_bytes = json.dumps(spec, indent=1, sort_keys=True).encode("utf-8")
+    rt_hash = _hash(*[p.encode() + b"\0" + c for p, c in sorted(files.items())])
+    rt_package = f"mbsfmu_rt_{rt_hash[:16]}"
+    template = TEMPLATE.read_text(encoding="utf-8")
+    fmu_hash = _hash(rt_hash.encode(), spec_bytes, template.encode(), version.encode())
+    module_name = f"mbsfmu_{name}_{fmu_hash[:12]}"
+    script = (template.replace("@RUNTIME_PACKAGE@", rt_package)
+              .replace("@SPEC_FILE@", SPEC_FILE)
+              .replace("@MODEL_NAME@", name)
+              .replace("@MBSFMU_VERSION@", version))
+
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    dest = outdir / f"{name}.fmu"
+
+    with tempfile.TemporaryDirectory(prefix="mbsfmu_build_") as tmp:
+        stage = Path(tmp) / "stage"
+        stage.mkdir()
+        pkg = stage / rt_package
+        for rel, content in files.items():
+            f = pkg / rel
+            f.parent.mkdir(parents=True, exist_ok=True)
+            f.write_bytes(content)
+        (stage / SPEC_FILE).write_bytes(spec_bytes)
+        script_file = stage / f"{module_name}.py"
+        script_file.write_text(script, encoding="utf-8")
+
+        variables, spec_for_xml = _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package)
+
+    guid = "{" + str(uuid.UUID(fmu_hash[:32])) + "}"
+    xml = model_description(spec_for_xml, name, variables, version, guid=guid)
+    _replace_in_zip(dest, "modelDescription.xml", xml)
+    return dest
+
+
+def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package):
+    from pythonfmu.builder import FmuBuilder
+
+    path_before = list(sys.path)
+    modules_before = set(sys.modules)
+    try:
+        # Instantiate the slave once here to learn the variables (and check that it loads).
+        sys.path.insert(0, str(stage))
+        mod = importlib.import_module(module_name)
+        inst = mod.MbsfmuSlave(instance_name="mbsfmu_build", resources=str(stage))
+        variables = list(inst._sim.variables)
+        spec = json.loads((stage / SPEC_FILE).read_text(encoding="utf-8"))
+        FmuBuilder.build_FMU(
+            script_file, dest=dest, project_files=[pkg, stage / SPEC_FILE],
+            needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
+            canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False,
+            canGetAndSetFMUstate=True, canSerializeFMUstate=True)
+    finally:
+        sys.path[:] = path_before
+        # Forget the modules imported from the (temporary) staging directory.
+        for key in set(sys.modules) - modules_before:
+            if key == module_name or key == rt_package or key.startswith(rt_package + "."):
+                del sys.modules[key]
+    return variables, spec
+
+
+def _fmt(x) -> str:
+    return f"{float(x):.17g}"
+
+
+def model_description(spec: dict, name: str, variables, version: str, guid: str | None = None) -> bytes:
+    """The complete FMI 2.0 modelDescription.xml for the given Simulation variables."""
+    guid = guid or "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "mbsfmu:" + json.dumps(spec, sort_keys=True)
+                                        + ":" + version)) + "}"
+    attrib = {
+        "fmiVersion": "2.0",
+        "modelName": name,
+        "guid": guid,
+        "description": spec.get("description") or name,
+        "generationTool": f"mbsfmu {version}",
+        "generationDateAndTime": datetime.datetime.now(datetime.timezone.utc)
+        .replace(microsecond=0).isoformat().replace("+00:00", "Z"),
+        "variableNamingConvention": "structured",
+        "numberOfEventIndicators": "0",
+    }
+    root = Element("fmiModelDescription", attrib)
+    SubElement(root, "CoSimulation", {
+        "modelIdentifier": name,
+        "needsExecutionTool": "true",
+        "canHandleVariableCommunicationStepSize": "true",
+        "canInterpolateInputs": "false",
+        "maxOutputDerivativeOrder": "0",
+        "canRunAsynchronuously": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false",
+        "canNotUseMemoryManagementFunctions": "true",
+        "canGetAndSetFMUstate": "true",
+        "canSerializeFMUstate": "true",
+        "providesDirectionalDerivative": "false",
+    })
+
+    used_units = []
+    for v in variables:
+        u = getattr(v, "unit", None)
+        if getattr(v, "type", "Real") == "Real" and u and u not in used_units:
+            used_units.append(u)
+    if used_units:
+        ud = SubElement(root, "UnitDefinitions")
+        for u in used_units:
+            unit = SubElement(ud, "Unit", {"name": u})
+            exps = UNITS.get(u)
+            if exps is not None:
+                SubElement(unit, "BaseUnit", {k: str(e) for k, e in exps.items()})
+
+    cats = SubElement(root, "LogCategories")
+    for cat, desc in LOG_CATEGORIES.items():
+        SubElement(cats, "Category", {"name": cat, "description": desc})
+
+    exp = spec.get("experiment") or {}
+    de = {}
+    for key, attr in (("start", "startTime"), ("stop", "stopTime"), ("step", "stepSize")):
+        if exp.get(key) is not None:
+            de[attr] = _fmt(exp[key])
+    rtol = (spec.get("integrator") or {}).get("rtol")
+    if rtol is not None:
+        de["tolerance"] = _fmt(rtol)
+    if de:
+        SubElement(root, "DefaultExperiment", de)
+
+    mv = SubElement(root, "ModelVariables")
+    outputs = []
+    for i, v in enumerate(variables):
+        sv = {"name": v.name, "valueReference": str(i)}
+        if getattr(v, "description", None):
+            sv["description"] = str(v.description)
+        sv["causality"] = v.causality
+        is_string = getattr(v, "type", "Real") == "String"
+        variability = v.variability
+        if is_string and v.causality == "parameter":
+            variability = "fixed"
+        sv["variability"] = variability
+        if v.causality == "parameter":
+            sv["initial"] = "exact"
+        elif v.causality == "output":
+            sv["initial"] = "calculated"
+            outputs.append(i + 1)
+        node = SubElement(mv, "ScalarVariable", sv)
+        tattr = {}
+        if is_string:
+            if v.causality != "output":
+                tattr["start"] = "" if v.start is None else str(v.start)
+            SubElement(node, "String", tattr)
+        else:
+            if getattr(v, "unit", None):
+                tattr["unit"] = v.unit
+            if v.causality != "output":
+                tattr["start"] = _fmt(0.0 if v.start is None else v.start)
+            SubElement(node, "Real", tattr)
+
+    ms = SubElement(root, "ModelStructure")
+    if outputs:
+        o = SubElement(ms, "Outputs")
+        for idx in outputs:
+            SubElement(o, "Unknown", {"index": str(idx), "dependencies": ""})
+        iu = SubElement(ms, "InitialUnknowns")
+        for idx in outputs:
+            SubElement(iu, "Unknown", {"index": str(idx), "dependencies": ""})
+
+    return parseString(tostring(root, "UTF-8")).toprettyxml(indent="  ", encoding="UTF-8")
+
+
+def _replace_in_zip(path: Path, member: str, data: bytes) -> None:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(path) as zin, zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            if item.filename == member:
+                continue
+            zout.writestr(item.filename, zin.read(item.filename), zipfile.ZIP_DEFLATED)
+        zout.writestr(member, data, zipfile.ZIP_DEFLATED)
+    path.write_bytes(buf.getvalue())

@@ -1,0 +1,402 @@
+"""FMU build: modelDescription validity, simulation through fmpy, isolation of several FMUs.
+
+Most tests use a stand-in runtime (a damped oscillator with the same `Simulation` interface as
+mbsfmu.simulation) so that they do not depend on the multibody code; the tests at the end use the
+real runtime with a scene when it is available.
+"""
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import textwrap
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+from fmpy import read_model_description, simulate_fmu  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+from fmpy.validation import validate_fmu  # noqa: E402
+
+from mbsfmu.fmu import build_fmu  # noqa: E402
+from mbsfmu.fmu.build import forbidden_imports  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+PKG = REPO / "src" / "mbsfmu"
+
+STUB_SIMULATION = '''
+"""Stand-in for mbsfmu.simulation: damped oscillator m*x'' + c*x' + k*x = q.x (+ F_ext.x)."""
+import copy
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import IntegrationError
+
+
+@dataclass
+class Variable:
+    name: str
+    causality: str
+    variability: str
+    type: str = "Real"
+    unit: object = None
+    description: str = ""
+    start: object = 0.0
+
+
+class Simulation:
+    def __init__(self, spec):
+        self.spec = spec
+        p = spec.get("parameters", {})
+        integ = spec.get("integrator", {})
+        self.variables = [
+            Variable("q.x", "input", "continuous", unit="N", description="generalized force on x"),
+            Variable("F_ext.x", "input", "continuous", unit="N", description="force input, x"),
+            Variable("y.x", "output", "continuous", unit="m", description="position"),
+            Variable("yd.x", "output", "continuous", unit="m/s", description="velocity"),
+            Variable("k", "parameter", "tunable", unit="N/m", description="stiffness", start=p.get("k", 4.0)),
+            Variable("c", "parameter", "tunable", unit="N.s/m", description="damping", start=p.get("c", 0.1)),
+            Variable("m", "parameter", "tunable", unit="kg", description="mass", start=p.get("m", 1.0)),
+            Variable("integrator.method", "parameter", "fixed", type="String",
+                     description="integration method", start=integ.get("method", "rk4")),
+            Variable("integrator.rtol", "parameter", "fixed", unit=None,
+                     description="relative tolerance", start=integ.get("rtol", 1e-6)),
+        ]
+        self._byname = {v.name: v for v in self.variables}
+        self.reset()
+
+    def reset(self):
+        self.values = {v.name: v.start for v in self.variables if v.causality != "output"}
+        self.time = 0.0
+        self.x = np.array([float(self.spec.get("x0", 1.0)), 0.0])
+
+    def set(self, name, value):
+        if name not in self.values:
+            raise KeyError(name)
+        self.values[name] = value
+
+    def get(self, name):
+        if name == "y.x":
+            return float(self.x[0])
+        if name == "yd.x":
+            return float(self.x[1])
+        return self.values[name]
+
+    def initialize(self, t0):
+        self.time = t0
+        self.x = np.array([float(self.spec.get("x0", 1.0)), 0.0])
+
+    def _f(self, x):
+        v = self.values
+        return np.array([x[1], (v["q.x"] + v["F_ext.x"] - v["c"] * x[1] - v["k"] * x[0]) / v["m"]])
+
+    def do_step(self, t, h):
+        n = max(1, int(math.ceil(h / 1e-3)))
+        dt = h / n
+        x = self.x.copy()
+        for i in range(n):
+            k1 = self._f(x); k2 = self._f(x + dt / 2 * k1); k3 = self._f(x + dt / 2 * k2); k4 = self._f(x + dt * k3)
+            x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            if not np.all(np.isfinite(x)) or abs(x[0]) > 1e6:
+                raise IntegrationError("state diverged", t + i * dt)
+        self.x = x
+        self.time = t + h
+
+    def get_state(self):
+        return copy.deepcopy({"x": self.x, "time": self.time, "values": self.values})
+
+    def set_state(self, s):
+        s = copy.deepcopy(s)
+        self.x, self.time, self.values = s["x"], s["time"], s["values"]
+'''
+
+
+def stub_spec(name="osc", **extra):
+    spec = {
+        "name": name,
+        "description": f"stub oscillator {name}",
+        "parameters": {"k": 4.0, "c": 0.1, "m": 1.0},
+        "bodies": {"mass": {"parent": "world"}},
+        "integrator": {"method": "rk4", "rtol": 1e-6},
+        "experiment": {"start": 0.0, "stop": 2.0, "step": 0.01},
+    }
+    spec.update(extra)
+    return spec
+
+
+@pytest.fixture(scope="module")
+def stub_root(tmp_path_factory):
+    """A fake package root: real errors.py, stub simulation.py, plus parts that must not be copied."""
+    root = tmp_path_factory.mktemp("stubpkg")
+    shutil.copy(PKG / "errors.py", root / "errors.py")
+    (root / "simulation.py").write_text(STUB_SIMULATION)
+    (root / "equations").mkdir()
+    (root / "equations" / "__init__.py").write_text("from ..errors import ModelError  # noqa\n")
+    (root / "bodies").mkdir()
+    (root / "bodies" / "__init__.py").write_text('"""elastic bodies"""\nimport numpy  # noqa\n')
+    (root / "scene").mkdir()
+    (root / "scene" / "__init__.py").write_text("import yaml  # noqa\n")
+    (root / "cli.py").write_text("import matplotlib  # noqa\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def osc_fmu(stub_root, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fmu")
+    return build_fmu(stub_spec("osc"), out, runtime_root=stub_root)
+
+
+def test_validates_clean(osc_fmu):
+    assert osc_fmu.name == "osc.fmu"
+    assert validate_fmu(str(osc_fmu)) == []
+
+
+def test_model_description(osc_fmu):
+    md = read_model_description(str(osc_fmu))
+    assert md.fmiVersion == "2.0"
+    assert md.modelName == "osc"
+    assert md.generationTool.startswith("mbsfmu ")
+    cs = md.coSimulation
+    assert cs.modelIdentifier == "osc"
+    assert cs.canHandleVariableCommunicationStepSize
+    assert cs.canGetAndSetFMUstate and cs.canSerializeFMUstate
+    de = md.defaultExperiment
+    assert (float(de.startTime), float(de.stopTime), float(de.stepSize)) == (0.0, 2.0, 0.01)
+    assert float(de.tolerance) == 1e-6
+    names = [v.name for v in md.modelVariables]
+    assert names == ["q.x", "F_ext.x", "y.x", "yd.x", "k", "c", "m", "integrator.method", "integrator.rtol"]
+    byname = {v.name: v for v in md.modelVariables}
+    assert byname["y.x"].unit == "m" and byname["y.x"].causality == "output"
+    assert byname["y.x"].initial == "calculated" and byname["y.x"].start is None
+    assert byname["q.x"].causality == "input" and float(byname["q.x"].start) == 0.0
+    assert byname["k"].variability == "tunable" and float(byname["k"].start) == 4.0
+    s = byname["integrator.method"]
+    assert (s.type, s.variability, s.start) == ("String", "fixed", "rk4")
+    assert all(v.description for v in md.modelVariables)
+    assert [u.name for u in md.unitDefinitions] == ["N", "m", "m/s", "N/m", "N.s/m", "kg"]
+    assert [u.variable.name for u in md.outputs] == ["y.x", "yd.x"]
+    assert [u.variable.name for u in md.initialUnknowns] == ["y.x", "yd.x"]
+    assert all(u.dependencies == [] for u in md.outputs + md.initialUnknowns)
+    # dependencies="" is written explicitly (no feedthrough), not left out
+    xml = zipfile.ZipFile(osc_fmu).read("modelDescription.xml").decode()
+    root = ET.fromstring(xml)
+    for u in root.find("ModelStructure").iter("Unknown"):
+        assert u.get("dependencies") == ""
+
+
+def test_runtime_copy(osc_fmu):
+    names = zipfile.ZipFile(osc_fmu).namelist()
+    rt = [n for n in names if re.match(r"resources/mbsfmu_rt_[0-9a-f]+/", n)]
+    assert rt, names
+    pkg = rt[0].split("/")[1]
+    assert f"resources/{pkg}/simulation.py" in names
+    assert f"resources/{pkg}/errors.py" in names
+    assert f"resources/{pkg}/equations/__init__.py" in names
+    assert not [n for n in names if "/bodies/" in n or "/scene/" in n or n.endswith("cli.py")]
+    assert "resources/mbsfmu_spec.json" in names
+    scripts = [n for n in names if re.fullmatch(r"resources/mbsfmu_osc_[0-9a-f]+\.py", n)]
+    assert len(scripts) == 1
+    slavemodule = zipfile.ZipFile(osc_fmu).read("resources/slavemodule.txt").decode().strip()
+    assert f"resources/{slavemodule}.py" == scripts[0]
+    z = zipfile.ZipFile(osc_fmu)
+    sources = {n: z.read(n) for n in names if n.startswith(f"resources/{pkg}/")}
+    assert forbidden_imports(sources) == []
+
+
+def test_elastic_scene_gets_bodies(stub_root, tmp_path):
+    spec = stub_spec("flex", bodies={"beam": {"parent": "world", "elastic": {"beam": {"length": 1}}}})
+    fmu = build_fmu(spec, tmp_path, runtime_root=stub_root)
+    names = zipfile.ZipFile(fmu).namelist()
+    assert [n for n in names if n.endswith("/bodies/__init__.py")]
+
+
+def _signal(t, name, value):
+    return np.array([(ti, value(ti)) for ti in t], dtype=[("time", np.float64), (name, np.float64)])
+
+
+def test_simulate_with_input(osc_fmu):
+    t = np.linspace(0, 2, 11)
+    res = simulate_fmu(str(osc_fmu), stop_time=2.0, step_size=0.01,
+                       input=_signal(t, "q.x", lambda ti: 4.0), output=["y.x", "yd.x"])
+    # constant force 4 N on k=4: oscillation about x=1 from x0=1 -> stays at 1
+    assert res["time"][-1] == pytest.approx(2.0)
+    assert np.allclose(res["y.x"], 1.0, atol=1e-9)
+    res0 = simulate_fmu(str(osc_fmu), stop_time=2.0, step_size=0.01, output=["y.x"],
+                        start_values={"k": 9.0, "c": 0.0})
+    tt = res0["time"]
+    assert np.allclose(res0["y.x"], np.cos(3.0 * tt), atol=1e-6)
+
+
+def test_nan_input_discards_and_host_survives(osc_fmu):
+    sig = np.array([(0.0, 0.0), (0.5, 0.0), (0.5, math.nan), (2.0, math.nan)],
+                   dtype=[("time", np.float64), ("q.x", np.float64)])
+    messages = []
+
+    def logger(component, instance, status, category, message):
+        messages.append((status, category.decode(), message.decode()))
+
+    # The FMU answers fmi2Discard and reports fmi2Terminated; fmpy then ends the run at the last
+    # successful time (t = 0.5) instead of raising.
+    res = simulate_fmu(str(osc_fmu), stop_time=2.0, step_size=0.01, input=sig, output=["y.x"],
+                       debug_logging=True, logger=logger)
+    assert res["time"][-1] == pytest.approx(0.5)
+    assert np.isfinite(res["y.x"]).all()
+    assert (2, "logStatusDiscard", "t=0.5: refusing to step: non-finite input q.x") in messages
+    # the host (this process) and the FMU are still usable
+    res = simulate_fmu(str(osc_fmu), stop_time=0.1, step_size=0.01, output=["y.x"])
+    assert np.isfinite(res["y.x"]).all()
+
+
+def _instantiate(fmu_path, tmp_path, tag):
+    md = read_model_description(str(fmu_path))
+    unzipdir = fmpy.extract(str(fmu_path), str(tmp_path / tag))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=tag)
+    fmu.instantiate()
+    vrs = {v.name: v.valueReference for v in md.modelVariables}
+    return fmu, vrs
+
+
+def test_two_fmus_in_one_process(stub_root, tmp_path):
+    a = build_fmu(stub_spec("osc_a"), tmp_path / "a", runtime_root=stub_root)
+    b = build_fmu(stub_spec("osc_b", x0=2.0), tmp_path / "b", runtime_root=stub_root)
+    fa, va = _instantiate(a, tmp_path, "a")
+    fb, vb = _instantiate(b, tmp_path, "b")
+    fb.setReal([vb["k"]], [9.0])
+    fa.setReal([va["c"]], [0.0])
+    fb.setReal([vb["c"]], [0.0])
+    for f in (fa, fb):
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        f.exitInitializationMode()
+    t, h = 0.0, 0.01
+    for _ in range(100):
+        fa.doStep(t, h)
+        fb.doStep(t, h)
+        t += h
+    ya = fa.getReal([va["y.x"]])[0]
+    yb = fb.getReal([vb["y.x"]])[0]
+    assert ya == pytest.approx(math.cos(2.0 * t), abs=1e-8)
+    assert yb == pytest.approx(2.0 * math.cos(3.0 * t), abs=1e-8)
+    assert fa.getString([va["integrator.method"]]) == [b"rk4"]
+    for f in (fa, fb):
+        f.terminate()
+        f.freeInstance()
+
+
+def test_fmu_state_roundtrip(osc_fmu, tmp_path):
+    f, vr = _instantiate(osc_fmu, tmp_path, "st")
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    t, h = 0.0, 0.05
+    for _ in range(5):
+        f.doStep(t, h)
+        t += h
+    state = f.getFMUstate()
+    blob = f.serializeFMUstate(state)
+    y_mid = f.getReal([vr["y.x"]])[0]
+    for _ in range(5):
+        f.doStep(t, h)
+        t += h
+    y_end = f.getReal([vr["y.x"]])[0]
+    f.setFMUstate(state)
+    assert f.getReal([vr["y.x"]])[0] == y_mid
+    t = 0.25
+    for _ in range(5):
+        f.doStep(t, h)
+        t += h
+    assert f.getReal([vr["y.x"]])[0] == y_end
+    state2 = f.deSerializeFMUstate(blob)
+    f.setFMUstate(state2)
+    assert f.getReal([vr["y.x"]])[0] == y_mid
+    f.freeFMUstate(state)
+    f.freeFMUstate(state2)
+    f.terminate()
+    f.freeInstance()
+
+
+def test_integration_error_is_discard(osc_fmu, tmp_path):
+    from fmpy.fmi2 import fmi2LastSuccessfulTime
+    from fmpy.fmi1 import FMICallException
+    f, vr = _instantiate(osc_fmu, tmp_path, "div")
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setReal([vr["k"]], [-400.0])   # unstable: |x| > 1e6 after about 0.7 s
+    f.exitInitializationMode()
+    t = 0.0
+    with pytest.raises(FMICallException) as err:
+        for _ in range(100):
+            f.doStep(t, 0.1)
+            t += 0.1
+    assert err.value.status == 2  # fmi2Discard
+    assert t > 0  # some steps succeeded first
+    assert f.getRealStatus(fmi2LastSuccessfulTime) == pytest.approx(t)
+    # the instance is still alive: state can be read, parameters changed, and it terminates cleanly
+    assert isinstance(f.getReal([vr["y.x"]])[0], float)
+    f.terminate()
+    f.freeInstance()
+
+
+def test_generated_script_is_template_free(osc_fmu):
+    z = zipfile.ZipFile(osc_fmu)
+    mod = z.read("resources/slavemodule.txt").decode().strip()
+    src = z.read(f"resources/{mod}.py").decode()
+    assert "@" not in src.replace("@staticmethod", "")
+    assert re.search(r"^class (\w+)\(\s*Fmi2Slave\s*\)\s*:", src, re.M)
+
+
+# --- with the real runtime -------------------------------------------------------------------
+
+def _real_runtime_available():
+    return (PKG / "simulation.py").exists() and (PKG / "scene" / "__init__.py").exists()
+
+
+REAL_SCENE = textwrap.dedent("""\
+    mbsfmu: 1
+    name: fmu_pendulum
+    description: Pendulum for the FMU tests
+    parameters:
+      L: 1.0
+      m: {value: 1.0, description: mass}
+    bodies:
+      link:
+        parent: world
+        joint: {type: revolute, axis: [0, 1, 0], coordinates: [phi], initial: {phi: 0.5}}
+        mass: m
+        center_of_mass: [0, 0, -L]
+        inertia: {xx: 1e-3, yy: 1e-3, zz: 1e-3}
+    integrator: {method: dopri5, rtol: 1e-8, atol: 1e-10}
+    experiment: {start: 0, stop: 1, step: 0.01}
+    """)
+
+
+@pytest.fixture(scope="module")
+def real_fmu(tmp_path_factory):
+    if not _real_runtime_available():
+        pytest.skip("mbsfmu.simulation / mbsfmu.scene not available yet")
+    d = tmp_path_factory.mktemp("real")
+    path = d / "fmu_pendulum.yaml"
+    path.write_text(REAL_SCENE)
+    return build_fmu(path, d / "out")
+
+
+def test_real_validates_and_simulates(real_fmu):
+    assert validate_fmu(str(real_fmu)) == []
+    md = read_model_description(str(real_fmu))
+    names = {v.name for v in md.modelVariables}
+    assert {"q.phi", "y.phi", "yd.phi", "L", "m", "integrator.method", "integrator.rtol"} <= names
+    z = zipfile.ZipFile(real_fmu)
+    assert not [n for n in z.namelist() if "/bodies/" in n or "/scene/" in n]
+    t = np.linspace(0, 1, 3)
+    res = simulate_fmu(str(real_fmu), stop_time=1.0, step_size=0.01,
+                       input=_signal(t, "q.phi", lambda ti: 0.0), output=["y.phi", "yd.phi"])
+    assert res["y.phi"][0] == pytest.approx(0.5)
+    assert np.isfinite(res["y.phi"]).all()
+    assert abs(res["y.phi"]).max() <= 0.5 + 1e-6
