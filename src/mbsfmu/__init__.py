@@ -1,0 +1,38 @@
+"""mbsfmu: multibody scenes (YAML) → equations of motion → FMI 2.0 co-simulation FMUs.
+
+Build-time parts (YAML, FMU packaging) are imported lazily, so the run time inside an FMU
+imports only numpy/scipy.
+"""
+
+from .errors import IntegrationError, ModelError
+
+__version__ = "0.1.0"
+__all__ = ["load", "loads", "compile", "build_fmu", "ModelError", "IntegrationError", "__version__"]
+
+
+def load(path):
+    """Read and validate a scene file; raises ModelError with file:line, key and a hint."""
+    from .scene import load as _load
+    return _load(path)
+
+
+def loads(text, file="<string>"):
+    """Validate a scene given as YAML text."""
+    from .scene import loads as _loads
+    return _loads(text, file=file)
+
+
+def compile(scene):
+    """Scene (or path, or normalized spec dict) → scene-specific Evaluator of M, k, q."""
+    from .equations import Evaluator
+    if isinstance(scene, dict):
+        return Evaluator(scene)
+    if not hasattr(scene, "spec"):
+        scene = load(scene)
+    return Evaluator(scene.spec)
+
+
+def build_fmu(scene, outdir=".", **options):
+    """Build `<outdir>/<name>.fmu` from a scene file or loaded scene; returns its path."""
+    from .fmu.build import build_fmu as _build
+    return _build(scene, outdir, **options)

@@ -1,0 +1,1 @@
+"""Rotations and joint motion (joint-frame kinematics)."""

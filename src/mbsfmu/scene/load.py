@@ -1,0 +1,589 @@
+"""Scene files → validated, normalized scene (`Scene.spec`, plain JSON data that the run time compiles).
+
+Every check raises ModelError with the file, the line, the key path and what would be valid.
+"""
+
+import difflib
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ModelError
+from ..expr import FUNCTIONS, ExprError, parse
+from .yaml_lines import Map, Seq, read_yaml
+
+JOINT_TYPES = ("fixed", "revolute", "prismatic", "cylindrical", "universal", "planar", "spherical", "free")
+FORCE_TYPES = ("spring_damper", "joint_spring_damper", "force", "torque")
+METHODS = ("auto", "rk4", "dopri5", "dop853", "radau5", "gen_alpha")
+TOP_KEYS = ("mbsfmu", "name", "description", "gravity", "parameters", "bodies", "forces", "integrator",
+            "experiment", "outputs")
+RESERVED = {"t", "pi", "world", "q", "y", "yd", "integrator"}
+_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+_COORD = re.compile(r"^[A-Za-z][A-Za-z0-9_.]*$")
+
+
+class Scene:
+    """A validated scene: `spec` (normalized, JSON-able), `name`, `path`."""
+
+    def __init__(self, spec, path=None):
+        self.spec, self.path, self.name = spec, path, spec["name"]
+
+    def __repr__(self):
+        return f"<Scene {self.name} ({len(self.spec['bodies'])} bodies)>"
+
+
+def load(path):
+    """Read and validate a scene file (see ../shared/model-format.md)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ModelError(f"cannot read scene file: {e.strerror}", file=str(path)) from None
+    return loads(text, file=str(path), base=path.parent)
+
+
+def loads(text, file="<string>", base=None):
+    """Validate a scene given as YAML text."""
+    root = read_yaml(text, file)
+    spec = _Checker(file, Path(base) if base else Path.cwd()).scene(root)
+    json.dumps(spec)  # the run time gets the spec as JSON: it must stay plain data
+    return Scene(spec, file)
+
+
+def _suggest(word, valid):
+    close = difflib.get_close_matches(str(word), list(valid), n=1)
+    hint = f"did you mean '{close[0]}'? " if close else ""
+    return hint + "valid: " + ", ".join(str(v) for v in valid)
+
+
+class _Checker:
+    """Walks the YAML tree; `self.fail(node, key, ...)` reports the key's own line."""
+
+    def __init__(self, file, base):
+        self.file, self.base = file, base
+        self.params = {}
+
+    # -- reporting ---------------------------------------------------------------------------------
+    def fail(self, parent, key, path, message, hint=None):
+        line = None
+        if isinstance(parent, (Map, Seq)):
+            line = parent.lines.get(key, parent.line)
+        raise ModelError(message, file=self.file, line=line, key=path, hint=hint)
+
+    def keys(self, node, path, allowed, required=()):
+        if not isinstance(node, Map):
+            raise ModelError("expected a mapping", file=self.file, line=getattr(node, "line", None), key=path)
+        for k in node:
+            if k not in allowed:
+                self.fail(node, k, f"{path}.{k}" if path else k, f"unknown key '{k}'", _suggest(k, allowed))
+        for k in required:
+            if k not in node:
+                raise ModelError(f"missing required key '{k}'", file=self.file, line=node.line, key=path or None)
+
+    # -- values ------------------------------------------------------------------------------------
+    def number(self, parent, key, path, allow_t=False, positive=False, nonneg=False):
+        """A numeric field: number or expression over parameters (and `t` where allowed) → JSON value."""
+        value = parent[key]
+        try:
+            e = parse(value)
+        except ExprError as err:
+            self.fail(parent, key, path, str(err))
+        allowed = set(self.params) | ({"t"} if allow_t else set())
+        for name in e.names:
+            if name not in allowed:
+                hint = "'t' is only allowed in drives and force values" if name == "t" else _suggest(name, sorted(self.params) or ["(no parameters defined)"])
+                self.fail(parent, key, path, f"unknown name '{name}'", hint)
+        env = dict(self.params, t=0.0)
+        try:
+            v = e(env)
+        except (ValueError, ZeroDivisionError, OverflowError, TypeError) as err:
+            self.fail(parent, key, path, f"cannot evaluate '{e.text}': {err}")
+        if not math.isfinite(v):
+            self.fail(parent, key, path, f"'{e.text}' is not finite")
+        if positive and not v > 0:
+            self.fail(parent, key, path, f"must be positive, got {v:g}")
+        if nonneg and v < 0:
+            self.fail(parent, key, path, f"must not be negative, got {v:g}")
+        return float(value) if isinstance(value, (int, float)) else value
+
+    def value(self, spec_value):
+        """Nominal numeric value of a normalized field."""
+        return parse(spec_value)(dict(self.params, t=0.0))
+
+    def vector(self, parent, key, path, n=3, nonzero=False, allow_t=False):
+        v = parent[key]
+        if not isinstance(v, list) or len(v) != n:
+            self.fail(parent, key, path, f"expected a list of {n} numbers, got {v!r}")
+        out = [self.number(v, i, f"{path}[{i}]", allow_t=allow_t) for i in range(n)]
+        if nonzero and not np.any([self.value(x) for x in out]):
+            self.fail(parent, key, path, "must not be the zero vector")
+        return out
+
+    def matrix(self, parent, key, path):
+        m = parent[key]
+        if not isinstance(m, list) or len(m) != 3 or not all(isinstance(r, list) and len(r) == 3 for r in m):
+            self.fail(parent, key, path, "expected a 3x3 list of lists")
+        return [[self.number(m[i], j, f"{path}[{i}][{j}]") for j in range(3)] for i in range(3)]
+
+    def rotation(self, parent, key, path):
+        """`{axis, angle}` or `{matrix}` (a proper rotation) → normalized dict."""
+        node = parent[key]
+        self.keys(node, path, ("axis", "angle", "matrix"))
+        if "matrix" in node:
+            if len(node) != 1:
+                self.fail(parent, key, path, "give either 'matrix' or 'axis' and 'angle'")
+            m = self.matrix(node, "matrix", path + ".matrix")
+            R = np.array([[self.value(x) for x in row] for row in m])
+            if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
+                self.fail(node, "matrix", path + ".matrix", "is not a proper rotation (orthonormal columns, determinant +1)")
+            return {"matrix": m}
+        if "axis" not in node or "angle" not in node:
+            self.fail(parent, key, path, "a rotation needs 'axis' and 'angle' (radians), or 'matrix'")
+        return {"axis": self.vector(node, "axis", path + ".axis", nonzero=True), "angle": self.number(node, "angle", path + ".angle")}
+
+    def name(self, parent, key, path, pattern=_NAME, what="a name"):
+        v = parent[key]
+        if not isinstance(v, str) or not pattern.match(v):
+            self.fail(parent, key, path, f"'{v}' is not valid as {what}", "letters, digits, underscore; starts with a letter")
+        return v
+
+    # -- the scene ---------------------------------------------------------------------------------
+    def scene(self, root):
+        if not isinstance(root, Map):
+            raise ModelError("a scene file is a YAML mapping with at least 'mbsfmu', 'name' and 'bodies'", file=self.file, line=1)
+        self.keys(root, "", TOP_KEYS, required=("mbsfmu", "name", "bodies"))
+        if root["mbsfmu"] != 1:
+            self.fail(root, "mbsfmu", "mbsfmu", f"unsupported format version {root['mbsfmu']!r}", "this mbsfmu reads version 1")
+        spec = {"mbsfmu": 1, "name": self.name(root, "name", "name", what="a model name")}
+        spec["description"] = str(root.get("description") or "")
+        spec["parameters"] = self.parameters(root)
+        spec["gravity"] = self.vector(root, "gravity", "gravity") if "gravity" in root else [0.0, 0.0, -9.81]
+        spec["bodies"] = self.bodies(root)
+        self.coords = {}
+        for b in spec["bodies"]:
+            for c in b["joint"]["coordinates"] + b["joint"]["velocities"] + (b["elastic"]["coordinates"] if b["elastic"] else []):
+                self.coords.setdefault(c, b)
+        spec["forces"] = self.forces(root, spec)
+        spec["outputs"] = self.outputs(root, spec)
+        spec["integrator"] = self.integrator(root)
+        spec["experiment"] = self.experiment(root)
+        return spec
+
+    def parameters(self, root):
+        out = []
+        node = root.get("parameters") or Map()
+        if not isinstance(node, Map):
+            self.fail(root, "parameters", "parameters", "expected a mapping of name: value")
+        for name, v in node.items():
+            path = f"parameters.{name}"
+            self.name(Map({name: name}), name, path, what="a parameter name")
+            if name in RESERVED or name in FUNCTIONS:
+                self.fail(node, name, path, f"'{name}' is reserved", "choose another parameter name")
+            desc = ""
+            if isinstance(v, Map):
+                self.keys(v, path, ("value", "description"), required=("value",))
+                desc, v = str(v.get("description", "")), v["value"]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                self.fail(node, name, path, f"a parameter value must be a finite number, got {v!r}")
+            self.params[name] = float(v)
+            out.append({"name": name, "value": float(v), "description": desc})
+        return out
+
+    def bodies(self, root):
+        node = root["bodies"]
+        if not isinstance(node, Map) or not node:
+            self.fail(root, "bodies", "bodies", "expected a non-empty mapping of body name: body")
+        names = list(node)
+        for n in names:
+            if not _NAME.match(n) or n == "world":
+                self.fail(node, n, f"bodies.{n}", f"'{n}' is not valid as a body name", "letters, digits, underscore; starts with a letter; not 'world'")
+        out = [self.body(node, n) for n in names]
+        # every chain of parents must end at world (no cycles)
+        parent = {b["name"]: b["parent"] for b in out}
+        for n in names:
+            seen, p = [n], parent[n]
+            while p != "world":
+                if p in seen:
+                    self.fail(node[n], "parent", f"bodies.{n}.parent", "the parents form a cycle: " + " -> ".join(seen + [p]), "every body must hang from world through a chain of parents")
+                seen.append(p)
+                p = parent[p]
+        coords = {}
+        for b in out:
+            for c in b["joint"]["coordinates"] + b["joint"]["velocities"] + (b["elastic"]["coordinates"] if b["elastic"] else []):
+                if c in coords and coords[c] != b["name"]:
+                    self.fail(node[b["name"]], "joint", f"bodies.{b['name']}", f"coordinate name '{c}' is used by body '{coords[c]}' too", "coordinate names must be unique")
+                coords[c] = b["name"]
+        return out
+
+    def body(self, bodies, name):
+        node, path = bodies[name], f"bodies.{name}"
+        self.keys(node, path, ("parent", "joint", "mass", "center_of_mass", "inertia", "elastic", "description"), required=("parent", "joint"))
+        parent = node["parent"]
+        if parent != "world" and parent not in bodies:
+            self.fail(node, "parent", path + ".parent", f"unknown parent '{parent}'", _suggest(parent, ["world"] + list(bodies)))
+        if parent == name:
+            self.fail(node, "parent", path + ".parent", "a body cannot be its own parent")
+        b = {"name": name, "parent": parent, "description": str(node.get("description", ""))}
+        b["mass"] = self.number(node, "mass", path + ".mass", nonneg=True) if "mass" in node else 0.0
+        b["center_of_mass"] = self.vector(node, "center_of_mass", path + ".center_of_mass") if "center_of_mass" in node else [0.0] * 3
+        b["inertia"] = self.inertia(node, path) if "inertia" in node else [[0.0] * 3 for _ in range(3)]
+        b["joint"] = self.joint(node, path, name, bodies)
+        b["elastic"] = self.elastic(node, path, name) if "elastic" in node else None
+        return b
+
+    def inertia(self, node, path):
+        key, path = "inertia", path + ".inertia"
+        v = node[key]
+        if isinstance(v, Map):
+            self.keys(v, path, ("xx", "yy", "zz", "xy", "xz", "yz"))
+            g = {k: (self.number(v, k, f"{path}.{k}") if k in v else 0.0) for k in ("xx", "yy", "zz", "xy", "xz", "yz")}
+            m = [[g["xx"], g["xy"], g["xz"]], [g["xy"], g["yy"], g["yz"]], [g["xz"], g["yz"], g["zz"]]]
+        else:
+            m = self.matrix(node, key, path)
+        I = np.array([[self.value(x) for x in row] for row in m])
+        if not np.allclose(I, I.T, rtol=1e-9, atol=1e-12):
+            self.fail(node, key, path, "the inertia tensor must be symmetric")
+        lam = np.linalg.eigvalsh(I)
+        tol = 1e-9 * max(1.0, abs(lam).max())
+        if lam[0] < -tol:
+            self.fail(node, key, path, f"the inertia tensor is not positive semi-definite (principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g})")
+        if lam[0] + lam[1] < lam[2] - tol:
+            self.fail(node, key, path, f"principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g} break the triangle inequality (I1 + I2 >= I3)", "no rigid body has such an inertia")
+        return m
+
+    # -- joints ------------------------------------------------------------------------------------
+    def joint(self, node, path, name, bodies):
+        j, path = node["joint"], path + ".joint"
+        if not isinstance(j, Map):
+            self.fail(node, "joint", path, "expected a mapping with at least 'type'")
+        if "type" not in j:
+            self.fail(node, "joint", path, "missing 'type'", "valid: " + ", ".join(JOINT_TYPES))
+        kind = j["type"]
+        if kind not in JOINT_TYPES:
+            self.fail(j, "type", path + ".type", f"unknown joint type '{kind}'", _suggest(kind, JOINT_TYPES))
+        fields = {"fixed": (), "revolute": ("axis",), "prismatic": ("axis",), "cylindrical": ("axis",),
+                  "universal": ("axes",), "planar": ("axes",), "spherical": ("parameterization",),
+                  "free": ("parameterization",)}[kind]
+        common = ("type", "at", "node", "rotation", "coordinates", "initial", "initial_velocity", "drive")
+        self.keys(j, path, common + fields, required=tuple(f for f in fields if f != "parameterization"))
+        out = {"type": kind}
+        if "at" in j and "node" in j:
+            self.fail(j, "node", path + ".node", "give either 'at' or 'node'")
+        out["at"] = self.vector(j, "at", path + ".at") if "at" in j else [0.0] * 3
+        out["node"] = None
+        if "node" in j:
+            if not isinstance(j["node"], int) or isinstance(j["node"], bool):
+                self.fail(j, "node", path + ".node", "a node index must be an integer (negative counts from the end)")
+            parent = node["parent"]
+            if parent == "world" or "elastic" not in bodies[parent]:
+                self.fail(j, "node", path + ".node", "'node' needs an elastic parent body", "use 'at' on rigid parents")
+            out["node"] = j["node"]
+        out["rotation"] = self.rotation(j, "rotation", path + ".rotation") if "rotation" in j else None
+        if kind in ("revolute", "prismatic", "cylindrical"):
+            out["axis"] = self.vector(j, "axis", path + ".axis", nonzero=True)
+        if kind in ("universal", "planar"):
+            axes = j["axes"]
+            if not isinstance(axes, list) or len(axes) != 2:
+                self.fail(j, "axes", path + ".axes", "expected two axes [a1, a2]")
+            out["axes"] = [self.vector(axes, i, f"{path}.axes[{i}]", nonzero=True) for i in range(2)]
+            a1, a2 = (np.array([self.value(x) for x in a]) for a in out["axes"])
+            c = abs(a1 @ a2) / np.linalg.norm(a1) / np.linalg.norm(a2)
+            if kind == "planar" and c > 1e-9:
+                self.fail(j, "axes", path + ".axes", "the two in-plane axes must be perpendicular")
+            if kind == "universal" and c > 1 - 1e-9:
+                self.fail(j, "axes", path + ".axes", "the two axes of a universal joint must not be parallel")
+        param = j.get("parameterization", "quaternion")
+        if kind in ("spherical", "free"):
+            if param not in ("quaternion", "cardan"):
+                self.fail(j, "parameterization", path + ".parameterization", f"unknown parameterization '{param}'", _suggest(param, ("quaternion", "cardan")))
+            out["parameterization"] = param
+        pos, vel = _default_coordinates(kind, name, param)
+        if "coordinates" in j:
+            given = j["coordinates"]
+            if kind in ("spherical", "free") and param == "quaternion":
+                self.fail(j, "coordinates", path + ".coordinates", "quaternion joints use fixed coordinate names", "names are " + ", ".join(pos) + "; or use parameterization: cardan")
+            if not isinstance(given, list) or len(given) != len(pos):
+                self.fail(j, "coordinates", path + ".coordinates", f"a {kind} joint has {len(pos)} coordinate(s), got {given!r}", "e.g. " + str(pos))
+            for i, c in enumerate(given):
+                self.name(given, i, f"{path}.coordinates[{i}]", pattern=_COORD, what="a coordinate name")
+            if len(set(given)) != len(given):
+                self.fail(j, "coordinates", path + ".coordinates", "coordinate names repeat")
+            pos = vel = list(given)
+        out["coordinates"], out["velocities"] = pos, vel
+        quat = kind in ("spherical", "free") and param == "quaternion"
+        out["initial"], out["initial_velocity"], out["initial_rotation"] = {}, {}, None
+        if "initial" in j:
+            ini = j["initial"]
+            if not isinstance(ini, Map):
+                self.fail(j, "initial", path + ".initial", "expected a mapping coordinate: value")
+            for c in ini:
+                if c == "rotation" and kind in ("spherical", "free"):
+                    out["initial_rotation"] = self.rotation(ini, "rotation", path + ".initial.rotation")
+                elif c in pos and not (quat and c in pos[-4:]):
+                    out["initial"][c] = self.number(ini, c, f"{path}.initial.{c}")
+                else:
+                    valid = [p for p in pos if not (quat and p in pos[-4:])] + (["rotation"] if kind in ("spherical", "free") else [])
+                    self.fail(ini, c, f"{path}.initial.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
+        if "initial_velocity" in j:
+            ini = j["initial_velocity"]
+            if not isinstance(ini, Map):
+                self.fail(j, "initial_velocity", path + ".initial_velocity", "expected a mapping coordinate: value")
+            for c in ini:
+                if c == "omega" and kind in ("spherical", "free"):
+                    for i, v in enumerate(self.vector(ini, "omega", path + ".initial_velocity.omega")):
+                        out["initial_velocity"][vel[-3 + i]] = v
+                elif c == "velocity" and kind == "free":
+                    for i, v in enumerate(self.vector(ini, "velocity", path + ".initial_velocity.velocity")):
+                        out["initial_velocity"][vel[i]] = v
+                elif c in vel:
+                    out["initial_velocity"][c] = self.number(ini, c, f"{path}.initial_velocity.{c}")
+                else:
+                    valid = list(vel) + (["omega"] if kind in ("spherical", "free") else []) + (["velocity"] if kind == "free" else [])
+                    self.fail(ini, c, f"{path}.initial_velocity.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
+        out["drive"] = {}
+        if "drive" in j:
+            d = j["drive"]
+            if not isinstance(d, Map):
+                self.fail(j, "drive", path + ".drive", "expected a mapping coordinate: expression in t")
+            for c in d:
+                if quat:
+                    self.fail(d, c, f"{path}.drive.{c}", "quaternion joints cannot be driven", "drive revolute, prismatic, cylindrical, universal, planar or cardan coordinates")
+                if c not in pos:
+                    self.fail(d, c, f"{path}.drive.{c}", f"unknown coordinate '{c}'", _suggest(c, pos or ["(none)"]))
+                out["drive"][c] = self.number(d, c, f"{path}.drive.{c}", allow_t=True)
+                try:
+                    parse(out["drive"][c]).diff("t").diff("t")
+                except ExprError as err:
+                    self.fail(d, c, f"{path}.drive.{c}", str(err))
+        return out
+
+    # -- elastic bodies ----------------------------------------------------------------------------
+    def elastic(self, node, path, name):
+        e, path = node["elastic"], path + ".elastic"
+        self.keys(e, path, ("beam", "nodal", "damping_ratio", "damping", "coordinates", "dynamic_stiffening", "initial", "initial_velocity"))
+        if ("beam" in e) == ("nodal" in e):
+            self.fail(node, "elastic", path, "give exactly one of 'beam' or 'nodal'")
+        out = {"damping_ratio": self.number(e, "damping_ratio", path + ".damping_ratio", nonneg=True) if "damping_ratio" in e else 0.0,
+               "dynamic_stiffening": bool(e.get("dynamic_stiffening", "beam" in e))}
+        if "damping" in e:
+            out["damping"] = _plain(e["damping"])
+        if "beam" in e:
+            b, bp = e["beam"], path + ".beam"
+            self.keys(b, bp, ("length", "EI", "EA", "GJ", "rhoA", "rhoIp", "elements", "modes", "clamped"), required=("length", "EI", "rhoA"))
+            beam = {"length": self.number(b, "length", bp + ".length", positive=True), "rhoA": self.number(b, "rhoA", bp + ".rhoA", positive=True)}
+            EI = b["EI"] if isinstance(b["EI"], list) else [b["EI"], b["EI"]]
+            if len(EI) != 2:
+                self.fail(b, "EI", bp + ".EI", "give one value or [EI_y, EI_z]")
+            beam["EI"] = [self.number(EI, i, f"{bp}.EI[{i}]", positive=True) for i in range(2)]
+            for k in ("EA", "GJ", "rhoIp"):
+                beam[k] = self.number(b, k, f"{bp}.{k}", positive=True) if k in b else None
+            for k, default in (("elements", 10), ("modes", 4)):
+                v = b.get(k, default)
+                if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                    self.fail(b, k, f"{bp}.{k}", f"must be a positive integer, got {v!r}")
+                beam[k] = v
+            beam["clamped"] = b.get("clamped", "start")
+            if beam["clamped"] not in ("start", "none"):
+                self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition '{beam['clamped']}'", _suggest(beam["clamped"], ("start", "none")))
+            out["beam"] = beam
+            n = beam["modes"]
+        else:
+            nodal = e["nodal"]
+            if isinstance(nodal, Map) and "file" in nodal:
+                f = self.base / str(nodal["file"])
+                try:
+                    with np.load(f) as z:
+                        nodal = {k: z[k].tolist() for k in z.files}
+                except (OSError, ValueError) as err:
+                    self.fail(nodal, "file", path + ".nodal.file", f"cannot read nodal data '{f}': {err}")
+            if not isinstance(nodal, dict):
+                self.fail(e, "nodal", path + ".nodal", "expected a mapping with R_RP, mass, Phi, Psi, stiffness (or file: data.npz)")
+            out["nodal"] = _plain(nodal)
+            try:
+                n = int(np.asarray(nodal["Phi"], dtype=float).shape[2])
+            except (KeyError, IndexError, ValueError):
+                self.fail(e, "nodal", path + ".nodal.Phi", "Phi must be an N x 3 x n array of shape functions")
+        coords = [f"{name}.q{i + 1}" for i in range(n)]
+        if "coordinates" in e:
+            if not isinstance(e["coordinates"], list) or len(e["coordinates"]) != n:
+                self.fail(e, "coordinates", path + ".coordinates", f"expected {n} names (one per mode)")
+            coords = [self.name(e["coordinates"], i, f"{path}.coordinates[{i}]", pattern=_COORD, what="a coordinate name") for i in range(n)]
+        out["coordinates"] = coords
+        for key in ("initial", "initial_velocity"):
+            out[key] = {}
+            for c in e.get(key) or {}:
+                if c not in coords:
+                    self.fail(e[key], c, f"{path}.{key}.{c}", f"unknown elastic coordinate '{c}'", _suggest(c, coords))
+                out[key][c] = self.number(e[key], c, f"{path}.{key}.{c}")
+        return out
+
+    # -- force elements ----------------------------------------------------------------------------
+    def forces(self, root, spec):
+        node = root.get("forces") or Seq()
+        if not isinstance(node, list):
+            self.fail(root, "forces", "forces", "expected a list of force elements")
+        bodies = {b["name"]: b for b in spec["bodies"]}
+        inputs, out = set(), []
+        for i, f in enumerate(node):
+            path = f"forces[{i}]"
+            if not isinstance(f, Map) or "type" not in f:
+                self.fail(node, i, path, "expected a mapping with 'type'", "valid: " + ", ".join(FORCE_TYPES))
+            kind = f["type"]
+            if kind not in FORCE_TYPES:
+                self.fail(f, "type", path + ".type", f"unknown force type '{kind}'", _suggest(kind, FORCE_TYPES))
+            g = {"type": kind}
+            if kind == "spring_damper":
+                self.keys(f, path, ("type", "bodies", "at", "node", "stiffness", "damping", "length"), required=("bodies", "stiffness"))
+                bs = f["bodies"]
+                if not isinstance(bs, list) or len(bs) != 2:
+                    self.fail(f, "bodies", path + ".bodies", "expected two body names [A, B] (world allowed)")
+                for j, b in enumerate(bs):
+                    if b != "world" and b not in bodies:
+                        self.fail(bs, j, f"{path}.bodies[{j}]", f"unknown body '{b}'", _suggest(b, ["world"] + list(bodies)))
+                if bs[0] == bs[1]:
+                    self.fail(f, "bodies", path + ".bodies", "a spring needs two different bodies")
+                g["bodies"] = list(bs)
+                g["at"] = [[0.0] * 3, [0.0] * 3]
+                if "at" in f:
+                    if not isinstance(f["at"], list) or len(f["at"]) != 2:
+                        self.fail(f, "at", path + ".at", "expected two points [[x, y, z], [x, y, z]] in the bodies' frames")
+                    g["at"] = [self.vector(f["at"], j, f"{path}.at[{j}]") for j in range(2)]
+                g["node"] = self.nodes(f, path, bs, bodies)
+                g["stiffness"] = self.number(f, "stiffness", path + ".stiffness", nonneg=True)
+                g["damping"] = self.number(f, "damping", path + ".damping", nonneg=True) if "damping" in f else 0.0
+                g["length"] = self.number(f, "length", path + ".length", nonneg=True) if "length" in f else 0.0
+            elif kind == "joint_spring_damper":
+                self.keys(f, path, ("type", "coordinate", "stiffness", "damping", "offset"), required=("coordinate",))
+                c = f["coordinate"]
+                b = self.coords.get(c)
+                if b is None:
+                    self.fail(f, "coordinate", path + ".coordinate", f"unknown coordinate '{c}'", _suggest(c, sorted(self.coords)))
+                j = b["joint"]
+                if c in j["drive"]:
+                    self.fail(f, "coordinate", path + ".coordinate", f"coordinate '{c}' is driven, so a spring on it does nothing")
+                quat = j["type"] in ("spherical", "free") and j.get("parameterization") == "quaternion"
+                if quat and c not in j["coordinates"][:3 if j["type"] == "free" else 0]:
+                    self.fail(f, "coordinate", path + ".coordinate", f"'{c}' is a quaternion coordinate", "use parameterization: cardan, or a spring_damper between points")
+                if b["elastic"] and c in b["elastic"]["coordinates"]:
+                    self.fail(f, "coordinate", path + ".coordinate", f"'{c}' is an elastic coordinate (its stiffness comes from the body)")
+                g["coordinate"] = c
+                g["stiffness"] = self.number(f, "stiffness", path + ".stiffness", nonneg=True) if "stiffness" in f else 0.0
+                g["damping"] = self.number(f, "damping", path + ".damping", nonneg=True) if "damping" in f else 0.0
+                g["offset"] = self.number(f, "offset", path + ".offset") if "offset" in f else 0.0
+            else:
+                self.keys(f, path, ("type", "body", "at", "node", "value", "input", "frame"), required=("body",))
+                b = f["body"]
+                if b not in bodies:
+                    self.fail(f, "body", path + ".body", f"unknown body '{b}'", _suggest(b, list(bodies)))
+                g["body"] = b
+                if kind == "torque" and ("at" in f or "node" in f) and not bodies[b]["elastic"]:
+                    self.fail(f, "at", path, "a torque acts on the whole rigid body: drop 'at'")
+                g["at"] = self.vector(f, "at", path + ".at") if "at" in f else [0.0] * 3
+                g["node"] = self.nodes(f, path, [b], bodies)[0] if "node" in f else None
+                if ("value" in f) == ("input" in f):
+                    self.fail(f, "type", path, "give exactly one of 'value' (three numbers or expressions in t) or 'input' (an FMU input name)")
+                if "value" in f:
+                    g["value"] = self.vector(f, "value", path + ".value", allow_t=True)
+                else:
+                    name = self.name(f, "input", path + ".input", what="an input name")
+                    if name in inputs or name in self.params:
+                        self.fail(f, "input", path + ".input", f"the name '{name}' is used twice")
+                    inputs.add(name)
+                    g["input"] = name
+                frame = f.get("frame", "world")
+                if frame not in ("world", "body"):
+                    self.fail(f, "frame", path + ".frame", f"unknown frame '{frame}'", _suggest(frame, ("world", "body")))
+                g["frame"] = frame
+            out.append(g)
+        return out
+
+    def nodes(self, f, path, names, bodies):
+        """`node:` on force elements (one index per body) → list (None for 'at' points)."""
+        if "node" not in f:
+            return [None] * len(names)
+        nodes = f["node"] if isinstance(f["node"], list) else [f["node"]]
+        if len(nodes) != len(names):
+            self.fail(f, "node", path + ".node", f"expected {len(names)} node index(es), null for a rigid body")
+        for j, (n, b) in enumerate(zip(nodes, names)):
+            if n is not None and (b == "world" or not bodies[b]["elastic"] or not isinstance(n, int)):
+                self.fail(f, "node", path + ".node", f"node {n!r} on '{b}': nodes exist only on elastic bodies, as integer indices")
+        return list(nodes)
+
+    # -- outputs, integrator, experiment -----------------------------------------------------------
+    def outputs(self, root, spec):
+        node = root.get("outputs") or Seq()
+        if not isinstance(node, list):
+            self.fail(root, "outputs", "outputs", "expected a list of {body, point, quantities, name}")
+        bodies = {b["name"]: b for b in spec["bodies"]}
+        out, names = [], set()
+        for i, o in enumerate(node):
+            path = f"outputs[{i}]"
+            self.keys(o, path, ("body", "point", "node", "quantities", "name"), required=("body",))
+            if o["body"] not in bodies:
+                self.fail(o, "body", path + ".body", f"unknown body '{o['body']}'", _suggest(o["body"], list(bodies)))
+            g = {"body": o["body"], "point": self.vector(o, "point", path + ".point") if "point" in o else [0.0] * 3}
+            g["node"] = self.nodes(o, path, [o["body"]], bodies)[0] if "node" in o else None
+            qs = o.get("quantities", ["position", "velocity"])
+            if not isinstance(qs, list) or not qs:
+                self.fail(o, "quantities", path + ".quantities", "expected a list", "valid: position, velocity")
+            for j, q in enumerate(qs):
+                if q not in ("position", "velocity"):
+                    self.fail(qs, j, f"{path}.quantities[{j}]", f"unknown quantity '{q}'", _suggest(q, ("position", "velocity")))
+            g["quantities"] = list(qs)
+            g["name"] = self.name(o, "name", path + ".name", pattern=_COORD, what="an output name") if "name" in o else o["body"]
+            if g["name"] in names:
+                self.fail(o, "name" if "name" in o else "body", path, f"output name '{g['name']}' is used twice", "give each output its own 'name'")
+            names.add(g["name"])
+            out.append(g)
+        return out
+
+    def integrator(self, root):
+        node = root.get("integrator") or Map()
+        self.keys(node, "integrator", ("method", "rtol", "atol", "max_step", "step", "rho_inf"))
+        method = node.get("method", "auto")
+        if method not in METHODS:
+            self.fail(node, "method", "integrator.method", f"unknown method '{method}'", _suggest(method, METHODS))
+        out = {"method": method}
+        for k, default in (("rtol", 1e-6), ("atol", 1e-8), ("max_step", 0.0), ("step", 0.0), ("rho_inf", 0.8)):
+            out[k] = self.value(self.number(node, k, f"integrator.{k}", positive=k in ("rtol", "atol"), nonneg=True)) if k in node else default
+        if not 0 <= out["rho_inf"] <= 1:
+            self.fail(node, "rho_inf", "integrator.rho_inf", "must lie in [0, 1]")
+        return out
+
+    def experiment(self, root):
+        node = root.get("experiment") or Map()
+        self.keys(node, "experiment", ("start", "stop", "step"))
+        out = {"start": 0.0, "stop": 10.0, "step": 0.01}
+        for k in out:
+            if k in node:
+                out[k] = self.value(self.number(node, k, f"experiment.{k}", positive=k == "step"))
+        if out["stop"] <= out["start"]:
+            self.fail(node, "stop" if "stop" in node else "start", "experiment.stop", f"stop ({out['stop']:g}) must come after start ({out['start']:g})")
+        return out
+
+
+def _default_coordinates(kind, name, param):
+    """Default position and velocity coordinate names of a joint (contract table)."""
+    b = name
+    rot_pos = [f"{b}.q0", f"{b}.q1", f"{b}.q2", f"{b}.q3"] if param == "quaternion" else [f"{b}.a", f"{b}.b", f"{b}.c"]
+    rot_vel = [f"{b}.wx", f"{b}.wy", f"{b}.wz"] if param == "quaternion" else rot_pos
+    table = {"fixed": ([], []), "revolute": ([f"{b}.angle"],) * 2, "prismatic": ([f"{b}.s"],) * 2,
+             "cylindrical": ([f"{b}.s", f"{b}.angle"],) * 2, "universal": ([f"{b}.angle1", f"{b}.angle2"],) * 2,
+             "planar": ([f"{b}.x", f"{b}.y", f"{b}.angle"],) * 2, "spherical": (rot_pos, rot_vel),
+             "free": ([f"{b}.x", f"{b}.y", f"{b}.z"] + rot_pos, [f"{b}.x", f"{b}.y", f"{b}.z"] + rot_vel)}
+    pos, vel = table[kind]
+    return list(pos), list(vel)
+
+
+def _plain(v):
+    """Map/Seq trees → plain dicts/lists (JSON-able)."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v
