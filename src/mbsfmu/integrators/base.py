@@ -1,0 +1,188 @@
+"""Common driver: reset/advance to exact communication points, step-size carry-over, stats, state snapshots."""
+
+import math
+
+import numpy as np
+
+from mbsfmu.errors import IntegrationError
+
+_EPS = np.finfo(float).eps
+# consecutive trial steps with non-finite values tolerated (each shrinks h by 4) before giving up
+_MAX_NONFINITE_TRIALS = 3
+
+
+def new_stats():
+    """Fresh counters shared by all methods."""
+    return {"steps": 0, "rejected": 0, "rhs_evaluations": 0, "jac_evaluations": 0, "lu_decompositions": 0}
+
+
+def deep_copy(v):
+    """Copy numpy arrays inside dicts/lists/tuples so snapshots never alias live buffers."""
+    if isinstance(v, np.ndarray):
+        return v.copy()
+    if isinstance(v, dict):
+        return {k: deep_copy(w) for k, w in v.items()}
+    if isinstance(v, (list, tuple)):
+        return type(v)(deep_copy(w) for w in v)
+    return v
+
+
+class Integrator:
+    """Base class: subclasses implement _start (derivative/initial h) and _attempt (one trial step)."""
+
+    method = None
+    # attributes (besides t, x, h, stats) that influence future results; subclasses extend
+    _state_keys = ()
+
+    def __init__(self, problem, rtol=1e-6, atol=1e-8, max_step=math.inf, h=None, max_steps=1_000_000):
+        if not rtol > 0 or not np.all(np.asarray(atol) >= 0):
+            raise ValueError(f"need rtol > 0 and atol >= 0 (got rtol={rtol}, atol={atol})")
+        if not max_step > 0:
+            raise ValueError(f"max_step must be > 0 (got {max_step})")
+        if h is not None and not h > 0:
+            raise ValueError(f"fixed step h must be > 0 (got {h})")
+        self.problem = problem
+        self.n = int(problem.n)
+        # Hairer caps rtol from below so that the error test never asks for less than ~10 ulp
+        self.rtol = max(float(rtol), 10 * _EPS)
+        self.atol = atol if np.ndim(atol) == 0 else np.asarray(atol, dtype=float)
+        if np.ndim(self.atol) == 0:
+            self.atol = float(self.atol)
+        self.max_step = float(max_step)
+        self.h_fixed = None if h is None else float(h)
+        self.max_steps = int(max_steps)
+        self._normalize = getattr(problem, "normalize", None)
+        self.t = None
+        self.x = None
+        self.h = None
+        self.stats = new_stats()
+        self._nonfinite = 0
+
+    # ---------------------------------------------------------------- public API
+    def reset(self, t0, x0):
+        """Start at (t0, x0) and forget every history item (cached derivatives, step size, Jacobians)."""
+        x0 = np.array(x0, dtype=float).reshape(-1)
+        if x0.size != self.n:
+            raise ValueError(f"initial state has {x0.size} entries, problem.n = {self.n}")
+        if not np.isfinite(x0).all() or not math.isfinite(t0):
+            raise IntegrationError("initial state is not finite", t0)
+        self.t = float(t0)
+        self.x = x0
+        self.h = None
+        self.stats = new_stats()
+        self._nonfinite = 0
+        self._reset_history()
+
+    def inputs_changed(self):
+        """Tell the integrator that f changed discontinuously at the current t (new inputs/parameters)."""
+        # cached derivatives (FSAL stage, f at the step start) are stale; Jacobians are kept because
+        # Newton's convergence monitor refreshes them when they no longer fit
+        self._invalidate_derivative()
+
+    def advance(self, t_end):
+        """Integrate from self.t to exactly t_end; on failure raise IntegrationError at the last good point."""
+        if self.x is None:
+            raise IntegrationError("reset(t0, x0) must be called before advance()")
+        t_end = float(t_end)
+        if not t_end >= self.t:
+            raise IntegrationError(f"cannot integrate backwards (t_end={t_end!r} < t)", self.t)
+        if t_end > self.t:
+            self._advance(t_end)
+        return self.x.copy()
+
+    def get_state(self):
+        """Picklable snapshot of everything that influences future results."""
+        s = {"method": self.method, "t": self.t, "x": self.x, "h": self.h, "stats": self.stats,
+             "_nonfinite": self._nonfinite}
+        for k in self._state_keys:
+            s[k] = getattr(self, k)
+        return deep_copy(s)
+
+    def set_state(self, s):
+        """Restore a get_state() snapshot; continuing afterwards is bit-identical to the original run."""
+        if s.get("method") != self.method:
+            raise ValueError(f"state of method {s.get('method')!r} given to a {self.method!r} integrator")
+        s = deep_copy(s)
+        for k, v in s.items():
+            if k != "method":
+                setattr(self, k, v)
+
+    # ---------------------------------------------------------------- adaptive driver
+    def _advance(self, t_end):
+        """Adaptive loop: proposed h is clipped to hit t_end exactly, but the unclipped h is carried over."""
+        self._start(t_end)
+        min_step = 10 * _EPS * max(abs(self.t), abs(t_end))
+        attempts = 0
+        while self.t < t_end:
+            attempts += 1
+            if attempts > self.max_steps:
+                raise IntegrationError(
+                    f"maximum number of steps ({self.max_steps}) exceeded in one communication interval "
+                    f"(step size {self.h:.3g}); the problem may be stiff — try method radau5 or auto", self.t)
+            t = self.t
+            h_prop = min(self.h, self.max_step)
+            remaining = t_end - t
+            # stretch by up to 1 % rather than leave a tiny last step (Hairer's DOPRI5 does the same)
+            clipped = 1.01 * h_prop >= remaining and remaining <= self.max_step
+            t_new = t_end if clipped else t + h_prop
+            if t_new >= t_end:
+                t_new, clipped = t_end, True
+            h = t_new - t
+            if h < min_step:
+                raise IntegrationError(
+                    f"step size underflow (h={h:.3g}): the tolerance rtol={self.rtol:g}, atol={self.atol} "
+                    "cannot be met — singularity, discontinuity or too strict tolerances", t)
+            x_new = self._attempt(t_new, h)
+            if x_new is None:
+                self.stats["rejected"] += 1
+                continue
+            self._nonfinite = 0
+            if self._normalize is not None:
+                x_new = np.asarray(self._normalize(x_new), dtype=float)
+            self.t, self.x = t_new, x_new
+            self.stats["steps"] += 1
+            self._accepted()
+            # a step shortened to land on the communication point says little about the next step:
+            # keep the earlier, larger proposal unless this step itself asked for a reduction
+            if clipped and h < h_prop and self.h >= h:
+                self.h = max(self.h, h_prop)
+            self.h = min(self.h, self.max_step)
+            if self._stop_early():
+                return
+
+    def _trial_nonfinite(self, h, what="right-hand side"):
+        """A trial step produced NaN/Inf: shrink h a few times (may be a transient overshoot), then fail."""
+        self._nonfinite += 1
+        if self._nonfinite > _MAX_NONFINITE_TRIALS:
+            raise IntegrationError(f"{what} returned non-finite values (NaN or Inf) even for step size "
+                                   f"{h:.3g}", self.t)
+        self.h = 0.25 * h
+        return None
+
+    def _check_start_derivative(self, fx):
+        """The derivative at an accepted point must be finite, otherwise nothing can proceed."""
+        if not np.isfinite(fx).all():
+            raise IntegrationError("right-hand side returned non-finite values (NaN or Inf) at the current state",
+                                   self.t)
+
+    # ---------------------------------------------------------------- subclass hooks
+    def _reset_history(self):
+        """Drop method-specific history (called by reset)."""
+
+    def _invalidate_derivative(self):
+        """Drop cached derivatives (called by inputs_changed)."""
+
+    def _start(self, t_end):
+        """Make sure the derivative at (t, x) and a proposed step size self.h exist."""
+        raise NotImplementedError
+
+    def _attempt(self, t_new, h):
+        """One trial step to t_new = t + h: return x_new if accepted (and set self.h), else None."""
+        raise NotImplementedError
+
+    def _accepted(self):
+        """Hook after (t, x) moved to the accepted (normalized) point."""
+
+    def _stop_early(self):
+        """True makes _advance return before t_end (used by 'auto' to switch method)."""
+        return False

@@ -1,0 +1,90 @@
+"""DOP853: Dormand–Prince 8(5,3) with Hairer's combined 5th/3rd-order error estimate, FSAL."""
+
+import math
+
+import numpy as np
+
+from . import dop853_tables as T
+from .base import Integrator
+from .erk import erk_stages
+from .initial_step import initial_step
+
+S = T.N_STAGES  # 12 stages; the 13th row of K holds the FSAL stage f(t+h, x_new)
+A = np.ascontiguousarray(T.A[:S, :S])
+C = np.ascontiguousarray(T.C[:S])
+B = np.ascontiguousarray(T.B)
+E3 = np.ascontiguousarray(T.E3)
+E5 = np.ascontiguousarray(T.E5)
+
+# Hairer's DOP853 defaults: safety 0.9, 1/3 <= hnew/h <= 6, no PI part (beta = 0), exponent 1/8
+SAFE, FAC1, FAC2, EXPO1 = 0.9, 0.333, 6.0, 1.0 / 8.0
+
+
+def dop853_error(K, h, sc):
+    """Hairer's estimate: |h|·‖e5‖² / sqrt(‖e5‖² + 0.01‖e3‖²) in the RMS sense (robust for large h)."""
+    e5 = (E5 @ K) / sc
+    e3 = (E3 @ K) / sc
+    n5 = e5.dot(e5)
+    n3 = e3.dot(e3)
+    if n5 == 0.0 and n3 == 0.0:
+        return 0.0
+    return abs(h) * n5 / math.sqrt((n5 + 0.01 * n3) * sc.size)
+
+
+class Dop853(Integrator):
+    """Explicit 8th-order pair for smooth problems at tight tolerances."""
+
+    method = "dop853"
+    _state_keys = ("k1", "last_rejected")
+    order = 7  # HINIT uses the error-estimator order
+
+    def __init__(self, problem, **kw):
+        super().__init__(problem, **kw)
+        self._K = np.empty((S + 1, self.n))
+        self._reset_history()
+
+    def _reset_history(self):
+        """Forget FSAL stage and rejection flag."""
+        self.k1 = None
+        self.last_rejected = False
+
+    def _invalidate_derivative(self):
+        """New inputs: the FSAL stage is stale."""
+        self.k1 = None
+
+    def _start(self, t_end):
+        """f(t, x) unless cached; HINIT on the very first call only."""
+        if self.k1 is None:
+            self.k1 = self.problem.f(self.t, self.x)
+            self.stats["rhs_evaluations"] += 1
+            self._check_start_derivative(self.k1)
+        if self.h is None:
+            self.h, nf = initial_step(self.problem.f, self.t, self.x, self.k1, self.order,
+                                      self.rtol, self.atol, self.max_step, t_end)
+            self.stats["rhs_evaluations"] += nf
+
+    def _attempt(self, t_new, h):
+        """One DOP853 step (12 stages + FSAL) with error test and I-controller."""
+        f, t, x, K = self.problem.f, self.t, self.x, self._K
+        K[0] = self.k1
+        erk_stages(f, t, x, h, A, C, K, S)
+        x_new = x + (h * B) @ K[:S]
+        K[S] = f(t_new, x_new)
+        self.stats["rhs_evaluations"] += S
+        sc = self.atol + self.rtol * np.maximum(np.abs(x), np.abs(x_new))
+        err = dop853_error(K, h, sc)
+        if not math.isfinite(err):
+            return self._trial_nonfinite(h)
+        fac11 = err ** EXPO1
+        fac = max(1.0 / FAC2, min(1.0 / FAC1, fac11 / SAFE))
+        if err > 1.0:
+            self.h = h / min(1.0 / FAC1, fac11 / SAFE)
+            self.last_rejected = True
+            return None
+        h_new = h / fac
+        if self.last_rejected:
+            h_new = min(h_new, h)
+        self.last_rejected = False
+        self.h = h_new
+        self.k1 = K[S].copy()
+        return x_new
