@@ -344,6 +344,35 @@ def test_integration_error_is_discard(osc_fmu, tmp_path):
     f.freeInstance()
 
 
+def test_bad_parameter_and_fixed_parameter(osc_fmu, tmp_path):
+    from fmpy.fmi1 import FMICallException
+    # loggingOn stays off here: fmpy's C logger proxy keeps a global pointer to the last custom
+    # logger (freed after the simulate_fmu call in the NaN test), so logging with the default
+    # callbacks afterwards crashes in fmpy itself.
+    f, vr = _instantiate(osc_fmu, tmp_path, "bad")
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.setReal([vr["m"]], [math.inf])
+    f.exitInitializationMode()       # reported through the logger, the step is then discarded
+    with pytest.raises(FMICallException) as err:
+        f.doStep(0.0, 0.01)
+    assert err.value.status == 2
+    f.terminate()
+    f.freeInstance()
+
+    f, vr = _instantiate(osc_fmu, tmp_path, "fixed")
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    f.setReal([vr["integrator.rtol"]], [1e-3])  # fixed: ignored (warning) after initialization
+    assert f.getReal([vr["integrator.rtol"]]) == [1e-6]
+    f.setReal([vr["k"]], [9.0])                 # tunable: takes effect
+    assert f.getReal([vr["k"]]) == [9.0]
+    f.doStep(0.0, 0.01)
+    f.terminate()
+    f.freeInstance()
+
+
 def test_generated_script_is_template_free(osc_fmu):
     z = zipfile.ZipFile(osc_fmu)
     mod = z.read("resources/slavemodule.txt").decode().strip()
