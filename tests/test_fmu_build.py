@@ -138,6 +138,8 @@ def stub_root(tmp_path_factory):
     (root / "simulation.py").write_text(STUB_SIMULATION)
     (root / "equations").mkdir()
     (root / "equations" / "__init__.py").write_text("from ..errors import ModelError  # noqa\n")
+    (root / "integrators").mkdir()
+    (root / "integrators" / "__init__.py").write_text("from mbsfmu.errors import IntegrationError  # noqa\n")
     (root / "bodies").mkdir()
     (root / "bodies" / "__init__.py").write_text('"""elastic bodies"""\nimport numpy  # noqa\n')
     (root / "scene").mkdir()
@@ -207,6 +209,11 @@ def test_runtime_copy(osc_fmu):
     z = zipfile.ZipFile(osc_fmu)
     sources = {n: z.read(n) for n in names if n.startswith(f"resources/{pkg}/")}
     assert forbidden_imports(sources) == []
+    # absolute imports of the package are redirected to the renamed copy
+    text = z.read(f"resources/{pkg}/integrators/__init__.py").decode()
+    assert text.startswith(f"from {pkg}.errors import IntegrationError")
+    for n, src in sources.items():
+        assert not re.search(rb"^\s*(from|import)\s+mbsfmu\b", src, re.M), n
 
 
 def test_elastic_scene_gets_bodies(stub_root, tmp_path):

@@ -110,14 +110,33 @@ def _runtime_files(root: Path, elastic: bool) -> dict[str, bytes]:
 def forbidden_imports(files: dict[str, bytes]) -> list[str]:
     """'path: module' for each import of a module the FMU must not need at run time."""
     pat = re.compile(r"^\s*(?:import|from)\s+(" + "|".join(FORBIDDEN_IMPORTS) + r")\b", re.M)
-    rel = re.compile(r"^\s*from\s+\.+\s*(scene|fmu|bench|cli)\b|^\s*from\s+\.\.?(scene|fmu|bench|cli)\b",
-                     re.M)
+    rel = re.compile(r"^\s*from\s+\.+\s*(?:import\s+)?(scene|fmu|bench|cli)\b", re.M)
     found = []
     for path, content in files.items():
         text = content.decode("utf-8", "replace")
         found += [f"{path}: {m.group(1)}" for m in pat.finditer(text)]
-        found += [f"{path}: .{m.group(1) or m.group(2)}" for m in rel.finditer(text)]
+        found += [f"{path}: .{m.group(1)}" for m in rel.finditer(text)]
     return found
+
+
+_ABSOLUTE_FROM = re.compile(rb"^(\s*from\s+)mbsfmu(?=[.\s])", re.M)
+_ABSOLUTE_IMPORT = re.compile(rb"^\s*import\s+mbsfmu\b", re.M)
+
+
+def _rename_absolute_imports(files: dict[str, bytes], package: str) -> dict[str, bytes]:
+    """``from mbsfmu.x import y`` -> ``from <package>.x import y`` in the copied runtime.
+
+    The copy must not depend on an installed mbsfmu (the FMU host may not have it, and its classes,
+    e.g. IntegrationError, would differ from the copy's)."""
+    out = {}
+    for path, content in files.items():
+        if path.endswith(".py"):
+            if _ABSOLUTE_IMPORT.search(content):
+                raise RuntimeError(f"{path}: 'import mbsfmu...' cannot be relocated into an FMU; "
+                                   "use a relative import")
+            content = _ABSOLUTE_FROM.sub(rb"\g<1>" + package.encode(), content)
+        out[path] = content
+    return out
 
 
 def _hash(*parts: bytes) -> str:
@@ -158,6 +177,7 @@ def build_fmu(scene_or_path, outdir=".", *, runtime_root=None) -> Path:
     spec_bytes = json.dumps(spec, indent=1, sort_keys=True).encode("utf-8")
     rt_hash = _hash(*[p.encode() + b"\0" + c for p, c in sorted(files.items())])
     rt_package = f"mbsfmu_rt_{rt_hash[:16]}"
+    files = _rename_absolute_imports(files, rt_package)
     template = TEMPLATE.read_text(encoding="utf-8")
     fmu_hash = _hash(rt_hash.encode(), spec_bytes, template.encode(), version.encode())
     module_name = f"mbsfmu_{name}_{fmu_hash[:12]}"
