@@ -141,6 +141,27 @@ class Evaluator:
         r, v, _ = point(d, self.model.index[body], np.asarray(r_body, float))
         return r, v
 
+    def output_point(self, d, o):
+        """World position and velocity of an `outputs:` entry from a kinematics workspace."""
+        i = self.model.index[o["body"]]
+        if o.get("node") is not None:
+            r, v, _ = _node_pt(self.model, d, i, o["node"])
+            return r, v
+        r, v, _ = point(d, i, np.asarray(o["point"], float))
+        return r, v
+
+    def singularity_message(self, y):
+        """Why M may be singular at y: Cardan angles at gimbal lock (b = ±90°), else None."""
+        for b in self.model.bodies:
+            if b.kind in ("spherical", "free") and b.param == "cardan":
+                k = len(b.coordinates) - 2  # the middle angle b
+                idx = b.pos_idx[k]
+                angle = y[idx] if idx >= 0 else None
+                if angle is not None and abs(math.cos(angle)) < 1e-3:
+                    return (f"gimbal lock: Cardan angle {b.coordinates[k]} = {angle:.6g} rad is at ±90°, where the "
+                            f"x-y-z angles of body '{b.name}' are singular; use parameterization: quaternion")
+        return None
+
     def energy(self, y, yd, t=0.0):
         """Kinetic + potential energy (gravity, springs, elastic strain): conserved without damping and inputs."""
         y, yd = np.asarray(y, float), np.asarray(yd, float)

@@ -117,6 +117,25 @@ class Model:
         self.inputs = [f["input"] for f in self.forces if "input" in f]
         self.bind(self.parameters)
 
+    def coordinate_units(self):
+        """Units of y and ẏ entries (contract order)."""
+        lin = {"prismatic": "m", "cylindrical": ["m", "rad"], "planar": ["m", "m", "rad"], "free": ["m", "m", "m"]}
+        pos, vel = [], []
+        for b in (self.bodies[self.index[s["name"]]] for s in self.spec["bodies"]):
+            n = len(b.coordinates)
+            u = lin.get(b.kind, "rad")
+            u = [u] * n if isinstance(u, str) else u + ["rad"] * (n - len(u))
+            if b.quat is not None:
+                u[b.quat] = ["1"] * 4
+            vu = [x for x in u if x != "1"] + (["rad"] * 3 if b.quat is not None else [])
+            pos += [x for x, dr in zip(u, b.driven) if not dr]
+            vel += [x + "/s" for x, dr in zip(vu, b.driven + [False] * 3) if not dr or b.quat is not None]
+            if b.elastic:
+                n_e = len(b.elastic["coordinates"])
+                pos += ["1"] * n_e
+                vel += ["1/s"] * n_e
+        return pos, vel
+
     def bind(self, params):
         """(Re)evaluate every parameter-dependent number."""
         unknown = set(params) - set(self.parameters)

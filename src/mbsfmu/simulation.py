@@ -1,0 +1,269 @@
+"""One simulated scene: evaluator + integrator + the FMU's variables (inputs held over a step).
+
+This is what the FMU wraps and what in-process runs use, so both give the same numbers.
+"""
+
+import math
+
+import numpy as np
+
+from .equations import Evaluator
+from .errors import IntegrationError
+from .integrators import make_integrator
+from .kinematics.rotations import quat_exp_step
+
+
+class Variable:
+    """An FMU variable: name, causality, variability, type, unit, description, start."""
+
+    __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start")
+
+    def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0):
+        self.name, self.causality, self.variability, self.type = name, causality, variability, type
+        self.unit, self.description, self.start = unit, description, start
+
+    def __repr__(self):
+        return f"Variable({self.name!r}, {self.causality}, {self.unit})"
+
+
+class Problem:
+    """First-order form x = [y; ẏ] for the integrators: ẋ = [Z(y)·ẏ; M⁻¹(q − k)]."""
+
+    def __init__(self, ev):
+        self.ev = ev
+        m = ev.model
+        self.npos, self.nvel = m.npos, m.nvel
+        self.n = m.npos + m.nvel
+        self.q_in, self.F_in = None, None
+        self.quats = m.quaternions
+        self.quat_vel = m.quat_vel
+        self.rhs_calls = 0
+
+    def accel(self, t, y, v):
+        """ÿ = M⁻¹ (q − k)."""
+        M, k, q = self.ev._equations(y, v, t, self.q_in, self.F_in)
+        try:
+            return np.linalg.solve(M, q - k)
+        except np.linalg.LinAlgError:
+            raise IntegrationError(self.ev.singularity_message(y) or "the mass matrix is singular", t) from None
+
+    def f(self, t, x):
+        self.rhs_calls += 1
+        y, v = x[:self.npos], x[self.npos:]
+        return np.concatenate([self.ev.position_rates(y, v), self.accel(t, y, v)])
+
+    def normalize(self, x):
+        """Project quaternions back to unit length after each step."""
+        if self.quats:
+            x = x.copy()
+            for qi in self.quats:
+                x[qi] /= math.sqrt(x[qi] @ x[qi])
+        return x
+
+    def retract(self, y, dy):
+        """y ⊕ dy: plain coordinates add, quaternions rotate by the body-frame rotation vector."""
+        if not self.quats:
+            return y + dy
+        out = np.empty_like(y)
+        plain = self.ev._plain_vel
+        mask = np.ones(self.npos, bool)
+        for qi, wi in zip(self.quats, self.quat_vel):
+            out[qi] = quat_exp_step(y[qi], dy[wi])
+            mask[qi] = False
+        out[mask] = y[mask] + dy[plain]
+        return out
+
+
+class Simulation:
+    """A scene ready to step: set parameters and inputs, initialize, do_step, read outputs."""
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.ev = Evaluator(spec)
+        self.problem = Problem(self.ev)
+        self.variables = self._variables()
+        self._by_name = {v.name: v for v in self.variables}
+        self.values = {v.name: v.start for v in self.variables if v.causality in ("input", "parameter")}
+        self.integrator = None
+        self.time = spec["experiment"]["start"]
+        self.x = None
+
+    # -- variables ----------------------------------------------------------------------------------
+    def _variables(self):
+        ev, spec = self.ev, self.spec
+        units_pos, units_vel = ev.model.coordinate_units()
+        out = [Variable(p["name"], "parameter", "tunable", unit=None, description=p["description"] or f"scene parameter {p['name']}", start=p["value"])
+               for p in spec["parameters"]]
+        ii = spec["integrator"]
+        out.append(Variable("integrator.method", "parameter", "fixed", "String", None, "integration method: auto, rk4, dopri5, dop853, radau5, gen_alpha", ii["method"]))
+        out.append(Variable("integrator.rtol", "parameter", "fixed", unit="1", description="relative tolerance of the adaptive integrators", start=ii["rtol"]))
+        out.append(Variable("integrator.atol", "parameter", "fixed", unit="1", description="absolute tolerance of the adaptive integrators", start=ii["atol"]))
+        out.append(Variable("integrator.max_step", "parameter", "fixed", unit="s", description="largest internal step (0: no limit)", start=ii["max_step"]))
+        out.append(Variable("integrator.step", "parameter", "fixed", unit="s", description="fixed step of rk4 and gen_alpha (0: one step per communication interval for rk4, adaptive for gen_alpha)", start=ii["step"]))
+        for c, u in zip(ev.velocity_coordinates, units_vel):
+            unit = {"m/s": "N", "rad/s": "N.m"}.get(u, "1")
+            out.append(Variable(f"q.{c}", "input", "continuous", unit=unit, description=f"generalized force on velocity coordinate {c}"))
+        for f in spec["forces"]:
+            if "input" in f:
+                unit = "N" if f["type"] == "force" else "N.m"
+                for ax in "xyz":
+                    out.append(Variable(f"{f['input']}.{ax}", "input", "continuous", unit=unit,
+                                        description=f"{f['type']} on {f['body']}, {f['frame']} frame, {ax} component"))
+        for c, u in zip(ev.coordinates, units_pos):
+            out.append(Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}"))
+        for c, u in zip(ev.velocity_coordinates, units_vel):
+            out.append(Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}"))
+        for o in spec["outputs"]:
+            for qty, sym, unit in (("position", "r", "m"), ("velocity", "v", "m/s")):
+                if qty in o["quantities"]:
+                    for ax in "xyz":
+                        out.append(Variable(f"{o['name']}.{sym}.{ax}", "output", "continuous", unit=unit,
+                                            description=f"world-frame {qty} of a point on {o['body']}, {ax} component"))
+        return out
+
+    def set(self, name, value):
+        v = self._by_name.get(name)
+        if v is None or v.causality == "output":
+            raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
+        if v.type == "String":
+            self.values[name] = str(value)
+        else:
+            self.values[name] = float(value)
+            if v.causality == "parameter" and v.variability == "tunable" and self.x is not None:
+                self._params_dirty = True
+        if v.causality == "input":
+            self._inputs_dirty = True
+
+    def get(self, name):
+        if name in self.values:
+            return self.values[name]
+        if self.x is None:
+            self._outputs = self._compute_outputs(*self.ev.initial_state())
+        return self._outputs[name]
+
+    # -- running ------------------------------------------------------------------------------------
+    def initialize(self, t0=None):
+        """Bind parameters, build the integrator and the initial state (exit of initialization mode)."""
+        if t0 is not None:
+            self.time = float(t0)
+        self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
+        y0, yd0 = self.ev.initial_state()
+        self.x = np.concatenate([y0, yd0])
+        v = self.values
+        step = v["integrator.step"] or None
+        self.integrator = make_integrator(v["integrator.method"], self.problem, rtol=v["integrator.rtol"],
+                                          atol=v["integrator.atol"], max_step=v["integrator.max_step"] or math.inf,
+                                          h=step, **({"rho_inf": self.spec["integrator"]["rho_inf"]} if v["integrator.method"] == "gen_alpha" else {}))
+        self.integrator.reset(self.time, self.x)
+        self._inputs_dirty = True
+        self._params_dirty = False
+        self._outputs = self._compute_outputs(y0, yd0)
+
+    def _apply_inputs(self):
+        """Copy FMU inputs into the problem (held constant over the step); refuse NaN/Inf."""
+        u = {n: self.values[n] for n in self.ev.inputs}
+        bad = [n for n, x in u.items() if not math.isfinite(x)]
+        if bad:
+            raise IntegrationError(f"input {', '.join(bad)} is not finite ({u[bad[0]]}); step refused", self.time)
+        self.problem.q_in, self.problem.F_in = self.ev._split_inputs({n: x for n, x in u.items() if x != 0.0})
+        self._inputs_dirty = False
+
+    def do_step(self, t, h):
+        """Advance from t to t + h with the inputs held; raises IntegrationError (state stays at self.time)."""
+        if self.integrator is None:
+            self.initialize(t)
+        if self._params_dirty:
+            bad = [p["name"] for p in self.spec["parameters"] if not math.isfinite(self.values[p["name"]])]
+            if bad:
+                raise IntegrationError(f"parameter {bad[0]} is not finite; step refused", self.time)
+            self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
+            self._params_dirty = False
+            self.integrator.inputs_changed()
+        if self._inputs_dirty:
+            self._apply_inputs()
+            self.integrator.inputs_changed()
+        if abs(t - self.time) > 1e-9 * max(1.0, abs(t)):
+            raise IntegrationError(f"do_step called at t={t} but the simulation is at t={self.time}", self.time)
+        try:
+            x = self.integrator.advance(t + h)
+        except IntegrationError as e:
+            self.time, self.x = self.integrator.t, self.integrator.x.copy()
+            msg = self.ev.singularity_message(self.x[:self.ev.model.npos])
+            raise IntegrationError(f"{e}" + (f"; {msg}" if msg else ""), self.time) from None
+        self.time, self.x = self.integrator.t, x
+        y, yd = x[:self.ev.model.npos], x[self.ev.model.npos:]
+        msg = self.ev.singularity_message(y)
+        if msg:
+            raise IntegrationError(msg, self.time)
+        self._outputs = self._compute_outputs(y, yd)
+
+    def _compute_outputs(self, y, yd):
+        out = {f"y.{c}": float(v) for c, v in zip(self.ev.coordinates, y)}
+        out.update({f"yd.{c}": float(v) for c, v in zip(self.ev.velocity_coordinates, yd)})
+        if self.spec["outputs"]:
+            d = self.ev.kinematics(y, yd, self.time)
+            for o in self.spec["outputs"]:
+                r, v = self.ev.output_point(d, o)
+                for sym, vec in (("r", r), ("v", v)):
+                    if (sym == "r" and "position" in o["quantities"]) or (sym == "v" and "velocity" in o["quantities"]):
+                        for k, ax in enumerate("xyz"):
+                            out[f"{o['name']}.{sym}.{ax}"] = float(vec[k])
+        return out
+
+    @property
+    def y(self):
+        return self.x[:self.ev.model.npos]
+
+    @property
+    def yd(self):
+        return self.x[self.ev.model.npos:]
+
+    # -- state ----------------------------------------------------------------------------------------
+    def get_state(self):
+        """Everything that determines the future: time, state, inputs, parameters, integrator history."""
+        return {"time": self.time, "x": None if self.x is None else self.x.copy(), "values": dict(self.values),
+                "integrator": None if self.integrator is None else self.integrator.get_state(),
+                "outputs": dict(getattr(self, "_outputs", {}))}
+
+    def set_state(self, s):
+        self.values = dict(s["values"])
+        if s["integrator"] is None:
+            self.integrator, self.x, self.time = None, None, s["time"]
+            return
+        if self.integrator is None or self.integrator.method != s["integrator"]["method"]:
+            self.initialize(s["time"])
+        self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
+        self.integrator.set_state(s["integrator"])
+        self.time, self.x = s["time"], s["x"].copy()
+        self._outputs = dict(s["outputs"])
+        self._apply_inputs()
+        self._params_dirty = False
+
+    def reset(self):
+        """Back to the state after instantiation (fmi2Reset)."""
+        self.__init__(self.spec)
+
+
+def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
+    """In-process run: returns (t, Y, YD) at the communication points. `inputs(t) -> {name: value}`."""
+    spec = scene if isinstance(scene, dict) else scene.spec
+    sim = Simulation(spec)
+    if method is not None:
+        sim.set("integrator.method", method)
+    for k, v in options.items():
+        sim.set(f"integrator.{k}", v)
+    e = spec["experiment"]
+    t0, stop, step = e["start"], stop if stop is not None else e["stop"], step if step is not None else e["step"]
+    n = int(round((stop - t0) / step))
+    ts = t0 + step * np.arange(n + 1)
+    sim.initialize(t0)
+    X = [sim.x.copy()]
+    for k in range(n):
+        if inputs is not None:
+            for name, val in inputs(ts[k]).items():
+                sim.set(name, val)
+        sim.do_step(ts[k], ts[k + 1] - ts[k])
+        X.append(sim.x.copy())
+    X = np.array(X)
+    npos = sim.ev.model.npos
+    return ts, X[:, :npos], X[:, npos:]
