@@ -12,14 +12,16 @@ with J_P = [E, −r̃_RP, Φ_P] for a force f_P at node P and [0, E, Ψ_P] for a
 projected Newton–Euler equations Σ_g J_gᵀ m_g (a_g − f_g) + Γ_gᵀ (J_g α̃_g-part) over the mass
 points g (nodes, or the beam's Gauss points), with a_g = J_g z_III + ω̃ω̃ u_g + 2 ω̃ Φ_g q̇,
 u_g = R_g + Φ_g q.  Rotational mass-point inertias J_g are taken constant in R (their elastic
-rotation changes them at second order only); the matching angular-momentum rate is
-J_g (ω̇ + Ψ_g q̈) + ω̃ J_g ω_g with ω_g = ω + Ψ_g q̇, which keeps ½ z_IIᵀ M z_II + ½ qᵀKq
-exactly conserved for a free undamped body (the seed's ω̃_g J_g ω_g with constant J_g would not).
+rotation changes them at second order only), with ω_g = ω + Ψ_g q̇.  For that model Lagrange's
+equations give the rotary part Γ_gᵀ J_g (Γ_g z_III) + [0; ω̃ J_g ω_g; 0] (Γ_g = [E, Ψ_g]): the
+gyroscopic moment acts on the frame rows only.  This keeps ½ z_IIᵀ M z_II + ½ qᵀKq exactly
+conserved for a free undamped body; projecting ω̃_g J_g ω_g (or ω̃ J_g ω_g) with Ψ_gᵀ onto the
+q rows, as a rigid node would, is inconsistent with a J_g that does not turn with the node.
 
 Invariants (computed once; nothing loops over nodes at run time):
     m, S0 = Σ m R, C_t = Σ m Φ, A_ijk = Σ m R_i Φ_jk, B_ijkl = Σ m Φ_ik Φ_jl, S_RR = Σ m R Rᵀ,
     C_r0 = Σ m R̃ Φ + Σ J Ψ, G_ikl = Σ m ((Φ e_k)~ Φ)_il, M_ee = Σ m ΦᵀΦ + ΨᵀJΨ, J_sum = Σ J,
-    H_a = Σ Γᵀ ẽ_a J Γ  (Γ = [E, Ψ]) for the gyroscopic terms of the mass-point inertias.
+    JΨ = Σ J Ψ.
 
 Dynamic stiffening (beam generator; see beam.py) enters as first-order foreshortening of the
 axis, K_geo = (g_x − a_x) K_a + (ω_y² + ω_z²) K_ω acting as −K_geo q on the elastic coordinates:
@@ -65,9 +67,6 @@ def invariants(nodal, dynamic_stiffening=True):
     inv.G = np.einsum("ijm,jmkl->ikl", EPS, inv.B)                       # Σ m (Φe_k)~ Φ
     inv.M_ee = np.einsum("iikl->kl", inv.B) + np.einsum("gik,gij,gjl->kl", Psi, J, Psi)
     inv.M_ee = 0.5 * (inv.M_ee + inv.M_ee.T)
-    Gam = np.concatenate([np.broadcast_to(E3, (len(m), 3, 3)), Psi], axis=2)   # Γ_g = [E, Ψ_g]
-    # H[k, b, c] = Σ_g (Γᵀ ẽ_k J Γ)[b, c] with (ẽ_k)_ij = ε_ikj
-    inv.H = np.einsum("gib,ikj,gjl,glc->kbc", Gam, EPS, J, Gam)
     inv.K = np.asarray(nodal.stiffness, float)
     inv.D = np.asarray(nodal.damping, float)
     st = nodal.stiffening if dynamic_stiffening else None
@@ -130,7 +129,7 @@ def quadratic_forces(inv, q, qd, omega):
     h[3:6] = wt @ (I_m @ w) + 2.0 * (w * np.trace(W) - W.T @ w)
     h[6:] = (np.einsum("ij,jik->k", w2, inv.A) + np.einsum("ij,ijkl,l->k", w2, inv.B, q)
              + 2.0 * np.einsum("ij,ijkl,l->k", wt, inv.B, qd))
-    h[3:] += np.einsum("a,abc,c->b", w, inv.H, np.concatenate([w, qd]))   # Σ Γᵀ ω̃ J Γ [ω; q̇]
+    h[3:6] += wt @ (inv.J_sum @ w + inv.JPsi @ qd)       # ω̃ Σ J ω_g: frame rows only (see above)
     if inv.K_a is not None:
         sa, sad = q @ inv.K_a @ q, q @ inv.K_a @ qd
         h[:3] -= 0.5 * sa * (w2 @ E3[0]) + 2.0 * sad * (wt @ E3[0])
