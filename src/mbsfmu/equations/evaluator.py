@@ -147,7 +147,8 @@ class Evaluator:
         if o.get("node") is not None:
             r, v, _ = _node_pt(self.model, d, i, o["node"])
             return r, v
-        r, v, _ = point(d, i, np.asarray(o["point"], float))
+        from ..expr import parse
+        r, v, _ = point(d, i, np.array([parse(x)(self.model.env) for x in o["point"]], dtype=float))
         return r, v
 
     def singularity_message(self, y):
