@@ -23,14 +23,17 @@ Invariants (computed once; nothing loops over nodes at run time):
     C_r0 = Σ m R̃ Φ + Σ J Ψ, G_ikl = Σ m ((Φ e_k)~ Φ)_il, M_ee = Σ m ΦᵀΦ + ΨᵀJΨ, J_sum = Σ J,
     JΨ = Σ J Ψ.
 
-Dynamic stiffening (beam generator; see beam.py) enters as first-order foreshortening of the
-axis, K_geo = (g_x − a_x) K_a + (ω_y² + ω_z²) K_ω acting as −K_geo q on the elastic coordinates:
-- the ω part is the kinetic-energy term −½(ω_y² + ω_z²) qᵀK_ω q: in quadratic_forces (q rows) and,
-  for energy consistency, −(qᵀK_ω q) diag(0,1,1) in the ω-ω block of mass_matrix with its rate
-  terms in the ω rows of quadratic_forces;
-- the g part is the potential ½ g_x qᵀ K_a q: in gravity_forces;
-- the a part multiplies an acceleration: in mass_matrix as the symmetric v_x–q coupling −K_a q
-  (the axial momentum of the foreshortened axis), with its velocity terms in the v rows of h.
+Dynamic stiffening (beam generator; see beam.py): the axis foreshortens by ½ qᵀG(x)q under
+transverse deflection, shifting the first moment by δ(m·c) = −½ qᵀK_a q e_x and the inertia by
+δI = −(qᵀK_ω q) diag(0, 1, 1) (K_a = ∫ρA G dx, K_ω = ∫ρA x G dx are the unit-load geometric
+stiffnesses).  Keeping these two shifts in the kinetic and gravity potential energy (and nothing
+else of second order) and applying Lagrange's equations gives, on the q rows, exactly the KRB
+geometric stiffness −K_geo q with K_geo = (g_x − a_x) K_a + (ω_y² + ω_z²) K_ω, and on the frame
+rows the matching reactions, so the model stays conservative.  Where the terms live:
+- first_moment (used by mass_matrix, quadratic_forces, gravity_forces) includes δ(m·c);
+- mass_matrix: v_x–q coupling −K_a q (symmetric) and δI in the ω–ω block;
+- quadratic_forces: (ω_y² + ω_z²) K_ω q on the q rows, rate terms on the v and ω rows;
+- gravity_forces: −g_x K_a q on the q rows.
 """
 
 import numpy as np
@@ -76,8 +79,11 @@ def invariants(nodal, dynamic_stiffening=True):
 
 
 def first_moment(inv, q):
-    """m·c(q) = Σ m u = S0 + C_t q."""
-    return inv.S0 + inv.C_t @ q
+    """m·c(q) = Σ m u = S0 + C_t q, minus the axial foreshortening ½ qᵀK_a q e_x with stiffening."""
+    mc = inv.S0 + inv.C_t @ q
+    if inv.K_a is not None:
+        mc[0] -= 0.5 * (q @ inv.K_a @ q)
+    return mc
 
 
 def inertia(inv, q):
@@ -131,8 +137,7 @@ def quadratic_forces(inv, q, qd, omega):
              + 2.0 * np.einsum("ij,ijkl,l->k", wt, inv.B, qd))
     h[3:6] += wt @ (inv.J_sum @ w + inv.JPsi @ qd)       # ω̃ Σ J ω_g: frame rows only (see above)
     if inv.K_a is not None:
-        sa, sad = q @ inv.K_a @ q, q @ inv.K_a @ qd
-        h[:3] -= 0.5 * sa * (w2 @ E3[0]) + 2.0 * sad * (wt @ E3[0])
+        h[:3] -= 2.0 * (q @ inv.K_a @ qd) * (wt @ E3[0])   # 2ω̃ and d²/dt² of the foreshortening
         h[0] -= qd @ inv.K_a @ qd
         Kw_q = inv.K_omega @ q
         h[6:] += (w @ P_AXIAL @ w) * Kw_q
@@ -148,8 +153,10 @@ def gravity_forces(inv, q, g_R):
     f[:3] = inv.m * g
     f[3:6] = np.cross(first_moment(inv, q), g)
     f[6:] = inv.C_t.T @ g
-    if inv.K_a is not None:
-        f[6:] -= g[0] * (inv.K_a @ q)
+    if inv.K_a is not None:  # potential ½ g_x qᵀK_a q: its q-gradient, and its gradient in the frame's rotation
+        Kaq = inv.K_a @ q
+        f[6:] -= g[0] * Kaq
+        f[3:6] += 0.5 * (q @ Kaq) * np.cross(E3[0], g)
     return f
 
 

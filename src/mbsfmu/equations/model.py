@@ -62,6 +62,9 @@ class Body:
         lam, V = np.linalg.eigh(self.I)
         self.L_T = (V * np.sqrt(np.clip(lam, 0.0, None))).T  # I = L L^T; rows of L^T weight J_R
         self.has_inertia = bool(np.any(lam > 0))
+        if self.elastic:
+            from ..bodies.tree import bind_elastic  # elastic code is loaded only by elastic scenes
+            bind_elastic(self, env)
 
 
 class Model:
