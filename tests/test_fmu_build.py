@@ -240,24 +240,58 @@ def test_simulate_with_input(osc_fmu):
     assert np.allclose(res0["y.x"], np.cos(3.0 * tt), atol=1e-6)
 
 
-def test_nan_input_discards_and_host_survives(osc_fmu):
+def test_nan_input_discards_and_host_survives(osc_fmu, tmp_path):
     sig = np.array([(0.0, 0.0), (0.5, 0.0), (0.5, math.nan), (2.0, math.nan)],
                    dtype=[("time", np.float64), ("q.x", np.float64)])
-    messages = []
-
-    def logger(component, instance, status, category, message):
-        messages.append((status, category.decode(), message.decode()))
-
     # The FMU answers fmi2Discard and reports fmi2Terminated; fmpy then ends the run at the last
     # successful time (t = 0.5) instead of raising.
-    res = simulate_fmu(str(osc_fmu), stop_time=2.0, step_size=0.01, input=sig, output=["y.x"],
-                       debug_logging=True, logger=logger)
+    res = simulate_fmu(str(osc_fmu), stop_time=2.0, step_size=0.01, input=sig, output=["y.x"])
     assert res["time"][-1] == pytest.approx(0.5)
     assert np.isfinite(res["y.x"]).all()
-    assert (2, "logStatusDiscard", "t=0.5: refusing to step: non-finite input q.x") in messages
     # the host (this process) and the FMU are still usable
     res = simulate_fmu(str(osc_fmu), stop_time=0.1, step_size=0.01, output=["y.x"])
     assert np.isfinite(res["y.x"]).all()
+    # the reason is logged (category logStatusDiscard)
+    from fmpy.fmi1 import FMICallException
+    f, vr = _instantiate(osc_fmu, tmp_path, "nanlog")
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    f.setReal([vr["q.x"]], [math.inf])
+    with pytest.raises(FMICallException):
+        f.doStep(0.0, 0.01)
+    assert ("nanlog", 2, "logStatusDiscard", "t=0: refusing to step: non-finite input q.x") in MESSAGES
+    f.freeInstance()
+
+
+MESSAGES = []   # (instance, status, category, message) from every FMU instantiated by _instantiate
+
+
+def _log_message(component, instance, status, category, message):
+    MESSAGES.append((instance.decode(), status, category.decode(), message.decode()))
+
+
+def _callbacks():
+    # One set of callbacks for the whole session: fmpy's C logger proxy keeps a single global
+    # pointer to the last registered Python logger, so that logger must stay alive.
+    global _CALLBACKS
+    if _CALLBACKS is None:
+        from ctypes import byref
+
+        from fmpy import calloc, free
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                               fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+        from fmpy.logging import addLoggerProxy
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_log_message)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        addLoggerProxy(byref(cb))
+        _CALLBACKS = cb
+    return _CALLBACKS
+
+
+_CALLBACKS = None
 
 
 def _instantiate(fmu_path, tmp_path, tag):
@@ -265,9 +299,13 @@ def _instantiate(fmu_path, tmp_path, tag):
     unzipdir = fmpy.extract(str(fmu_path), str(tmp_path / tag))
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName=tag)
-    fmu.instantiate()
+    fmu.instantiate(loggingOn=True, callbacks=_callbacks())
     vrs = {v.name: v.valueReference for v in md.modelVariables}
     return fmu, vrs
+
+
+def _messages(tag):
+    return [m for m in MESSAGES if m[0] == tag]
 
 
 def test_two_fmus_in_one_process(stub_root, tmp_path):
@@ -353,9 +391,6 @@ def test_integration_error_is_discard(osc_fmu, tmp_path):
 
 def test_bad_parameter_and_fixed_parameter(osc_fmu, tmp_path):
     from fmpy.fmi1 import FMICallException
-    # loggingOn stays off here: fmpy's C logger proxy keeps a global pointer to the last custom
-    # logger (freed after the simulate_fmu call in the NaN test), so logging with the default
-    # callbacks afterwards crashes in fmpy itself.
     f, vr = _instantiate(osc_fmu, tmp_path, "bad")
     f.setupExperiment(startTime=0.0)
     f.enterInitializationMode()
@@ -364,6 +399,7 @@ def test_bad_parameter_and_fixed_parameter(osc_fmu, tmp_path):
     with pytest.raises(FMICallException) as err:
         f.doStep(0.0, 0.01)
     assert err.value.status == 2
+    assert ("bad", 3, "logStatusError", "non-finite value for m") in MESSAGES
     f.terminate()
     f.freeInstance()
 
@@ -373,6 +409,7 @@ def test_bad_parameter_and_fixed_parameter(osc_fmu, tmp_path):
     f.exitInitializationMode()
     f.setReal([vr["integrator.rtol"]], [1e-3])  # fixed: ignored (warning) after initialization
     assert f.getReal([vr["integrator.rtol"]]) == [1e-6]
+    assert _messages("fixed")[-1][1:3] == (1, "logStatusWarning")
     f.setReal([vr["k"]], [9.0])                 # tunable: takes effect
     assert f.getReal([vr["k"]]) == [9.0]
     f.doStep(0.0, 0.01)
@@ -394,6 +431,8 @@ def _real_runtime_available():
     return (PKG / "simulation.py").exists() and (PKG / "scene" / "__init__.py").exists()
 
 
+needs_real = pytest.mark.skipif(not _real_runtime_available(), reason="mbsfmu.simulation not available")
+
 REAL_SCENE = textwrap.dedent("""\
     mbsfmu: 1
     name: fmu_pendulum
@@ -408,31 +447,192 @@ REAL_SCENE = textwrap.dedent("""\
         mass: m
         center_of_mass: [0, 0, -L]
         inertia: {xx: 1e-3, yy: 1e-3, zz: 1e-3}
+    forces:
+      - {type: force, body: link, at: [0, 0, -1], input: F_tip, frame: world}
     integrator: {method: dopri5, rtol: 1e-8, atol: 1e-10}
     experiment: {start: 0, stop: 1, step: 0.01}
     """)
 
+ELASTIC_SCENE = textwrap.dedent("""\
+    mbsfmu: 1
+    name: fmu_flex
+    bodies:
+      hub:
+        parent: world
+        joint: {type: revolute, axis: [0, 0, 1], coordinates: [theta]}
+        mass: 1.0
+        inertia: {xx: 0.01, yy: 0.01, zz: 0.01}
+      beam:
+        parent: hub
+        joint: {type: fixed, at: [0.1, 0, 0]}
+        elastic:
+          beam: {length: 1.0, EI: [10.0, 10.0], rhoA: 0.5, elements: 4, modes: 2, clamped: start}
+          damping_ratio: 0.01
+    experiment: {start: 0, stop: 0.1, step: 0.01}
+    """)
+
 
 @pytest.fixture(scope="module")
-def real_fmu(tmp_path_factory):
+def real_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("real")
+
+
+@pytest.fixture(scope="module")
+def real_fmu(real_dir):
     if not _real_runtime_available():
         pytest.skip("mbsfmu.simulation / mbsfmu.scene not available yet")
-    d = tmp_path_factory.mktemp("real")
-    path = d / "fmu_pendulum.yaml"
+    path = real_dir / "fmu_pendulum.yaml"
     path.write_text(REAL_SCENE)
-    return build_fmu(path, d / "out")
+    return build_fmu(path, real_dir / "out")
 
 
-def test_real_validates_and_simulates(real_fmu):
-    assert validate_fmu(str(real_fmu)) == []
+@pytest.fixture(scope="module")
+def pendulum2_fmu(real_dir):
+    if not _real_runtime_available():
+        pytest.skip("mbsfmu.simulation / mbsfmu.scene not available yet")
+    import mbsfmu
+    scene = mbsfmu.load(REPO / "models" / "double_pendulum.yaml")
+    return build_fmu(scene, real_dir / "out2")     # a loaded scene object works too
+
+
+def _real_sim(yaml_path_or_text):
+    import json
+
+    import mbsfmu
+    from mbsfmu.simulation import Simulation
+    scene = mbsfmu.load(yaml_path_or_text) if isinstance(yaml_path_or_text, Path) else mbsfmu.loads(yaml_path_or_text)
+    return Simulation(json.loads(json.dumps(scene.spec)))
+
+
+def test_real_validates_and_has_only_scene_variables(real_fmu, pendulum2_fmu):
+    for fmu, sim in ((real_fmu, _real_sim(REAL_SCENE)),
+                     (pendulum2_fmu, _real_sim(REPO / "models" / "double_pendulum.yaml"))):
+        assert validate_fmu(str(fmu)) == []
+        md = read_model_description(str(fmu))
+        assert [(v.name, v.causality, v.variability) for v in md.modelVariables] == \
+            [(v.name, v.causality, "fixed" if v.type == "String" else v.variability) for v in sim.variables]
+        assert [v.valueReference for v in md.modelVariables] == list(range(len(sim.variables)))
+        assert {u.variable.name for u in md.outputs} == {v.name for v in sim.variables if v.causality == "output"}
     md = read_model_description(str(real_fmu))
-    names = {v.name for v in md.modelVariables}
-    assert {"q.phi", "y.phi", "yd.phi", "L", "m", "integrator.method", "integrator.rtol"} <= names
+    names = [v.name for v in md.modelVariables]
+    assert {"q.phi", "F_tip.x", "F_tip.y", "F_tip.z", "y.phi", "yd.phi", "L", "m",
+            "integrator.method", "integrator.rtol", "integrator.atol", "integrator.max_step"} <= set(names)
+    assert not [n for n in names if n.startswith(("q.phi1", "y.phi1", "y.x"))]  # nothing from other scenes
+    byname = {v.name: v for v in md.modelVariables}
+    assert byname["y.phi"].unit == "rad" and byname["yd.phi"].unit == "rad/s"
+    assert byname["q.phi"].unit == "N.m" and byname["F_tip.x"].unit == "N"
+    assert md.defaultExperiment.tolerance == "1e-08" or float(md.defaultExperiment.tolerance) == 1e-8
+
+
+def test_real_runtime_is_clean(real_fmu):
     z = zipfile.ZipFile(real_fmu)
-    assert not [n for n in z.namelist() if "/bodies/" in n or "/scene/" in n]
-    t = np.linspace(0, 1, 3)
-    res = simulate_fmu(str(real_fmu), stop_time=1.0, step_size=0.01,
-                       input=_signal(t, "q.phi", lambda ti: 0.0), output=["y.phi", "yd.phi"])
+    names = z.namelist()
+    pkg = next(n.split("/")[1] for n in names if n.startswith("resources/mbsfmu_rt_"))
+    rt = [n for n in names if n.startswith(f"resources/{pkg}/")]
+    assert f"resources/{pkg}/simulation.py" in rt and f"resources/{pkg}/integrators/__init__.py" in rt
+    assert not [n for n in rt if "/bodies/" in n or "/scene/" in n or "/fmu/" in n or "/bench/" in n
+                or n.endswith("cli.py")]
+    sources = {n: z.read(n) for n in rt if n.endswith(".py")}
+    assert forbidden_imports(sources) == []
+    for n, src in sources.items():
+        assert not re.search(rb"^\s*(from|import)\s+mbsfmu\b", src, re.M), n
+        assert not re.search(rb"\b(yaml|sympy|matplotlib)\b", src), n
+
+
+@needs_real
+def test_real_elastic_scene_packs_bodies(real_dir):
+    path = real_dir / "fmu_flex.yaml"
+    path.write_text(ELASTIC_SCENE)
+    fmu = build_fmu(path, real_dir / "flex")
+    names = zipfile.ZipFile(fmu).namelist()
+    assert [n for n in names if re.search(r"/mbsfmu_rt_[0-9a-f]+/bodies/__init__\.py$", n)]
+    assert validate_fmu(str(fmu)) == []
+
+
+def test_real_simulates_like_in_process(real_fmu):
+    t = np.array([0.0, 0.5, 0.5, 1.0])
+    sig = np.array([(0.0, 0.0), (0.5, 0.0), (0.5, 2.0), (1.0, 2.0)],
+                   dtype=[("time", np.float64), ("F_tip.x", np.float64)])
+    res = simulate_fmu(str(real_fmu), stop_time=1.0, step_size=0.01, input=sig, output=["y.phi", "yd.phi"])
+    assert res["time"][-1] == pytest.approx(1.0)
     assert res["y.phi"][0] == pytest.approx(0.5)
-    assert np.isfinite(res["y.phi"]).all()
-    assert abs(res["y.phi"]).max() <= 0.5 + 1e-6
+    # the same run in-process (communication points 0.01, input switched at 0.5)
+    sim = _real_sim(REAL_SCENE)
+    sim.initialize(0.0)
+    tt, ys = 0.0, [sim.get("y.phi")]
+    for i in range(100):
+        sim.set("F_tip.x", 2.0 if i >= 50 else 0.0)
+        sim.do_step(tt, 0.01)
+        tt = (i + 1) * 0.01
+        ys.append(sim.get("y.phi"))
+    assert len(res) == len(ys)
+    assert np.allclose(res["y.phi"], ys, rtol=0, atol=1e-9)
+    del t
+
+
+def test_two_real_fmus_interleaved(real_fmu, pendulum2_fmu, tmp_path):
+    fa, va = _instantiate(real_fmu, tmp_path, "p1")
+    fb, vb = _instantiate(pendulum2_fmu, tmp_path, "p2")
+    sa, sb = _real_sim(REAL_SCENE), _real_sim(REPO / "models" / "double_pendulum.yaml")
+    for f in (fa, fb):
+        f.setupExperiment(startTime=0.0)
+        f.enterInitializationMode()
+        f.exitInitializationMode()
+    assert _messages("p1") == [] and _messages("p2") == []
+    sa.initialize(0.0)
+    sb.initialize(0.0)
+    t, h = 0.0, 0.01
+    for i in range(30):
+        fa.setReal([va["q.phi"], va["F_tip.z"]], [0.3, 1.0])
+        sa.set("q.phi", 0.3)
+        sa.set("F_tip.z", 1.0)
+        fb.setReal([vb["q.phi2"]], [-0.2])
+        sb.set("q.phi2", -0.2)
+        try:
+            fa.doStep(t, h)
+            fb.doStep(t, h)
+        except Exception:
+            pytest.fail(f"{_messages('p1')} {_messages('p2')}")
+        sa.do_step(t, h)
+        sb.do_step(t, h)
+        t = (i + 1) * h
+    assert fa.getReal([va["y.phi"]])[0] == pytest.approx(sa.get("y.phi"), abs=1e-12)
+    assert fb.getReal([vb["y.phi1"], vb["y.phi2"]]) == pytest.approx([sb.get("y.phi1"), sb.get("y.phi2")], abs=1e-12)
+    for f in (fa, fb):
+        f.terminate()
+        f.freeInstance()
+
+
+def test_real_nan_input_and_state(real_fmu, tmp_path):
+    from fmpy.fmi1 import FMICallException
+    f, vr = _instantiate(real_fmu, tmp_path, "nan")
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    t, h = 0.0, 0.01
+    for i in range(10):
+        f.doStep(t, h)
+        t = (i + 1) * h
+    state = f.getFMUstate()
+    blob = f.serializeFMUstate(state)
+    y10 = f.getReal([vr["y.phi"], vr["yd.phi"]])
+    f.setReal([vr["q.phi"]], [math.nan])
+    with pytest.raises(FMICallException) as err:
+        f.doStep(t, h)
+    assert err.value.status == 2
+    assert f.getReal([vr["y.phi"], vr["yd.phi"]]) == y10       # state untouched by the refused step
+    f.setReal([vr["q.phi"]], [0.0])
+    for i in range(10, 20):
+        f.doStep(t, h)
+        t = (i + 1) * h
+    y20 = f.getReal([vr["y.phi"], vr["yd.phi"]])
+    f.setFMUstate(f.deSerializeFMUstate(blob))               # back to t = 0.1, replay
+    assert f.getReal([vr["y.phi"], vr["yd.phi"]]) == y10
+    t = 0.1
+    for i in range(10, 20):
+        f.doStep(t, h)
+        t = (i + 1) * h
+    assert f.getReal([vr["y.phi"], vr["yd.phi"]]) == pytest.approx(y20, abs=1e-12)
+    f.freeFMUstate(state)
+    f.terminate()
+    f.freeInstance()
