@@ -6,6 +6,8 @@ import numpy as np
 
 from mbsfmu.errors import IntegrationError
 
+from .norms import all_finite
+
 _EPS = np.finfo(float).eps
 # consecutive trial steps with non-finite values tolerated (each shrinks h by 4) before giving up
 _MAX_NONFINITE_TRIALS = 3
@@ -57,6 +59,7 @@ class Integrator:
         self.h = None
         self.stats = new_stats()
         self._nonfinite = 0
+        self.last_failure = None  # "error" or "newton": reason of the latest rejection
 
     # ---------------------------------------------------------------- public API
     def reset(self, t0, x0):
@@ -71,6 +74,7 @@ class Integrator:
         self.h = None
         self.stats = new_stats()
         self._nonfinite = 0
+        self.last_failure = None
         self._reset_history()
 
     def inputs_changed(self):
@@ -123,15 +127,13 @@ class Integrator:
             h_prop = min(self.h, self.max_step)
             remaining = t_end - t
             # stretch by up to 1 % rather than leave a tiny last step (Hairer's DOPRI5 does the same)
-            clipped = 1.01 * h_prop >= remaining and remaining <= self.max_step
+            clipped = 1.01 * h_prop >= remaining and remaining <= self.max_step * (1.0 + 1e-9)
             t_new = t_end if clipped else t + h_prop
             if t_new >= t_end:
                 t_new, clipped = t_end, True
             h = t_new - t
             if h < min_step:
-                raise IntegrationError(
-                    f"step size underflow (h={h:.3g}): the tolerance rtol={self.rtol:g}, atol={self.atol} "
-                    "cannot be met — singularity, discontinuity or too strict tolerances", t)
+                raise IntegrationError(f"step size underflow (h={h:.3g}): {self._failure_reason()}", t)
             x_new = self._attempt(t_new, h)
             if x_new is None:
                 self.stats["rejected"] += 1
@@ -150,6 +152,14 @@ class Integrator:
             if self._stop_early():
                 return
 
+    def _failure_reason(self):
+        """Why the steps kept being rejected, for the underflow message."""
+        if self.last_failure == "newton":
+            return ("Newton iteration does not converge even with a fresh Jacobian at the minimum step "
+                    "(singular or discontinuous right-hand side?)")
+        return (f"the local error tolerance (rtol={self.rtol:g}, atol={np.max(self.atol):g}) cannot be met — "
+                "singularity, discontinuity or too strict tolerances")
+
     def _trial_nonfinite(self, h, what="right-hand side"):
         """A trial step produced NaN/Inf: shrink h a few times (may be a transient overshoot), then fail."""
         self._nonfinite += 1
@@ -161,7 +171,7 @@ class Integrator:
 
     def _check_start_derivative(self, fx):
         """The derivative at an accepted point must be finite, otherwise nothing can proceed."""
-        if not np.isfinite(fx).all():
+        if not all_finite(fx):
             raise IntegrationError("right-hand side returned non-finite values (NaN or Inf) at the current state",
                                    self.t)
 

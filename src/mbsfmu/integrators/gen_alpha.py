@@ -261,6 +261,7 @@ class GenAlpha(Integrator):
                 res = self._step_retry(t + h2, res[1], res[2], res[3], res[4], h2)
         if res[0] != "ok":
             self.last_rejected = True
+            self.last_failure = "newton"
             if res[0] == "nonfinite":
                 return self._trial_nonfinite(h, "accelerations")
             self.h = 0.25 * h  # Newton failure even with a fresh Jacobian: much smaller step
@@ -276,6 +277,7 @@ class GenAlpha(Integrator):
         if err > 1.0:
             self.h = h * max(MIN_FACTOR, fac)
             self.last_rejected = True
+            self.last_failure = "error"
             return None
         fac = min(MAX_FACTOR, fac)
         if self.last_rejected:

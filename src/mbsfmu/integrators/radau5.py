@@ -39,6 +39,7 @@ P = np.array([
     [13.0 / 3.0 - 7.0 * S6 / 3.0, -23.0 / 3.0 + 22.0 * S6 / 3.0, 10.0 / 3.0 - 5.0 * S6],
     [1.0 / 3.0, -8.0 / 3.0, 10.0 / 3.0]])
 
+_POWERS = np.array([1.0, 2.0, 3.0])
 NEWTON_MAXITER = 7          # Hairer's NIT
 MIN_FACTOR, MAX_FACTOR = 0.2, 10.0
 KEEP_LU_LOW, KEEP_LU_HIGH = 1.0, 1.2   # Hairer's QUOT1, QUOT2: keep h (and LU) inside this band
@@ -133,7 +134,7 @@ class Radau5(Integrator):
         if self.Q is None:
             return np.zeros((3, self.n))
         s = (self.t - self.t_prev + h * C) / self.h_prev
-        pw = np.stack((s, s * s, s * s * s), axis=1)
+        pw = s[:, None] ** _POWERS  # rows [s, s², s³] at the three new collocation nodes
         return (self.x_prev - self.x) + pw @ self.Q.T
 
     def _newton(self, t, x, h, Z, sc):
@@ -163,8 +164,8 @@ class Radau5(Integrator):
             dWc = zgetrs(luc, pivc, fc)[0]
             dW[1] = dWc.real
             dW[2] = dWc.imag
-            q = dW / sc
-            dnorm = math.sqrt(float(np.sum(q * q)) / q.size)
+            q = (dW / sc).ravel()
+            dnorm = math.sqrt(q.dot(q) / q.size)
             if not math.isfinite(dnorm):
                 return "nonfinite", k + 1, Z, rate
             if dnorm_old is not None:
@@ -207,6 +208,7 @@ class Radau5(Integrator):
                 continue
             self.lu_real = self.lu_complex = None
             self.last_rejected = True
+            self.last_failure = "newton"
             if status == "nonfinite":
                 return self._trial_nonfinite(h)
             self.h = 0.5 * h
@@ -231,6 +233,7 @@ class Radau5(Integrator):
             factor = predict_factor(h, self.h_old, err, self.err_old)
             self.h = h * max(MIN_FACTOR, safety * factor)
             self.last_rejected = True
+            self.last_failure = "error"
             self.first = False
             return None
 
