@@ -547,6 +547,11 @@ def test_real_elastic_scene_packs_bodies(real_dir):
     names = zipfile.ZipFile(fmu).namelist()
     assert [n for n in names if re.search(r"/mbsfmu_rt_[0-9a-f]+/bodies/__init__\.py$", n)]
     assert validate_fmu(str(fmu)) == []
+    md = read_model_description(str(fmu))
+    assert {"y.beam.q1", "y.beam.q2", "yd.beam.q1"} <= {v.name for v in md.modelVariables}
+    res = simulate_fmu(str(fmu), stop_time=0.05, step_size=0.01, output=["y.theta", "y.beam.q1"])
+    assert res["time"][-1] == pytest.approx(0.05)
+    assert np.isfinite(res["y.beam.q1"]).all()
 
 
 def test_real_simulates_like_in_process(real_fmu):
@@ -634,5 +639,30 @@ def test_real_nan_input_and_state(real_fmu, tmp_path):
         t = (i + 1) * h
     assert f.getReal([vr["y.phi"], vr["yd.phi"]]) == pytest.approx(y20, abs=1e-12)
     f.freeFMUstate(state)
+    f.terminate()
+    f.freeInstance()
+
+
+MODELS = sorted((REPO / "models").glob("*.yaml"))
+
+
+@needs_real
+@pytest.mark.parametrize("model", MODELS, ids=[m.stem for m in MODELS])
+def test_every_model_builds_validates_and_steps(model, tmp_path):
+    fmu = build_fmu(model, tmp_path)
+    assert validate_fmu(str(fmu)) == []
+    md = read_model_description(str(fmu))
+    step = float(md.defaultExperiment.stepSize)
+    f, vr = _instantiate(fmu, tmp_path, f"m_{model.stem}")
+    f.setupExperiment(startTime=float(md.defaultExperiment.startTime))
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    t = float(md.defaultExperiment.startTime)
+    outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    for i in range(5):
+        f.doStep(t, step)
+        t += step
+    assert np.isfinite(f.getReal(outs)).all()
+    assert _messages(f"m_{model.stem}") == []
     f.terminate()
     f.freeInstance()
