@@ -421,3 +421,66 @@ def test_free_rigid_body_quaternion(method, opts):
         assert abs(np.linalg.norm(x[:4]) - 1.0) < 1e-12
     assert abs(p.energy(x) - E0) < 1e-5 * E0, (method, p.energy(x) - E0)
     assert np.max(np.abs(p.momentum(x) - L0)) < 1e-3 * np.linalg.norm(L0)
+
+
+def test_auto_snapshot_before_switch_is_bit_identical():
+    integ = make_integrator("auto", StiffLinear(), rtol=1e-6, atol=1e-8)
+    integ.reset(0.0, [0.0, 0.0])
+    integ.advance(1e-5)
+    assert not integ.stats["switched"]
+    snap = pickle.loads(pickle.dumps(integ.get_state()))
+    first = [integ.advance(t) for t in (1e-4, 1e-2, 1.0)]
+    assert integ.stats["switched"]
+    integ.set_state(snap)
+    assert not integ.stats["switched"]
+    second = [integ.advance(t) for t in (1e-4, 1e-2, 1.0)]
+    assert all(np.array_equal(a, b) for a, b in zip(first, second))
+    assert integ.switched_at == pytest.approx(integ.switched_at)
+
+
+class PiecewiseInput:
+    """ẍ = u with an input u held constant per communication interval (as in the FMU)."""
+
+    n, npos, nvel = 2, 1, 1
+
+    def __init__(self):
+        self.u = 1.0
+
+    def f(self, t, x):
+        return np.array([x[1], self.u])
+
+    def accel(self, t, y, v):
+        return np.array([self.u])
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_inputs_changed_drops_cached_derivative(method):
+    # u = +1 on [0, 1], −1 on [1, 2]: x(2) = 1, v(2) = 0; piecewise quadratic, so every method is exact
+    # up to rounding once cached derivatives (FSAL stage, f at step start, accelerations) are refreshed
+    p = PiecewiseInput()
+    integ = make_integrator(method, p, rtol=1e-8, atol=1e-10, h=0.1)
+    integ.reset(0.0, [0.0, 0.0])
+    integ.advance(1.0)
+    p.u = -1.0
+    integ.inputs_changed()
+    x = integ.advance(2.0)
+    tol = 1e-3 if method == "gen_alpha" else 1e-9
+    assert np.max(np.abs(x - [1.0, 0.0])) < tol, (method, x)
+
+
+def test_make_integrator_options():
+    g = make_integrator("gen_alpha", Oscillator(), rho_inf=0.3, h=0.01)
+    assert g.rho_inf == 0.3 and g.method == "gen_alpha"
+    with pytest.raises(ValueError):
+        make_integrator("gen_alpha", Oscillator(), rho_inf=1.5)
+    with pytest.raises(ValueError):
+        make_integrator("dopri5", Oscillator(), rtol=0.0)
+    assert set(METHODS) >= {"rk4", "dopri5", "dop853", "radau5", "gen_alpha", "auto"}
+
+
+def test_solve_helper_returns_all_points():
+    ts = np.linspace(0, 3, 31)
+    X, stats = solve(Oscillator(), "dop853", ts, [1.0, 0.0], rtol=1e-10, atol=1e-12)
+    assert X.shape == (31, 2)
+    assert np.max(np.abs(X[:, 0] - np.cos(ts))) < 1e-8
+    assert stats["steps"] >= 30
