@@ -484,3 +484,59 @@ def test_solve_helper_returns_all_points():
     assert X.shape == (31, 2)
     assert np.max(np.abs(X[:, 0] - np.cos(ts))) < 1e-8
     assert stats["steps"] >= 30
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_rounding_level_interval(method):
+    integ = make_integrator(method, Oscillator(), h=0.01)
+    integ.reset(0.0, [1.0, 0.0])
+    integ.advance(1.0)
+    t_end = np.nextafter(1.0, 2.0)
+    x = integ.advance(t_end)
+    assert integ.t == t_end and np.isfinite(x).all()
+    integ.advance(2.0)
+    assert abs(integ.x[0] - math.cos(2.0)) < 1e-4
+
+
+class RobertsonJac(Robertson):
+    def jac(self, t, y):
+        return np.array([[-0.04, 1e4 * y[2], 1e4 * y[1]],
+                         [0.04, -1e4 * y[2] - 6e7 * y[1], -1e4 * y[1]],
+                         [0.0, 6e7 * y[1], 0.0]])
+
+
+def test_radau5_uses_analytic_jacobian():
+    Xa, sa = solve(RobertsonJac(), "radau5", [0, 10], [1.0, 0.0, 0.0], rtol=1e-6, atol=1e-10)
+    Xf, sf = solve(Robertson(), "radau5", [0, 10], [1.0, 0.0, 0.0], rtol=1e-6, atol=1e-10)
+    assert np.allclose(Xa[-1], Xf[-1], rtol=1e-4, atol=1e-9)
+    assert sa["jac_evaluations"] > 0
+    # finite differences cost n RHS evaluations per Jacobian, the analytic one none
+    assert sf["rhs_evaluations"] - sa["rhs_evaluations"] >= 3 * sf["jac_evaluations"] - 50
+
+
+@pytest.mark.parametrize("method", ["dopri5", "dop853", "radau5", "gen_alpha", "rk4"])
+def test_max_step_bounds_every_step(method):
+    integ = make_integrator(method, Oscillator(), rtol=1e-3, atol=1e-3, max_step=0.01)
+    integ.reset(0.0, [1.0, 0.0])
+    integ.advance(1.0)
+    assert integ.stats["steps"] >= 100 and integ.t == 1.0
+
+
+def test_gen_alpha_stiff_spring_large_steps():
+    # ω = 1e4 stiff spring next to a slow mode: with ρ∞ = 0.5 the fast mode is damped out at h·ω ≫ 1
+    class TwoModes:
+        n, npos, nvel = 4, 2, 2
+        w2 = np.array([1e8, 1.0])
+
+        def accel(self, t, y, v):
+            return -self.w2 * y
+
+        def f(self, t, x):
+            return np.concatenate((x[2:], -self.w2 * x[:2]))
+
+    integ = make_integrator("gen_alpha", TwoModes(), h=0.01, rho_inf=0.5)
+    integ.reset(0.0, [1e-6, 1.0, 0.0, 0.0])
+    x = integ.advance(5.0)
+    assert integ.stats["steps"] == 500
+    assert abs(x[0]) < 1e-8  # fast mode damped (ρ∞^500)
+    assert abs(x[1] - math.cos(5.0)) < 5e-3  # slow mode second-order accurate

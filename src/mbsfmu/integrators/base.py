@@ -126,6 +126,11 @@ class Integrator:
             t = self.t
             h_prop = min(self.h, self.max_step)
             remaining = t_end - t
+            if remaining < min_step:
+                # t_end within ~10 ulp of t: the same instant up to rounding (x moves by ≤ h·|f|, far below
+                # rounding of t itself), so land on it without a step instead of reporting an underflow
+                self.t = t_end
+                break
             # stretch by up to 1 % rather than leave a tiny last step (Hairer's DOPRI5 does the same)
             clipped = 1.01 * h_prop >= remaining and remaining <= self.max_step * (1.0 + 1e-9)
             t_new = t_end if clipped else t + h_prop
