@@ -23,17 +23,24 @@ Invariants (computed once; nothing loops over nodes at run time):
     C_r0 = Σ m R̃ Φ + Σ J Ψ, G_ikl = Σ m ((Φ e_k)~ Φ)_il, M_ee = Σ m ΦᵀΦ + ΨᵀJΨ, J_sum = Σ J,
     JΨ = Σ J Ψ.
 
-Dynamic stiffening (beam generator; see beam.py): the axis foreshortens by ½ qᵀG(x)q under
-transverse deflection, shifting the first moment by δ(m·c) = −½ qᵀK_a q e_x and the inertia by
-δI = −(qᵀK_ω q) diag(0, 1, 1) (K_a = ∫ρA G dx, K_ω = ∫ρA x G dx are the unit-load geometric
-stiffnesses).  Keeping these two shifts in the kinetic and gravity potential energy (and nothing
-else of second order) and applying Lagrange's equations gives, on the q rows, exactly the KRB
-geometric stiffness −K_geo q with K_geo = (g_x − a_x) K_a + (ω_y² + ω_z²) K_ω, and on the frame
-rows the matching reactions, so the model stays conservative.  Where the terms live:
-- first_moment (used by mass_matrix, quadratic_forces, gravity_forces) includes δ(m·c);
-- mass_matrix: v_x–q coupling −K_a q (symmetric) and δI in the ω–ω block;
-- quadratic_forces: (ω_y² + ω_z²) K_ω q on the q rows, rate terms on the v and ω rows;
-- gravity_forces: −g_x K_a q on the q rows.
+Dynamic stiffening (beam generator; see beam.py; Kane–Ryan–Banerjee): the axis foreshortens by
+½ qᵀG(x)q under transverse deflection (G = ∫₀ˣ Φ'ᵀΦ' dξ), shifting the first moment by
+δ(m·c) = −½ qᵀK_a q e_x (K_a = ∫ρA G dx, K_ω = ∫ρA x G dx: the unit-load geometric stiffnesses).
+On the q rows this gives the geometric stiffness −K_geo q, K_geo = (g_x − a_x) K_a + (ω_y² + ω_z²) K_ω:
+- first_moment (used by mass_matrix, quadratic_forces, gravity_forces) includes δ(m·c), so the
+  frame rows carry the reactions of the a_x and g_x parts;
+- mass_matrix: the a_x part as the symmetric v_x–q coupling −K_a q (axial momentum of the
+  foreshortening), its velocity terms in the v rows of quadratic_forces;
+- gravity_forces: −g_x K_a q (gradient of the potential ½ g_x qᵀK_a q);
+- quadratic_forces: (ω_y² + ω_z²) K_ω q on the q rows only.  Its energy-consistent companion,
+  δI = −(qᵀK_ω q) diag(0, 1, 1) in the ω–ω block, is left out on purpose: without the other
+  second-order foreshortening terms of M it can make M indefinite for a clamped body whose
+  frame rotates freely (I_yy − C_r M_ee⁻¹ C_rᵀ is small there).  So with stiffening on, a free
+  body's energy is conserved only up to O(ω² q²) terms; prescribed-rotation results (Wright
+  et al.) are unaffected, and without stiffening the equations are exactly conservative.
+  Caveat: a `clamped: start` beam floating free with no other inertia on its frame has an almost
+  singular frame rotation and these small errors then grow without bound; give its frame a hub
+  (any rigid inertia), use `clamped: none`, or switch stiffening off.
 """
 
 import numpy as np
@@ -118,7 +125,6 @@ def mass_matrix(inv, q):
         Kaq = inv.K_a @ q
         M[0, 6:] -= Kaq            # axial momentum of the foreshortened axis (a_x stiffening)
         M[6:, 0] -= Kaq
-        M[3:6, 3:6] -= (q @ inv.K_omega @ q) * P_AXIAL   # centrifugal stiffening energy
     return M
 
 
@@ -139,10 +145,7 @@ def quadratic_forces(inv, q, qd, omega):
     if inv.K_a is not None:
         h[:3] -= 2.0 * (q @ inv.K_a @ qd) * (wt @ E3[0])   # 2ω̃ and d²/dt² of the foreshortening
         h[0] -= qd @ inv.K_a @ qd
-        Kw_q = inv.K_omega @ q
-        h[6:] += (w @ P_AXIAL @ w) * Kw_q
-        Pw = P_AXIAL @ w
-        h[3:6] -= 2.0 * (Kw_q @ qd) * Pw + (q @ Kw_q) * (wt @ Pw)
+        h[6:] += (w @ P_AXIAL @ w) * (inv.K_omega @ q)       # centrifugal stiffening
     return h
 
 
@@ -153,10 +156,8 @@ def gravity_forces(inv, q, g_R):
     f[:3] = inv.m * g
     f[3:6] = np.cross(first_moment(inv, q), g)
     f[6:] = inv.C_t.T @ g
-    if inv.K_a is not None:  # potential ½ g_x qᵀK_a q: its q-gradient, and its gradient in the frame's rotation
-        Kaq = inv.K_a @ q
-        f[6:] -= g[0] * Kaq
-        f[3:6] += 0.5 * (q @ Kaq) * np.cross(E3[0], g)
+    if inv.K_a is not None:   # q-gradient of the potential ½ g_x qᵀK_a q; its frame torque is in m·c × g
+        f[6:] -= g[0] * (inv.K_a @ q)
     return f
 
 
