@@ -216,6 +216,17 @@ def test_runtime_copy(osc_fmu):
         assert not re.search(rb"^\s*(from|import)\s+mbsfmu\b", src, re.M), n
 
 
+def test_build_leaves_interpreter_clean(stub_root, tmp_path):
+    import sys
+    path_before = list(sys.path)
+    mods_before = set(sys.modules)
+    fmu = build_fmu(stub_spec("clean"), tmp_path, runtime_root=stub_root)
+    assert sys.path == path_before
+    new = {m for m in set(sys.modules) - mods_before if m.startswith(("mbsfmu_rt_", "mbsfmu_clean"))}
+    assert new == set()
+    assert fmu.exists()
+
+
 def test_elastic_scene_gets_bodies(stub_root, tmp_path):
     spec = stub_spec("flex", bodies={"beam": {"parent": "world", "elastic": {"beam": {"length": 1}}}})
     fmu = build_fmu(spec, tmp_path, runtime_root=stub_root)
