@@ -129,9 +129,12 @@ class Expr:
 
     def __init__(self, text, tree=None):
         self.text = str(text)
-        self.tree = tree if tree is not None else _Parser(self.text).parse()
-        self.names = frozenset(_names(self.tree))
-        self._fn = _compile(self.tree)
+        try:
+            self.tree = tree if tree is not None else _Parser(self.text).parse()
+            self.names = frozenset(_names(self.tree))
+            self._fn = _compile(self.tree)
+        except RecursionError:
+            raise ExprError("the expression is nested too deeply", self.text, 0) from None
 
     def __call__(self, env):
         return float(self._fn(env))

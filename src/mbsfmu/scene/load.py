@@ -53,6 +53,10 @@ def loads(text, file="<string>", base=None):
     return Scene(spec, file)
 
 
+_EXPR_HINT = ("an expression may use numbers, parameters, pi, + - * / ^ ** and parentheses, and the functions "
+              + ", ".join(FUNCTIONS) + "; it is parsed, never executed")
+
+
 def _suggest(word, valid):
     close = difflib.get_close_matches(str(word), list(valid), n=1)
     hint = f"did you mean '{close[0]}'? " if close else ""
@@ -81,7 +85,8 @@ class _Checker:
                 self.fail(node, k, f"{path}.{k}" if path else k, f"unknown key '{k}'", _suggest(k, allowed))
         for k in required:
             if k not in node:
-                raise ModelError(f"missing required key '{k}'", file=self.file, line=node.line, key=path or None)
+                hint = "a scene starts with 'mbsfmu: 1' (the format version)" if not path and k == "mbsfmu" else "required: " + ", ".join(required)
+                raise ModelError(f"missing required key '{k}'", file=self.file, line=node.line, key=path or None, hint=hint)
 
     # -- values ------------------------------------------------------------------------------------
     def number(self, parent, key, path, allow_t=False, positive=False, nonneg=False):
@@ -90,7 +95,7 @@ class _Checker:
         try:
             e = parse(value)
         except ExprError as err:
-            self.fail(parent, key, path, str(err))
+            self.fail(parent, key, path, str(err), _EXPR_HINT)
         allowed = set(self.params) | ({"t"} if allow_t else set())
         for name in e.names:
             if name not in allowed:
@@ -106,7 +111,7 @@ class _Checker:
         if positive and not v > 0:
             self.fail(parent, key, path, f"must be positive, got {v:g}")
         if nonneg and v < 0:
-            self.fail(parent, key, path, f"must not be negative, got {v:g}")
+            self.fail(parent, key, path, f"must not be negative, got {v:g}", "use 0 or a positive value")
         return float(value) if isinstance(value, (int, float)) else value
 
     def value(self, spec_value):
@@ -119,7 +124,7 @@ class _Checker:
             self.fail(parent, key, path, f"expected a list of {n} numbers, got {v!r}")
         out = [self.number(v, i, f"{path}[{i}]", allow_t=allow_t) for i in range(n)]
         if nonzero and not np.any([self.value(x) for x in out]):
-            self.fail(parent, key, path, "must not be the zero vector")
+            self.fail(parent, key, path, "must not be the zero vector", "give a direction, e.g. [0, 0, 1]; its length does not matter")
         return out
 
     def matrix(self, parent, key, path):
@@ -214,7 +219,9 @@ class _Checker:
         for b in out:
             for c in b["joint"]["coordinates"] + b["joint"]["velocities"] + (b["elastic"]["coordinates"] if b["elastic"] else []):
                 if c in coords and coords[c] != b["name"]:
-                    self.fail(node[b["name"]], "joint", f"bodies.{b['name']}", f"coordinate name '{c}' is used by body '{coords[c]}' too", "coordinate names must be unique")
+                    jn = node[b["name"]]["joint"]
+                    where, key = (jn, "coordinates") if isinstance(jn, Map) and "coordinates" in jn else (node[b["name"]], "joint")
+                    self.fail(where, key, f"bodies.{b['name']}.joint.coordinates", f"coordinate name '{c}' is used by body '{coords[c]}' too", "coordinate names must be unique")
                 coords[c] = b["name"]
         return out
 
@@ -249,7 +256,8 @@ class _Checker:
         lam = np.linalg.eigvalsh(I)
         tol = 1e-9 * max(1.0, abs(lam).max())
         if lam[0] < -tol:
-            self.fail(node, key, path, f"the inertia tensor is not positive semi-definite (principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g})")
+            self.fail(node, key, path, f"the inertia tensor is not positive semi-definite (principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g})",
+                      "moments of inertia (about the centre of mass) are >= 0; check signs and the products xy, xz, yz")
         if lam[0] + lam[1] < lam[2] - tol:
             self.fail(node, key, path, f"principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g} break the triangle inequality (I1 + I2 >= I3)", "no rigid body has such an inertia")
         return m
