@@ -136,7 +136,6 @@ def elastic_energy(model, d, y, yd):
         qe = d.extra[i][0]
         E += 0.5 * qe @ b.inv.K @ qe
         if model.g is not None:
+            # first_moment includes the stiffening foreshortening, i.e. the potential ½ g_x qᵀK_a q
             E -= model.g @ (b.inv.m * d.o[i] + d.S[i] @ first_moment(b.inv, qe))
-            if b.inv.K_a is not None:
-                E += 0.5 * (d.S[i].T @ model.g)[0] * (qe @ b.inv.K_a @ qe)
     return E
