@@ -540,3 +540,30 @@ def test_gen_alpha_stiff_spring_large_steps():
     assert integ.stats["steps"] == 500
     assert abs(x[0]) < 1e-8  # fast mode damped (ρ∞^500)
     assert abs(x[1] - math.cos(5.0)) < 5e-3  # slow mode second-order accurate
+
+
+def test_rk4_unstable_step_fails_cleanly():
+    integ = make_integrator("rk4", StiffLinear(), h=1e-3)
+    integ.reset(0.0, [0.0, 0.0])
+    with pytest.raises(IntegrationError, match="unstable"):
+        integ.advance(0.01)
+    assert integ.t == 0.0
+    # a stable step on the same problem passes
+    integ = make_integrator("rk4", StiffLinear(), h=2e-6)
+    integ.reset(0.0, [0.0, 0.0])
+    x = integ.advance(1e-4)
+    assert np.max(np.abs(x - StiffLinear().exact(1e-4, [0.0, 0.0]))) < 1e-6
+
+
+@pytest.mark.parametrize("h", [0.005, 0.02, 0.05])
+def test_rk4_no_false_instability_alarm(h):
+    class ForcedFromRest:
+        n = 2
+
+        def f(self, t, x):
+            return np.array([x[1], math.sin(50.0 * t) + 30.0 * t * t])
+
+    for p, x0 in ((ForcedFromRest(), [0.0, 0.0]), (Kepler(), Kepler.initial(0.6)), (VanDerPol(3.0), [2.0, 0.0])):
+        integ = make_integrator("rk4", p, h=h)
+        integ.reset(0.0, x0)
+        integ.advance(3.0)

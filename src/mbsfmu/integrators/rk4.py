@@ -8,13 +8,32 @@ from .base import Integrator
 from .norms import all_finite
 
 
+# RK4's stability interval on the negative real axis ends at h·λ ≈ −2.785; an estimate above HLAMB_MAX while
+# the increment is also far larger than the Euler increment means the step is blowing up (not just stiff-ish)
+HLAMB_MAX, GROWTH_MAX = 4.0, 4.0
+
+
 def rk4_step(f, t, x, h, k1):
-    """x(t+h) ≈ x + h/6·(k1 + 2k2 + 2k3 + k4), the classical RK4 tableau."""
+    """x(t+h) ≈ x + h/6·(k1 + 2k2 + 2k3 + k4), the classical RK4 tableau; also returns the blow-up estimate."""
     h2 = 0.5 * h
     k2 = f(t + h2, x + h2 * k1)
     k3 = f(t + h2, x + h2 * k2)
     k4 = f(t + h, x + h * k3)
-    return x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+    dx = (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+    return x + dx, unstable(h, k1, k2, k3, k4, dx)
+
+
+def unstable(h, k1, k2, k3, k4, dx):
+    """DOPRI5-style test on RK4 stages: h·‖k4−k3‖/‖x4−x3‖ estimates h·|λ|; returns it when blowing up, else 0."""
+    dk = k4 - k3
+    dxs = h * (k3 - 0.5 * k2)  # (x + h·k3) − (x + h/2·k2)
+    den = dxs.dot(dxs)
+    if not den > 0.0:
+        return 0.0
+    hlamb = h * math.sqrt(dk.dot(dk) / den)
+    # reference increment h(‖k1‖ + ‖k2‖), not h‖k1‖ alone: starting at rest (k1 = 0) must not count as growth
+    ref = h * (math.sqrt(k1.dot(k1)) + math.sqrt(k2.dot(k2)))
+    return hlamb if hlamb > HLAMB_MAX and math.sqrt(dx.dot(dx)) > GROWTH_MAX * ref else 0.0
 
 
 class RK4(Integrator):
@@ -39,11 +58,16 @@ class RK4(Integrator):
             t = self.t
             t_new = t_end if i == nsub else t0 + span * i / nsub
             k1 = f(t, self.x)
-            x_new = rk4_step(f, t, self.x, t_new - t, k1)
+            h = t_new - t
+            x_new, blowup = rk4_step(f, t, self.x, h, k1)
             stats["rhs_evaluations"] += 4
             if not all_finite(x_new):
                 raise IntegrationError("rk4 produced non-finite values (NaN or Inf): right-hand side not finite "
                                        "or step size unstable for this problem", t)
+            if blowup:
+                raise IntegrationError(f"rk4 is unstable at step size {h:.3g}: the problem is stiff (estimated "
+                                       f"h·lambda = {blowup:.3g}, stability limit 2.8); use a smaller step, "
+                                       "radau5, gen_alpha or auto", t)
             if self._normalize is not None:
                 x_new = self._normalize(x_new)
             self.t, self.x = t_new, x_new
