@@ -333,3 +333,39 @@ def test_crane_inputs_and_horizontal_momentum():
     P = np.array([sum(b.m * ev.jacobians(y, yd)[b.name]["v"] for b in ev.model.bodies) for y, yd in zip(Y, YD)])
     assert np.ptp(YD[:, 0]) > 0.01  # the bridge does move, pushed by the swinging load
     np.testing.assert_allclose(P[:, :2], 0.0, atol=1e-6)
+
+
+def test_heavy_top_nutation_and_precession_follow_lagrange_top_solution():
+    """Lagrange top: precession rate φ̇ = (L_z − L_3 cos θ)/(A_O sin²θ) at every instant, and the largest tilt
+    is the root of the effective-energy equation (θ̇ = 0) — from the three integrals, not from the simulator."""
+    from scipy.optimize import brentq
+    scene = _model("spinning_top.yaml")
+    ev = mbsfmu.compile(scene)
+    p = ev.parameters
+    m, l, C = p["m"], p["l"], p["m"] * p["r"] ** 2 / 2
+    A_O = m * p["r"] ** 2 / 4 + m * p["h"] ** 2 / 12 + m * l * l
+    t, Y, YD = simulate(scene, stop=0.2, step=0.001, method="dop853", rtol=1e-10, atol=1e-12)
+    y0, yd0 = Y[0], YD[0]
+    L = _angular_momentum(ev, y0, yd0)
+    e3 = ev.jacobians(y0, yd0)["top"]["S"][:, 2]
+    Lz, L3, E = L[2], L @ e3, ev.energy(y0, yd0)
+
+    def phidot(th):
+        return (Lz - L3 * math.cos(th)) / (A_O * math.sin(th) ** 2)
+
+    tilt, rate = [], []
+    for y, yd in zip(Y, YD):
+        jb = ev.jacobians(y, yd)["top"]
+        a = jb["S"][:, 2]
+        ad = np.cross(jb["omega"], a)
+        tilt.append(math.acos(a[2]))
+        rate.append((a[0] * ad[1] - a[1] * ad[0]) / (a[0] ** 2 + a[1] ** 2))
+        np.testing.assert_allclose(rate[-1], phidot(tilt[-1]), rtol=1e-7, atol=1e-9)
+
+    def f(th):  # E − T_spin − V − T_precession = ½ A_O θ̇²
+        return E - L3 ** 2 / (2 * C) - m * G * l * math.cos(th) - 0.5 * A_O * phidot(th) ** 2 * math.sin(th) ** 2
+
+    th1 = p["tilt"]
+    th2 = brentq(f, th1 + 1e-6, 1.5)
+    assert abs(max(tilt) - th2) < 1e-4, (max(tilt), th2)
+    assert abs(min(tilt) - th1) < 1e-9
