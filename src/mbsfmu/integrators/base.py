@@ -97,7 +97,7 @@ class Integrator:
     def get_state(self):
         """Picklable snapshot of everything that influences future results."""
         s = {"method": self.method, "t": self.t, "x": self.x, "h": self.h, "stats": self.stats,
-             "_nonfinite": self._nonfinite}
+             "_nonfinite": self._nonfinite, "last_failure": self.last_failure}
         for k in self._state_keys:
             s[k] = getattr(self, k)
         return deep_copy(s)
