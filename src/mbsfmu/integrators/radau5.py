@@ -104,9 +104,9 @@ class Radau5(Integrator):
         self.first = True
 
     def _invalidate_derivative(self):
-        """New inputs: f at the step start is stale and extrapolating the old polynomial is pointless."""
+        """New inputs: f at the step start (used by the error estimate) is stale."""
+        # the collocation polynomial is kept: it only seeds Newton, whose residual uses the new inputs
         self.f0 = None
-        self.Q = None
 
     def _start(self, t_end):
         """f(t, x), Jacobian and HINIT (order 3 as the error estimator) when not available."""
