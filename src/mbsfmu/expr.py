@@ -169,8 +169,8 @@ def _names(node):
     kind = node[0]
     if kind == "name":
         yield node[1]
-    elif kind == "call":
-        for a in node[2]:
+    elif kind in ("call", "sel"):
+        for a in node[2] if kind == "call" else node[2:]:
             yield from _names(a)
     elif kind != "num":
         for a in node[1:]:
@@ -193,6 +193,14 @@ def _compile(node):
     if kind == "neg":
         f = _compile(node[1])
         return lambda env: -f(env)
+    if kind == "sel":  # piecewise: the derivative of the active branch of min/max (see _diff)
+        fa, fb, fx, fy = (_compile(a) for a in node[2:])
+        sign = 1.0 if node[1] == "min" else -1.0
+
+        def select(env):
+            d = sign * (fa(env) - fb(env))
+            return fx(env) if d < 0 else fy(env) if d > 0 else 0.5 * (fx(env) + fy(env))
+        return select
     if kind == "call":
         fn, args = FUNCTIONS[node[1]], [_compile(a) for a in node[2]]
         if len(args) == 1:
@@ -225,9 +233,20 @@ def _diff(n, v):
         if v not in set(_names(b)):  # d(a^c) = c a^(c-1) a'
             return ("*", ("*", b, ("^", a, ("-", b, ("num", 1.0)))), _diff(a, v))
         return ("*", n, ("+", ("*", _diff(b, v), ("call", "log", (a,))), ("/", ("*", b, _diff(a, v)), a)))
+    if k == "sel":  # d/dv of the selected branch; the selection itself is piecewise constant
+        return ("sel", n[1], n[2], n[3], _diff(n[4], v), _diff(n[5], v))
     name, args = n[1], n[2]
     if name in ("min", "max"):
-        raise ExprError(f"'{name}' cannot be differentiated in a drive", name, 0)
+        # min(a, b, c) = min(min(a, b), c); d min(a, b) = a' where a < b, b' where a > b (a piecewise
+        # node, selected at evaluation time); at an exact tie the mean of the two one-sided
+        # derivatives, so that C¹ joins such as f(min(t, T)) + c·max(t − T, 0) stay exact there
+        # (second derivatives at a tie are exact only where the joined branches have zero curvature)
+        a = args[0]
+        for b in args[1:]:
+            node = ("call", name, (a, b))
+            d = ("sel", name, a, b, _diff(a, v), _diff(b, v))
+            a = node
+        return d
     a = args[0]
     da = _diff(a, v)
     outer = {
@@ -259,6 +278,13 @@ def _simplify(n):
     if k == "neg":
         a = _simplify(n[1])
         return ("num", -a[1]) if a[0] == "num" else ("neg", a)
+    if k == "sel":
+        a, b, x, y = (_simplify(m) for m in n[2:])
+        if x == y:
+            return x
+        if a[0] == "num" and b[0] == "num" and a != b:
+            return x if (a[1] < b[1]) == (n[1] == "min") else y
+        return ("sel", n[1], a, b, x, y)
     if k == "call":
         args = tuple(_simplify(a) for a in n[2])
         if all(a[0] == "num" for a in args):
@@ -292,4 +318,7 @@ def _to_text(n):
         return f"(-{_to_text(n[1])})"
     if k == "call":
         return f"{n[1]}({', '.join(_to_text(a) for a in n[2])})"
+    if k == "sel":  # display only (never re-parsed: Expr.diff keeps the tree)
+        rel = "<" if n[1] == "min" else ">"
+        return f"({_to_text(n[4])} if {_to_text(n[2])} {rel} {_to_text(n[3])} else {_to_text(n[5])})"
     return f"({_to_text(n[1])} {k} {_to_text(n[2])})"
