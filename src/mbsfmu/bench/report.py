@@ -1,0 +1,37 @@
+"""Regenerate reports/: work-precision for the shipped rigid models, stress suite, equation timings.
+
+    python -m mbsfmu.bench.report [--out reports] [--stop 2] [--skip-stress]
+"""
+
+import argparse
+import os
+from pathlib import Path
+
+RIGID_MODELS = ("pendulum", "double_pendulum", "cart_pole", "robot_arm_6dof", "spinning_top", "driven_crank",
+                "spring_damper", "free_body", "crane")
+
+
+def main(argv=None):
+    from . import equations, stress, work_precision
+    p = argparse.ArgumentParser()
+    p.add_argument("--out", default="reports")
+    p.add_argument("--stop", type=float, default=2.0)
+    p.add_argument("--budget", type=float, default=20.0)
+    p.add_argument("--models", nargs="+", default=RIGID_MODELS)
+    p.add_argument("--skip-stress", action="store_true")
+    p.add_argument("--skip-wp", action="store_true")
+    a = p.parse_args(argv)
+    models = Path(stress.scene_dir()).parent
+    if not a.skip_wp:
+        for m in a.models:
+            path = models / f"{m}.yaml"
+            if path.exists():
+                work_precision.run(str(path), os.path.join(a.out, m), stop=a.stop, budget=a.budget, progress=False)
+                print("done", m, flush=True)
+    equations.benchmark_equations(str(models / "robot_arm_6dof.yaml"), a.out, stop=a.stop)
+    if not a.skip_stress:
+        stress.run(a.out, progress=False)
+
+
+if __name__ == "__main__":
+    main()
