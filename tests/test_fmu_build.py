@@ -680,8 +680,6 @@ def test_every_model_builds_validates_and_steps(model, tmp_path):
 
 
 @needs_real
-@pytest.mark.xfail(reason="equations.tree.applied_forces: F_in[...] KeyError when a scene declares a force "
-                          "input but only q.* inputs are non-zero (F_in == {})", strict=False)
 def test_real_q_input_alone_with_declared_force_input(real_fmu, tmp_path):
     f, vr = _instantiate(real_fmu, tmp_path, "qonly")
     f.setupExperiment(startTime=0.0)

@@ -200,7 +200,7 @@ def applied_forces(model, d, y, yd, t, q_in=None, F_in=None):
             continue
         i = f["body_index"]
         if "input" in f:
-            vec = F_in[f["input"]] if F_in is not None else None
+            vec = F_in.get(f["input"]) if F_in else None
             if vec is None or not vec.any():
                 continue
         elif f["constant"] is not None:
