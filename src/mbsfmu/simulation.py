@@ -38,9 +38,14 @@ class Problem:
         self.quats = m.quaternions
         self.quat_vel = m.quat_vel
         self.rhs_calls = 0
+        self.cardan = any(b.kind in ("spherical", "free") and b.param == "cardan" for b in m.bodies)
 
     def accel(self, t, y, v):
         """ÿ = M⁻¹ (q − k)."""
+        if self.cardan:  # only scenes with Cardan joints pay for the gimbal-lock check
+            msg = self.ev.singularity_message(y)
+            if msg:
+                raise IntegrationError(msg, t)
         M, k, q = self.ev._equations(y, v, t, self.q_in, self.F_in)
         try:
             return np.linalg.solve(M, q - k)
