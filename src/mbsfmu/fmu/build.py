@@ -29,7 +29,9 @@ from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 SPEC_FILE = "mbsfmu_spec.json"
+PYTHON_FILE = "mbsfmu_python.json"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
+SHIM_SOURCE = Path(__file__).with_name("shim.c")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
 
 # Runtime parts of the package copied into every FMU (missing optional entries are skipped).
@@ -154,10 +156,11 @@ def _load_scene(scene_or_path):
     return scene_or_path
 
 
-def build_fmu(scene_or_path, outdir=".", *, runtime_root=None) -> Path:
+def build_fmu(scene_or_path, outdir=".", *, runtime_root=None, shim=True) -> Path:
     """Build ``<outdir>/<name>.fmu`` from a scene (a YAML path or a loaded scene with ``.spec``).
 
     ``runtime_root`` (for tests) replaces the directory the runtime sources are copied from.
+    ``shim=False`` keeps pythonfmu's plain linux64 binary (needs libpython preloaded in C hosts).
     Returns the path of the written FMU.
     """
     scene = _load_scene(scene_or_path)
@@ -183,6 +186,7 @@ def build_fmu(scene_or_path, outdir=".", *, runtime_root=None) -> Path:
     module_name = f"mbsfmu_{name}_{fmu_hash[:12]}"
     script = (template.replace("@RUNTIME_PACKAGE@", rt_package)
               .replace("@SPEC_FILE@", SPEC_FILE)
+              .replace("@PYTHON_FILE@", PYTHON_FILE)
               .replace("@MODEL_NAME@", name)
               .replace("@MBSFMU_VERSION@", version))
 
@@ -199,6 +203,7 @@ def build_fmu(scene_or_path, outdir=".", *, runtime_root=None) -> Path:
             f.parent.mkdir(parents=True, exist_ok=True)
             f.write_bytes(content)
         (stage / SPEC_FILE).write_bytes(spec_bytes)
+        (stage / PYTHON_FILE).write_text(json.dumps(python_runtime(), indent=1), encoding="utf-8")
         script_file = stage / f"{module_name}.py"
         script_file.write_text(script, encoding="utf-8")
 
@@ -207,6 +212,8 @@ def build_fmu(scene_or_path, outdir=".", *, runtime_root=None) -> Path:
     guid = "{" + str(uuid.UUID(fmu_hash[:32])) + "}"
     xml = model_description(spec_for_xml, name, variables, version, guid=guid)
     _replace_in_zip(dest, "modelDescription.xml", xml)
+    if shim:
+        _attach_shim(dest, name)
     return dest
 
 
@@ -223,7 +230,7 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
         variables = list(inst._sim.variables)
         spec = json.loads((stage / SPEC_FILE).read_text(encoding="utf-8"))
         FmuBuilder.build_FMU(
-            script_file, dest=dest, project_files=[pkg, stage / SPEC_FILE],
+            script_file, dest=dest, project_files=[pkg, stage / SPEC_FILE, stage / PYTHON_FILE],
             needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
             canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False,
             canGetAndSetFMUstate=True, canSerializeFMUstate=True)
@@ -234,6 +241,94 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
             if key == module_name or key == rt_package or key.startswith(rt_package + "."):
                 del sys.modules[key]
     return variables, spec
+
+
+def python_runtime() -> dict:
+    """The build interpreter, recorded in the FMU (``resources/mbsfmu_python.json``).
+
+    The generated slave script appends ``site_packages`` to ``sys.path`` (hosts that start their own
+    interpreter do not see the build environment's packages); the linux64 shim loads ``libpython``.
+    """
+    import site
+    import sysconfig
+    paths = []
+    for p in [sysconfig.get_paths().get("purelib"), sysconfig.get_paths().get("platlib")] + list(
+            getattr(site, "getsitepackages", lambda: [])()):
+        if p and p not in paths and Path(p).is_dir():
+            paths.append(p)
+    try:
+        user = site.getusersitepackages()
+        if site.ENABLE_USER_SITE and user and Path(user).is_dir() and user not in paths:
+            paths.append(user)
+    except Exception:
+        pass
+    libpython = soname = None
+    if sysconfig.get_config_var("Py_ENABLE_SHARED"):
+        soname = sysconfig.get_config_var("INSTSONAME") or sysconfig.get_config_var("LDLIBRARY")
+        for name in (soname, sysconfig.get_config_var("LDLIBRARY")):
+            if name and (Path(sysconfig.get_config_var("LIBDIR") or "") / name).exists():
+                libpython = str(Path(sysconfig.get_config_var("LIBDIR")) / name)
+                break
+    return {"version": list(sys.version_info[:3]), "executable": sys.executable, "prefix": sys.prefix,
+            "base_prefix": sys.base_prefix, "libpython": libpython, "libpython_soname": soname,
+            "site_packages": paths}
+
+
+def _c_string(s: str | None) -> str:
+    return json.dumps(s or "")  # a valid C string literal for ASCII/UTF-8 paths
+
+
+def compile_shim(out: Path, real_library: str, runtime: dict | None = None) -> Path | None:
+    """Compile the loader shim (``shim.c``) into ``out``; None (with a warning) without a C compiler."""
+    import shutil
+    import subprocess
+    import sysconfig
+    runtime = runtime or python_runtime()
+    cc = None
+    for cand in (sysconfig.get_config_var("CC") or "").split()[:1] + ["cc", "gcc", "clang"]:
+        if cand and shutil.which(cand):
+            cc = shutil.which(cand)
+            break
+    if cc is None:
+        warnings.warn("no C compiler found: the FMU keeps pythonfmu's plain binary, which needs "
+                      "libpython preloaded (LD_PRELOAD) in non-Python hosts", RuntimeWarning, stacklevel=3)
+        return None
+    if not runtime.get("libpython"):
+        warnings.warn("this Python has no shared libpython: the FMU runs only in Python hosts",
+                      RuntimeWarning, stacklevel=3)
+    src = out.with_suffix(".c")
+    src.write_text(
+        f"#define MBSFMU_LIBPYTHON {_c_string(runtime.get('libpython'))}\n"
+        f"#define MBSFMU_LIBPYTHON_SONAME {_c_string(runtime.get('libpython_soname'))}\n"
+        f"#define MBSFMU_PYTHON_EXECUTABLE {_c_string(runtime.get('executable'))}\n"
+        f"#define MBSFMU_REAL_LIBRARY {_c_string(real_library)}\n"
+        + SHIM_SOURCE.read_text(encoding="utf-8"), encoding="utf-8")
+    cmd = [cc, "-shared", "-fPIC", "-O2", "-fvisibility=hidden", "-o", str(out), str(src), "-ldl", "-lpthread"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        warnings.warn(f"compiling the FMU loader shim failed ({' '.join(cmd)}): {r.stderr.strip()[:2000]}; "
+                      "the FMU keeps pythonfmu's plain binary", RuntimeWarning, stacklevel=3)
+        return None
+    return out
+
+
+def _attach_shim(dest: Path, name: str) -> bool:
+    """Make ``binaries/linux64/<name>.so`` the loader shim, pythonfmu's binary ``<name>_pythonfmu.so``."""
+    if not sys.platform.startswith("linux"):
+        return False
+    member = f"binaries/linux64/{name}.so"
+    real_name = f"{name}_pythonfmu.so"
+    with zipfile.ZipFile(dest) as z:
+        if member not in z.namelist():
+            return False
+        real_bytes = z.read(member)
+    with tempfile.TemporaryDirectory(prefix="mbsfmu_shim_") as tmp:
+        so = compile_shim(Path(tmp) / "shim.so", real_name)
+        if so is None:
+            return False
+        _replace_in_zip(dest, member, so.read_bytes())
+        _replace_in_zip(dest, f"binaries/linux64/{real_name}", real_bytes)
+    return True
 
 
 def _fmt(x) -> str:
