@@ -80,3 +80,9 @@ def test_best_at_and_ratio():
     assert wp.best_at(rows, "mbsfmu")["method"] == "mbsfmu:a"
     assert wp.best_at(rows, "scipy")["cpu_seconds"] == 0.5
     assert wp.best_at(rows, "exudyn") is None
+
+
+def test_exudyn_refuses_scenes_with_force_elements():
+    spec = mbsfmu.load(str(ROOT / "models" / "cart_pole.yaml")).spec
+    ok, why = wp.exudyn_supported(spec)
+    assert not ok and "force" in why

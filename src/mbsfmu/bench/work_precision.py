@@ -146,6 +146,8 @@ def exudyn_supported(spec):
             return False, f"body '{b.name}' has a prescribed drive (not mapped)"
         if b.elastic is not None:
             return False, "elastic bodies are not mapped"
+    if spec.get("forces"):
+        return False, "force elements (springs, dampers, forces) are not mapped to Exudyn"
     return True, ""
 
 
