@@ -154,6 +154,7 @@ def test_driven_crank_power_balance():
         tau = pin.rnea(pm, pd, qp, vp, ap)
         np.testing.assert_allclose(tau[free], 0.0, atol=1e-9)  # the free joint needs no torque
         P.append(tau[0] * omega)
+        assert ev.energy(y, yd, tt) == pytest.approx(e, rel=1e-12, abs=1e-12)  # v̄, ω̄ of the drive included
     E, P = np.array(E), np.array(P)
     work = np.concatenate([[0.0], np.cumsum(0.5 * (P[1:] + P[:-1]) * np.diff(t))])
     assert np.ptp(E) > 0.1  # the motor does work ...

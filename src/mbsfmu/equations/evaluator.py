@@ -168,8 +168,16 @@ class Evaluator:
         y, yd = np.asarray(y, float), np.asarray(yd, float)
         m = self.model
         d = kinematics(m, y, yd, t)
-        M, _, _ = mass_matrix_and_bias(m, d)
-        E = 0.5 * yd @ M @ yd
+        if m.has_drives and not m.has_elastic:  # ½ẏᵀMẏ misses the drives' v̄, ω̄: sum over the bodies
+            E = 0.0
+            for i in m.massive:
+                b = m.bodies[i]
+                _, v, _ = point(d, i, b.c if b.c is not None else np.zeros(3))
+                Iw = d.S[i] @ (b.I @ (d.S[i].T @ d.w[i]))
+                E += 0.5 * b.m * (v @ v) + 0.5 * (d.w[i] @ Iw)
+        else:
+            M, _, _ = mass_matrix_and_bias(m, d)
+            E = 0.5 * yd @ M @ yd
         if m.g is not None:
             for i in m.massive:
                 b = m.bodies[i]
