@@ -381,3 +381,8 @@ def test_top_with_cardan_angles_follows_the_quaternion_top():
         runs.append(np.array([ev.jacobians(y, yd)["top"]["r"] for y, yd in zip(Y, YD)]))
     assert "top.b" in ev.coordinates
     np.testing.assert_allclose(runs[1], runs[0], atol=1e-8)
+
+
+def test_robot_arm_description_cites_its_data_source():
+    d = _model("robot_arm_6dof.yaml").spec["description"]
+    assert "Armstrong" in d and "Corke" in d
