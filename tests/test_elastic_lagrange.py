@@ -7,6 +7,10 @@ with v_g = ∂r_g/∂y ẏ.  Then M = ∂²T/∂ẏ² and  k − q = (∂p/∂y)
 First derivatives by complex step (exact to rounding), (∂p/∂y) ẏ by a 4th-order central difference.
 Compared with the evaluator's M, k, q (M ÿ + k = q) at random states, no stiffening (the reference is
 the plain linear FFRF model: u_g = R_g + Φ_g q, J_g constant in R, ω_g = ω + Ψ_g q̇).
+Scope: only what projects onto θ (hub axis e_y) and q; e.g. the (C_t q) × g frame torque is seen
+(replacing it by S0 × g, Exudyn's LoadMassProportional, fails by 3.5 %), frame-torque terms about x
+or z are constraint reactions here.  The full 6+n frame rows are checked by test_elastic_ffrf (node
+loop, energy) and test_exudyn_flexible.test_exudyn_one_state_accelerations (rotated 3-D state).
 """
 
 import numpy as np
