@@ -151,15 +151,18 @@ class Evaluator:
         r, v, _ = point(d, i, np.array([parse(x)(self.model.env) for x in o["point"]], dtype=float))
         return r, v
 
-    def singularity_message(self, y):
-        """Why M may be singular at y: Cardan angles at gimbal lock (b = ±90°), else None."""
+    def singularity_message(self, y, y_before=None):
+        """Why M is (or was, between y_before and y) singular: Cardan angles at gimbal lock (b = ±90°), else None."""
         for b in self.model.bodies:
             if b.kind in ("spherical", "free") and b.param == "cardan":
                 k = len(b.coordinates) - 2  # the middle angle b
                 idx = b.pos_idx[k]
-                angle = y[idx] if idx >= 0 else None
-                if angle is not None and abs(math.cos(angle)) < 1e-3:
-                    return (f"gimbal lock: Cardan angle {b.coordinates[k]} = {angle:.6g} rad is at ±90°, where the "
+                if idx < 0:
+                    continue
+                angle = y[idx]
+                crossed = y_before is not None and math.cos(y_before[idx]) * math.cos(angle) < 0
+                if crossed or abs(math.cos(angle)) < 1e-3:
+                    return (f"gimbal lock: Cardan angle {b.coordinates[k]} = {angle:.6g} rad reached ±90°, where the "
                             f"x-y-z angles of body '{b.name}' are singular; use parameterization: quaternion")
         return None
 

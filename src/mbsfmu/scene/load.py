@@ -191,6 +191,11 @@ class _Checker:
             if isinstance(v, Map):
                 self.keys(v, path, ("value", "description"), required=("value",))
                 desc, v = str(v.get("description", "")), v["value"]
+            if isinstance(v, str):  # YAML 1.1 reads 1.0e8 or 1e8 as a string
+                try:
+                    v = float(v)
+                except ValueError:
+                    pass
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 self.fail(node, name, path, f"a parameter value must be a finite number, got {v!r}")
             self.params[name] = float(v)
