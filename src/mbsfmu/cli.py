@@ -189,7 +189,11 @@ def main(argv=None):
         p = sub.add_parser(name, help="work-precision benchmark" if name == "bench" else "stability suite", add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(run=lambda a, fn=fn, name=name: _bench(name, fn, a.rest))
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if args.command in ("bench", "stress"):  # their own parsers read options, --help included
+        args.rest = extra + list(args.rest)
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         args.run(args)
     except ModelError as e:
