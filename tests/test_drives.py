@@ -10,7 +10,7 @@ import mbsfmu
 from mbsfmu.simulation import simulate
 
 pin = pytest.importorskip("pinocchio")
-from pin_helpers import pinocchio_model, to_pin  # noqa: E402
+from mbsfmu.bench.pinocchio_twin import pinocchio_model, to_pin  # noqa: E402
 
 W = 2 * math.pi
 DRIVES = {  # coordinate → (expression, exact position, velocity, acceleration as functions of t)

@@ -10,55 +10,6 @@ import time
 import numpy as np
 
 
-def pinocchio_model(ev):
-    """The compiled tree in Pinocchio (joint placement = parent body frame → joint frame; fixed bodies lumped
-    onto their parent joint). Mirrors tests/test_pinocchio.py `_pinocchio_model`."""
-    import pinocchio as pin
-    model = pin.Model()
-    ids = {}
-    for b in ev.model.bodies:
-        parent = 0 if b.parent < 0 else ids[ev.model.bodies[b.parent].name]
-        R0 = b.R0 if b.R0 is not None else np.eye(3)
-        at = b.at if b.at is not None else np.zeros(3)
-        placement = pin.SE3(R0, at)
-        c = b.c if b.c is not None else np.zeros(3)
-        I = b.I if b.I is not None else np.zeros((3, 3))
-        inertia = pin.Inertia(float(b.m or 0.0), c, I)
-        if b.kind == "fixed":
-            model.appendBodyToJoint(parent, inertia, placement)
-            ids[b.name] = parent
-            continue
-        j = b.joint
-        if b.kind == "revolute":
-            jm = pin.JointModelRevoluteUnaligned(*j.a)
-        elif b.kind == "prismatic":
-            jm = pin.JointModelPrismaticUnaligned(*j.a)
-        elif b.kind == "spherical" and b.param == "quaternion":
-            jm = pin.JointModelSpherical()
-        else:
-            raise NotImplementedError(f"joint type {b.kind} not mapped to Pinocchio here")
-        if any(getattr(b, "driven", [])):
-            raise NotImplementedError("prescribed drives are not mapped to Pinocchio here")
-        jid = model.addJoint(parent, jm, placement, b.name)
-        model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
-        ids[b.name] = jid
-    model.gravity = pin.Motion(ev.model.g, np.zeros(3))
-    return model
-
-
-def _to_pin(ev, y, yd):
-    q, v = [], []
-    for b in ev.model.bodies:
-        if b.kind == "fixed":
-            continue
-        p = y[b.pos_idx]
-        if b.kind == "spherical":
-            p = np.array([p[1], p[2], p[3], p[0]])
-        q.extend(p)
-        v.extend(yd[b.vel_idx])
-    return np.array(q), np.array(v)
-
-
 def _time_per_call(fn, args_list, min_time=0.5):
     """Best-of-3 mean µs per call over the argument list (repeated until ≥ min_time/3 per trial)."""
     best = math.inf
@@ -99,9 +50,11 @@ def benchmark_equations(scene_path, out_dir=None, n_states=20, fmu=True, stop=No
     res["mbsfmu_rhs_us"] = _time_per_call(sim.problem.f, xs)
     try:
         import pinocchio as pin
+
+        from .pinocchio_twin import pinocchio_model, to_pin
         model = pinocchio_model(ev)
         data = model.createData()
-        pstates = [_to_pin(ev, y, yd) for y, yd, _ in states]
+        pstates = [to_pin(ev, y, yd)[:2] for y, yd, _ in states]
 
         def pin_eq(q, v):
             pin.crba(model, data, q)

@@ -1,4 +1,4 @@
-"""Pinocchio twin of a compiled scene (shared by the Pinocchio-based tests).
+"""Pinocchio twin of a compiled scene (the independent reference of the tests and the equations benchmark).
 
 Handles revolute, prismatic, cylindrical, universal, spherical (quaternion) and fixed joints; driven
 coordinates stay ordinary Pinocchio joints, so the full tree can be compared with the free part.
