@@ -14,10 +14,11 @@ class Auto:
 
     method = "auto"
 
-    def __init__(self, problem, rtol=1e-6, atol=1e-8, max_step=math.inf, h=None, max_steps=1_000_000):
+    def __init__(self, problem, rtol=1e-6, atol=1e-8, max_step=math.inf, h=None, max_steps=1_000_000,
+                 dense=False):
         kw = dict(rtol=rtol, atol=atol, max_step=max_step, max_steps=max_steps)
         self.problem = problem
-        self.nonstiff = Dopri5(problem, stop_when_stiff=True, **kw)
+        self.nonstiff = Dopri5(problem, stop_when_stiff=True, dense=dense, **kw)
         self.stiff = Radau5(problem, **kw)
         self.phase = "dopri5"
         self.switched_at = None
@@ -48,6 +49,11 @@ class Auto:
         self.switched_at = None
         self.nonstiff.reset(t0, x0)
 
+    @property
+    def dense(self):
+        """Whether the explicit phase uses dense output (RADAU5 always lands on t_end)."""
+        return self.nonstiff.dense
+
     def inputs_changed(self):
         """Forward to the active method (cached derivatives are stale)."""
         self._active.inputs_changed()
@@ -58,7 +64,9 @@ class Auto:
             if self.nonstiff.x is None:
                 raise IntegrationError("reset(t0, x0) must be called before advance()")
             self.nonstiff.advance(t_end)
-            if self.nonstiff.t < t_end:
+            # stiffness may be detected in a dense-output step that went past t_end: switch at the
+            # visible point (the ahead point of DOPRI5 is dropped with it)
+            if self.nonstiff.t < t_end or self.nonstiff.stiff_detected:
                 self._switch()
         if self.phase == "radau5":
             self.stiff.advance(t_end)

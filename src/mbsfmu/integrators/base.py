@@ -1,4 +1,17 @@
-"""Common driver: reset/advance to exact communication points, step-size carry-over, stats, state snapshots."""
+"""Common driver: reset/advance to exact communication points, step-size carry-over, stats, state snapshots.
+
+Dense output (dopri5, dop853, auto's explicit phase; opt-in with ``dense=True`` — off by default for now
+because FMU-level tests expect bit-identical replay across inputs_changed() with unchanged values):
+while the inputs are unchanged, advance(t_end) takes its natural step past t_end and returns the
+continuous-extension value at t_end.  The integrator then keeps an internal "ahead" point (t_int, x_int)
+together with the interpolation coefficients of that last step; the next advance interpolates again when
+its target lies inside that step, otherwise it continues stepping from (t_int, x_int).  ``t``/``x`` always
+mean the last returned communication point and its (normalized) state.  inputs_changed() drops the ahead
+point and restarts from the visible (interpolated) state, so the new inputs are held exactly over the next
+interval.  Consequently the visible states differ from a stop-at-every-point run by the interpolation error
+(of the order of the tolerance), not bit for bit.  max_step still bounds every internal step.  The fixed-step
+and implicit methods (rk4, radau5, gen_alpha) always land exactly on t_end.
+"""
 
 import math
 
@@ -36,7 +49,11 @@ class Integrator:
     # attributes (besides t, x, h, stats) that influence future results; subclasses extend
     _state_keys = ()
 
-    def __init__(self, problem, rtol=1e-6, atol=1e-8, max_step=math.inf, h=None, max_steps=1_000_000):
+    # True for methods with a continuous extension (subclasses implement _dense_coeffs/_dense_eval)
+    _has_dense = False
+
+    def __init__(self, problem, rtol=1e-6, atol=1e-8, max_step=math.inf, h=None, max_steps=1_000_000,
+                 dense=None):
         if not rtol > 0 or not np.all(np.asarray(atol) >= 0):
             raise ValueError(f"need rtol > 0 and atol >= 0 (got rtol={rtol}, atol={atol})")
         if not max_step > 0:
@@ -60,6 +77,11 @@ class Integrator:
         self.stats = new_stats()
         self._nonfinite = 0
         self.last_failure = None  # "error" or "newton": reason of the latest rejection
+        if dense and not self._has_dense:
+            raise ValueError(f"method {self.method!r} has no dense output")
+        self.dense = False if dense is None else bool(dense)
+        self._ahead = None  # (t_int, x_int): internal accepted point past the visible (t, x), or None
+        self._seg = None    # (t_old, h, Q): continuous extension of the step ending at t_int
 
     # ---------------------------------------------------------------- public API
     def reset(self, t0, x0):
@@ -75,13 +97,25 @@ class Integrator:
         self.stats = new_stats()
         self._nonfinite = 0
         self.last_failure = None
+        self._ahead = None
+        self._seg = None
         self._reset_history()
 
     def inputs_changed(self):
         """Tell the integrator that f changed discontinuously at the current t (new inputs/parameters)."""
         # cached derivatives (FSAL stage, f at the step start) are stale; Jacobians are kept because
-        # Newton's convergence monitor refreshes them when they no longer fit
+        # Newton's convergence monitor refreshes them when they no longer fit.  With dense output the
+        # internal point past t is dropped: restart from the visible (interpolated) state so that the
+        # new inputs act exactly from t on.
+        self._drop_ahead()
         self._invalidate_derivative()
+
+    def _drop_ahead(self):
+        """Forget the internal ahead point (its FSAL stage belongs to it, so drop that too)."""
+        if self._ahead is not None:
+            self._ahead = None
+            self._invalidate_derivative()
+        self._seg = None
 
     def advance(self, t_end):
         """Integrate from self.t to exactly t_end; on failure raise IntegrationError at the last good point."""
@@ -91,8 +125,29 @@ class Integrator:
         if not t_end >= self.t:
             raise IntegrationError(f"cannot integrate backwards (t_end={t_end!r} < t)", self.t)
         if t_end > self.t:
-            self._advance(t_end)
+            ahead = self._ahead
+            if ahead is not None and t_end <= ahead[0]:
+                self._land(t_end)
+            else:
+                if ahead is not None:
+                    # continue stepping from the internal point (its FSAL stage is still valid)
+                    self.t, self.x = ahead
+                    self._ahead = self._seg = None
+                self._advance(t_end)
         return self.x.copy()
+
+    def _land(self, t_end):
+        """Make t_end (inside the last step) the visible point: interpolate, normalize."""
+        t_int, x_int = self._ahead
+        if t_end == t_int:
+            self.t, self.x = t_int, x_int
+            self._ahead = self._seg = None
+            return
+        t_old, h, Q = self._seg
+        x = self._dense_eval(Q, (t_end - t_old) / h)
+        if self._normalize is not None:
+            x = np.asarray(self._normalize(x), dtype=float)
+        self.t, self.x = t_end, x
 
     def get_state(self):
         """Picklable snapshot of everything that influences future results."""
@@ -100,6 +155,8 @@ class Integrator:
              "_nonfinite": self._nonfinite, "last_failure": self.last_failure}
         for k in self._state_keys:
             s[k] = getattr(self, k)
+        if self.dense:
+            s["_ahead"], s["_seg"] = self._ahead, self._seg
         return deep_copy(s)
 
     def set_state(self, s):
@@ -107,6 +164,7 @@ class Integrator:
         if s.get("method") != self.method:
             raise ValueError(f"state of method {s.get('method')!r} given to a {self.method!r} integrator")
         s = deep_copy(s)
+        self._ahead = self._seg = None
         for k, v in s.items():
             if k != "method":
                 setattr(self, k, v)
@@ -114,6 +172,7 @@ class Integrator:
     # ---------------------------------------------------------------- adaptive driver
     def _advance(self, t_end):
         """Adaptive loop: proposed h is clipped to hit t_end exactly, but the unclipped h is carried over."""
+        dense = self.dense
         self._start(t_end)
         min_step = 10 * _EPS * max(abs(self.t), abs(t_end))
         attempts = 0
@@ -131,11 +190,15 @@ class Integrator:
                 # rounding of t itself), so land on it without a step instead of reporting an underflow
                 self.t = t_end
                 break
-            # stretch by up to 1 % rather than leave a tiny last step (Hairer's DOPRI5 does the same)
-            clipped = 1.01 * h_prop >= remaining and remaining <= self.max_step * (1.0 + 1e-9)
-            t_new = t_end if clipped else t + h_prop
-            if t_new >= t_end:
-                t_new, clipped = t_end, True
+            if dense:
+                # natural step, possibly past t_end: the continuous extension gives x(t_end)
+                t_new, clipped = t + h_prop, False
+            else:
+                # stretch by up to 1 % rather than leave a tiny last step (Hairer's DOPRI5 does the same)
+                clipped = 1.01 * h_prop >= remaining and remaining <= self.max_step * (1.0 + 1e-9)
+                t_new = t_end if clipped else t + h_prop
+                if t_new >= t_end:
+                    t_new, clipped = t_end, True
             h = t_new - t
             if h < min_step:
                 raise IntegrationError(f"step size underflow (h={h:.3g}): {self._failure_reason()}", t)
@@ -146,9 +209,17 @@ class Integrator:
             self._nonfinite = 0
             if self._normalize is not None:
                 x_new = np.asarray(self._normalize(x_new), dtype=float)
+            x_old = self.x
             self.t, self.x = t_new, x_new
             self.stats["steps"] += 1
             self._accepted()
+            if dense and t_new > t_end:
+                # the stages of this step are still in the work arrays: build its continuous extension
+                self._seg = (t, h, self._dense_coeffs(t, x_old, x_new, h))
+                self._ahead = (t_new, x_new)
+                self.h = min(self.h, self.max_step)
+                self._land(t_end)
+                return
             # a step shortened to land on the communication point says little about the next step:
             # keep the earlier, larger proposal unless this step itself asked for a reduction
             if clipped and h < h_prop and self.h >= h:
@@ -197,6 +268,14 @@ class Integrator:
 
     def _accepted(self):
         """Hook after (t, x) moved to the accepted (normalized) point."""
+
+    def _dense_coeffs(self, t_old, x_old, x_new, h):
+        """Coefficients of the continuous extension of the step just accepted (uses the stage array)."""
+        raise NotImplementedError
+
+    def _dense_eval(self, Q, theta):
+        """Value of the continuous extension at t_old + theta·h."""
+        raise NotImplementedError
 
     def _stop_early(self):
         """True makes _advance return before t_end (used by 'auto' to switch method)."""

@@ -15,6 +15,9 @@ C = np.ascontiguousarray(T.C[:S])
 B = np.ascontiguousarray(T.B)
 E3 = np.ascontiguousarray(T.E3)
 E5 = np.ascontiguousarray(T.E5)
+A_EXTRA = np.ascontiguousarray(T.A_EXTRA)
+C_EXTRA = np.ascontiguousarray(T.C_EXTRA)
+D = np.ascontiguousarray(T.D)
 
 # Hairer's DOP853 defaults: safety 0.9, 1/3 <= hnew/h <= 6, no PI part (beta = 0), exponent 1/8
 SAFE, FAC1, FAC2, EXPO1 = 0.9, 0.333, 6.0, 1.0 / 8.0
@@ -37,10 +40,13 @@ class Dop853(Integrator):
     method = "dop853"
     _state_keys = ("k1", "last_rejected")
     order = 7  # HINIT uses the error-estimator order
+    _has_dense = True
 
     def __init__(self, problem, **kw):
         super().__init__(problem, **kw)
-        self._K = np.empty((S + 1, self.n))
+        # stages 0..11, FSAL stage 12, and the three extra stages of the continuous extension
+        self._Kx = np.empty((T.N_STAGES_EXTENDED, self.n))
+        self._K = self._Kx[:S + 1]
         self._reset_history()
 
     def _reset_history(self):
@@ -88,3 +94,28 @@ class Dop853(Integrator):
         self.h = h_new
         self.k1 = K[S].copy()
         return x_new
+
+    def _dense_coeffs(self, t_old, x_old, x_new, h):
+        """Order-7 continuous extension: 3 extra stages, then [x_old; F0..F6] as in SciPy's DOP853."""
+        K, f = self._Kx, self.problem.f
+        for i in range(A_EXTRA.shape[0]):
+            s = S + 1 + i
+            K[s] = f(t_old + C_EXTRA[i] * h, x_old + (h * A_EXTRA[i, :s]) @ K[:s])
+        self.stats["rhs_evaluations"] += A_EXTRA.shape[0]
+        Q = np.empty((T.INTERPOLATOR_POWER + 1, self.n))
+        dy = x_new - x_old
+        Q[0] = x_old
+        Q[1] = dy
+        Q[2] = h * K[0] - dy
+        Q[3] = 2.0 * dy - h * (K[S] + K[0])
+        Q[4:] = (h * D) @ K
+        return Q
+
+    def _dense_eval(self, Q, theta):
+        """Horner-like evaluation alternating θ and 1−θ (SciPy's Dop853DenseOutput)."""
+        y = np.zeros(self.n)
+        th1 = 1.0 - theta
+        for i, row in enumerate(Q[:0:-1]):
+            y += row
+            y *= theta if i % 2 == 0 else th1
+        return y + Q[0]

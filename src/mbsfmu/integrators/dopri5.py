@@ -20,6 +20,10 @@ A[6, :6] = [35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84]  # = b 
 # E = b5 - b4 (Hairer's e_i), applied to all 7 stages including the FSAL stage k7
 E = np.array([71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
 
+# Hairer's continuous extension of order 4 (DOPRI5's CONTD5; the same polynomial as SciPy's RK45 P matrix)
+D = np.array([-12715105075 / 11282082432, 0.0, 87487479700 / 32700410799, -10690763975 / 1880347072,
+              701980252875 / 199316789632, -1453857185 / 822651844, 69997945 / 29380423])
+
 # Hairer's DOPRI5 defaults: safety 0.9, 0.2 <= hnew/h <= 10, PI controller with beta = 0.04
 SAFE, FAC1, FAC2, BETA = 0.9, 0.2, 10.0, 0.04
 EXPO1 = 0.2 - 0.75 * BETA
@@ -40,6 +44,7 @@ class Dopri5(Integrator):
     method = "dopri5"
     _state_keys = ("k1", "facold", "last_rejected", "iasti", "nonsti", "stiff_detected")
     order = 4  # order of the error estimator (HINIT uses it)
+    _has_dense = True
 
     def __init__(self, problem, detect_stiffness=False, stop_when_stiff=False, **kw):
         super().__init__(problem, **kw)
@@ -99,6 +104,18 @@ class Dopri5(Integrator):
             self._stiffness_test(h, K, x, x_new, hA)
         self.k1 = K[6].copy()
         return x_new
+
+    def _dense_coeffs(self, t_old, x_old, x_new, h):
+        """Hairer's rcont1..5 from the stages of the accepted step (K[0] = f at start, K[6] = f at end)."""
+        K = self._K
+        ydiff = x_new - x_old
+        bspl = h * K[0] - ydiff
+        return np.array([x_old, ydiff, bspl, ydiff - h * K[6] - bspl, (h * D) @ K])
+
+    def _dense_eval(self, Q, theta):
+        """CONTD5: r1 + θ(r2 + (1−θ)(r3 + θ(r4 + (1−θ) r5)))."""
+        th1 = 1.0 - theta
+        return Q[0] + theta * (Q[1] + th1 * (Q[2] + theta * (Q[3] + th1 * Q[4])))
 
     def _stop_early(self):
         """With stop_when_stiff, hand control back as soon as stiffness is detected."""
