@@ -360,7 +360,8 @@ def test_heavy_top_nutation_and_precession_follow_lagrange_top_solution():
         ad = np.cross(jb["omega"], a)
         tilt.append(math.acos(a[2]))
         rate.append((a[0] * ad[1] - a[1] * ad[0]) / (a[0] ** 2 + a[1] ** 2))
-        np.testing.assert_allclose(rate[-1], phidot(tilt[-1]), rtol=1e-7, atol=1e-9)
+        # outputs between internal steps are dense-output values: their error is ~rtol·|ω| = 1e-10·150 rad/s
+        np.testing.assert_allclose(rate[-1], phidot(tilt[-1]), rtol=1e-7, atol=3e-8)
 
     def f(th):  # E − T_spin − V − T_precession = ½ A_O θ̇²
         return E - L3 ** 2 / (2 * C) - m * G * l * math.cos(th) - 0.5 * A_O * phidot(th) ** 2 * math.sin(th) ** 2

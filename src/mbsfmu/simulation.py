@@ -160,6 +160,7 @@ class Simulation:
                                           atol=v["integrator.atol"], max_step=v["integrator.max_step"] or math.inf,
                                           h=step, **({"rho_inf": self.spec["integrator"]["rho_inf"]} if v["integrator.method"] == "gen_alpha" else {}))
         self.integrator.reset(self.time, self.x)
+        self._applied = None
         self._inputs_dirty = True
         self._params_dirty = False
         self._outputs = self._compute_outputs(y0, yd0)
@@ -170,8 +171,12 @@ class Simulation:
         bad = [n for n, x in u.items() if not math.isfinite(x)]
         if bad:
             raise IntegrationError(f"input {', '.join(bad)} is not finite ({u[bad[0]]}); step refused", self.time)
-        self.problem.q_in, self.problem.F_in = self.ev._split_inputs({n: x for n, x in u.items() if x != 0.0})
         self._inputs_dirty = False
+        if u == getattr(self, "_applied", None):
+            return False
+        self.problem.q_in, self.problem.F_in = self.ev._split_inputs({n: x for n, x in u.items() if x != 0.0})
+        self._applied = u
+        return True
 
     def do_step(self, t, h):
         """Advance from t to t + h with the inputs held; raises IntegrationError (state stays at self.time)."""
@@ -185,8 +190,8 @@ class Simulation:
             self._params_dirty = False
             self.integrator.inputs_changed()
         if self._inputs_dirty:
-            self._apply_inputs()
-            self.integrator.inputs_changed()
+            if self._apply_inputs():  # masters set every input each step: restart only on a real change
+                self.integrator.inputs_changed()
         if abs(t - self.time) > 1e-9 * max(1.0, abs(t)):
             raise IntegrationError(f"do_step called at t={t} but the simulation is at t={self.time}", self.time)
         x_before = self.x
@@ -243,6 +248,7 @@ class Simulation:
         self.integrator.set_state(s["integrator"])
         self.time, self.x = s["time"], s["x"].copy()
         self._outputs = dict(s["outputs"])
+        self._applied = None
         self._apply_inputs()
         self._params_dirty = False
 

@@ -15,7 +15,7 @@ class Auto:
     method = "auto"
 
     def __init__(self, problem, rtol=1e-6, atol=1e-8, max_step=math.inf, h=None, max_steps=1_000_000,
-                 dense=False):
+                 dense=True):
         kw = dict(rtol=rtol, atol=atol, max_step=max_step, max_steps=max_steps)
         self.problem = problem
         self.nonstiff = Dopri5(problem, stop_when_stiff=True, dense=dense, **kw)

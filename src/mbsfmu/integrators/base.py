@@ -79,7 +79,7 @@ class Integrator:
         self.last_failure = None  # "error" or "newton": reason of the latest rejection
         if dense and not self._has_dense:
             raise ValueError(f"method {self.method!r} has no dense output")
-        self.dense = False if dense is None else bool(dense)
+        self.dense = self._has_dense if dense is None else bool(dense)
         self._ahead = None  # (t_int, x_int): internal accepted point past the visible (t, x), or None
         self._seg = None    # (t_old, h, Q): continuous extension of the step ending at t_int
 
