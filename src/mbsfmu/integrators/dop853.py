@@ -5,9 +5,7 @@ import math
 import numpy as np
 
 from . import dop853_tables as T
-from .base import Integrator
-from .erk import erk_stages
-from .initial_step import initial_step
+from .erk import FsalIntegrator, erk_stages
 
 S = T.N_STAGES  # 12 stages; the 13th row of K holds the FSAL stage f(t+h, x_new)
 A = np.ascontiguousarray(T.A[:S, :S])
@@ -34,7 +32,7 @@ def dop853_error(K, h, sc):
     return abs(h) * n5 / math.sqrt((n5 + 0.01 * n3) * sc.size)
 
 
-class Dop853(Integrator):
+class Dop853(FsalIntegrator):
     """Explicit 8th-order pair for smooth problems at tight tolerances."""
 
     method = "dop853"
@@ -54,20 +52,6 @@ class Dop853(Integrator):
         self.k1 = None
         self.last_rejected = False
 
-    def _invalidate_derivative(self):
-        """New inputs: the FSAL stage is stale."""
-        self.k1 = None
-
-    def _start(self, t_end):
-        """f(t, x) unless cached; HINIT on the very first call only."""
-        if self.k1 is None:
-            self.k1 = self.problem.f(self.t, self.x)
-            self.stats["rhs_evaluations"] += 1
-            self._check_start_derivative(self.k1)
-        if self.h is None:
-            self.h, nf = initial_step(self.problem.f, self.t, self.x, self.k1, self.order,
-                                      self.rtol, self.atol, self.max_step, t_end)
-            self.stats["rhs_evaluations"] += nf
 
     def _attempt(self, t_new, h):
         """One DOP853 step (12 stages + FSAL) with error test and I-controller."""

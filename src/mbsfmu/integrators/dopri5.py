@@ -4,9 +4,7 @@ import math
 
 import numpy as np
 
-from .base import Integrator
-from .erk import erk_stages
-from .initial_step import initial_step
+from .erk import FsalIntegrator, erk_stages
 from .norms import error_norm
 
 C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0, 1.0])
@@ -38,7 +36,7 @@ def pi_factor(err, facold):
     return fac11, max(1.0 / FAC2, min(1.0 / FAC1, fac / SAFE))
 
 
-class Dopri5(Integrator):
+class Dopri5(FsalIntegrator):
     """Explicit 5(4) pair; error per step estimated from the embedded 4th-order solution."""
 
     method = "dopri5"
@@ -62,20 +60,6 @@ class Dopri5(Integrator):
         self.nonsti = 0
         self.stiff_detected = False
 
-    def _invalidate_derivative(self):
-        """New inputs: the FSAL stage k7 of the last step is not f at the new inputs."""
-        self.k1 = None
-
-    def _start(self, t_end):
-        """Evaluate f(t, x) unless the FSAL stage is cached; HINIT on the very first call only."""
-        if self.k1 is None:
-            self.k1 = self.problem.f(self.t, self.x)
-            self.stats["rhs_evaluations"] += 1
-            self._check_start_derivative(self.k1)
-        if self.h is None:
-            self.h, nf = initial_step(self.problem.f, self.t, self.x, self.k1, self.order,
-                                      self.rtol, self.atol, self.max_step, t_end)
-            self.stats["rhs_evaluations"] += nf
 
     def _attempt(self, t_new, h):
         """One DOPRI5 step with error test; FSAL: k7 = f(t+h, x_new) becomes next k1."""
