@@ -69,13 +69,11 @@ class Problem:
         """y ⊕ dy: plain coordinates add, quaternions rotate by the body-frame rotation vector."""
         if not self.quats:
             return y + dy
+        m = self.ev.model
         out = np.empty_like(y)
-        plain = self.ev._plain_vel
-        mask = np.ones(self.npos, bool)
         for qi, wi in zip(self.quats, self.quat_vel):
             out[qi] = quat_exp_step(y[qi], dy[wi])
-            mask[qi] = False
-        out[mask] = y[mask] + dy[plain]
+        out[m.plain_pos] = y[m.plain_pos] + dy[m.plain_vel]
         return out
 
 
@@ -200,7 +198,7 @@ class Simulation:
         except IntegrationError as e:
             self.time, self.x = self.integrator.t, self.integrator.x.copy()
             msg = self.ev.singularity_message(self.x[:self.ev.model.npos])
-            raise IntegrationError(f"{e}" + (f"; {msg}" if msg else ""), self.time) from None
+            raise IntegrationError(f"{e}" + (f"; {msg}" if msg and msg not in str(e) else ""), self.time) from None
         self.time, self.x = self.integrator.t, x
         y, yd = x[:self.ev.model.npos], x[self.ev.model.npos:]
         if self.problem.cardan:  # a coarse step may jump across b = ±90° without landing near it

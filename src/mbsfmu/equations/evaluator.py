@@ -4,9 +4,10 @@ import math
 
 import numpy as np
 
+from ..expr import parse
 from ..kinematics.rotations import cross, matrix_to_quat, quat_rate_matrix
 from .model import Model, initial_rotation
-from .tree import applied_forces, kinematics, mass_matrix_and_bias, point, prepare_forces
+from .tree import applied_forces, kinematics, mass_matrix_and_bias, point
 
 
 class Evaluator:
@@ -14,7 +15,6 @@ class Evaluator:
 
     def __init__(self, spec):
         self.model = Model(spec)
-        prepare_forces(self.model)
         m = self.model
         self.name = m.name
         self.coordinates = list(m.coordinates)
@@ -31,14 +31,12 @@ class Evaluator:
     def set_parameters(self, params):
         """Change parameters without recompiling (re-binds the numbers only)."""
         self.model.bind({k: float(v) for k, v in params.items()})
-        prepare_forces(self.model)
 
     def initial_state(self):
         """y(0), ẏ(0) from the scene's `initial`, `initial_velocity` and initial rotations."""
         m = self.model
         env = dict(m.env, t=0.0)
         y, yd = np.zeros(m.npos), np.zeros(m.nvel)
-        from ..expr import parse
         for b in m.bodies:
             j = b.spec["joint"]
             for k, c in enumerate(b.coordinates):
@@ -103,19 +101,10 @@ class Evaluator:
         if not m.quaternions:
             return yd
         out = np.empty(m.npos)
-        pos = np.ones(m.npos, bool)
         for qi, wi in zip(m.quaternions, m.quat_vel):
             out[qi] = quat_rate_matrix(y[qi]) @ yd[wi]
-            pos[qi] = False
-        out[pos] = yd[self._plain_vel]
+        out[m.plain_pos] = yd[m.plain_vel]
         return out
-
-    @property
-    def _plain_vel(self):
-        if not hasattr(self, "_pv"):
-            quat_w = set(np.concatenate(self.model.quat_vel).tolist()) if self.model.quat_vel else set()
-            self._pv = np.array([i for i in range(self.model.nvel) if i not in quat_w], dtype=int)
-        return self._pv
 
     # -- body quantities ----------------------------------------------------------------------------
     def kinematics(self, y, yd, t=0.0):
@@ -147,7 +136,6 @@ class Evaluator:
         if o.get("node") is not None:
             r, v, _ = _node_pt(self.model, d, i, o["node"])
             return r, v
-        from ..expr import parse
         r, v, _ = point(d, i, np.array([parse(x)(self.model.env) for x in o["point"]], dtype=float))
         return r, v
 

@@ -111,6 +111,11 @@ class Model:
         self.npos, self.nvel = len(self.coordinates), len(self.velocity_coordinates)
         self.quaternions = [b.pos_idx[b.quat] for b in self.bodies if b.quat is not None]
         self.quat_vel = [b.vel_idx[-3:] for b in self.bodies if b.quat is not None]  # body-frame ω of each quaternion
+        # coordinates whose rate is their velocity coordinate (everything but quaternions), in matching order
+        quat_p = set(np.concatenate(self.quaternions).tolist()) if self.quaternions else set()
+        quat_w = set(np.concatenate(self.quat_vel).tolist()) if self.quat_vel else set()
+        self.plain_pos = np.array([i for i in range(self.npos) if i not in quat_p], dtype=int)
+        self.plain_vel = np.array([i for i in range(self.nvel) if i not in quat_w], dtype=int)
         self.has_drives = any(b.drives for b in self.bodies)
         self.has_elastic = any(b.elastic for b in self.bodies)
         g = spec["gravity"]
@@ -151,7 +156,18 @@ class Model:
         for b in self.bodies:
             b.bind(env)
         self.massive = [i for i, b in enumerate(self.bodies) if (b.m > 0 or b.has_inertia) and not b.elastic]
-        self.bound_forces = [_bind_force(f, env) for f in self.forces]
+        self.bound_forces = [self._resolve(_bind_force(f, env)) for f in self.forces]
+
+    def _resolve(self, f):
+        """Names in a bound force element → indices into y, ẏ and the bodies."""
+        if f["type"] == "joint_spring_damper":
+            f["pos_index"] = self.coordinates.index(f["coordinate"])
+            f["vel_index"] = self.velocity_coordinates.index(f["coordinate"])
+        elif f["type"] == "spring_damper":
+            f["body_index"] = [self.index.get(n, -1) for n in f["bodies"]]
+        else:
+            f["body_index"] = self.index[f["body"]]
+        return f
 
 
 def _bind_force(f, env):

@@ -230,14 +230,3 @@ def _node_J_R(model, d, i, node):
     from ..bodies.tree import node_rotation_jacobian
     return node_rotation_jacobian(model, d, i, node)
 
-
-def prepare_forces(model):
-    """Resolve names in the bound force elements to indices (once per bind)."""
-    for f in model.bound_forces:
-        if f["type"] == "joint_spring_damper":
-            f["pos_index"] = model.coordinates.index(f["coordinate"])
-            f["vel_index"] = model.velocity_coordinates.index(f["coordinate"])
-        elif f["type"] == "spring_damper":
-            f["body_index"] = [model.index.get(n, -1) for n in f["bodies"]]
-        else:
-            f["body_index"] = model.index[f["body"]]
