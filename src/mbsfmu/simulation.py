@@ -42,10 +42,9 @@ class Problem:
 
     def accel(self, t, y, v):
         """ÿ = M⁻¹ (q − k)."""
-        if self.cardan:  # only scenes with Cardan joints pay for the gimbal-lock check
-            msg = self.ev.singularity_message(y)
-            if msg:
-                raise IntegrationError(msg, t)
+        if self.ev.native is not None:
+            return self._native_f(t, np.concatenate([y, v]))[self.npos:]
+        self._check_gimbal(t, y)
         M, k, q = self.ev._equations(y, v, t, self.q_in, self.F_in)
         try:
             return np.linalg.solve(M, q - k)
@@ -54,8 +53,24 @@ class Problem:
 
     def f(self, t, x):
         self.rhs_calls += 1
+        if self.ev.native is not None:
+            return self._native_f(t, x)
         y, v = x[:self.npos], x[self.npos:]
         return np.concatenate([self.ev.position_rates(y, v), self.accel(t, y, v)])
+
+    def _native_f(self, t, x):
+        """ẋ from the compiled kernel (equations/native.c)."""
+        self._check_gimbal(t, x[:self.npos])
+        xd = self.ev.native.rhs(t, x, self.q_in, self.F_in)
+        if xd is None:
+            raise IntegrationError(self.ev.singularity_message(x[:self.npos]) or "the mass matrix is singular", t)
+        return xd
+
+    def _check_gimbal(self, t, y):
+        if self.cardan:  # only scenes with Cardan joints pay for the gimbal-lock check
+            msg = self.ev.singularity_message(y)
+            if msg:
+                raise IntegrationError(msg, t)
 
     def normalize(self, x):
         """Project quaternions back to unit length after each step."""

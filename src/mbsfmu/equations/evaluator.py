@@ -7,15 +7,18 @@ import numpy as np
 from ..expr import parse
 from ..kinematics.rotations import cross, matrix_to_quat, quat_rate_matrix
 from .model import Model, initial_rotation
+from .native import native_tree
 from .tree import applied_forces, kinematics, mass_matrix_and_bias, point
 
 
 class Evaluator:
     """Equations of motion of one scene. `y` are position coordinates, `yd` velocity coordinates."""
 
-    def __init__(self, spec):
+    def __init__(self, spec, native=True):
         self.model = Model(spec)
         m = self.model
+        # compiled right-hand side for rigid scenes (None: the numpy path of tree.py)
+        self.native = native_tree(m) if native else None
         self.name = m.name
         self.coordinates = list(m.coordinates)
         self.velocity_coordinates = list(m.velocity_coordinates)
@@ -31,6 +34,8 @@ class Evaluator:
     def set_parameters(self, params):
         """Change parameters without recompiling (re-binds the numbers only)."""
         self.model.bind({k: float(v) for k, v in params.items()})
+        if self.native is not None:
+            self.native.bind()
 
     def initial_state(self):
         """y(0), ẏ(0) from the scene's `initial`, `initial_velocity` and initial rotations."""

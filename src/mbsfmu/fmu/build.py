@@ -103,10 +103,29 @@ def _runtime_files(root: Path, elastic: bool) -> dict[str, bytes]:
                 files[f.relative_to(root).as_posix()] = f.read_bytes()
             if not (p / "__init__.py").exists():
                 files[f"{entry}/__init__.py"] = b""
+    if not elastic:
+        files.update(_native_files(root))
     if "simulation.py" not in files:
         raise RuntimeError(f"mbsfmu runtime incomplete: no simulation.py in {root}")
     files["__init__.py"] = b'"""mbsfmu run-time (copied into an FMU by mbsfmu.fmu.build)."""\n'
     return files
+
+
+def _native_files(root: Path) -> dict[str, bytes]:
+    """The compiled right-hand side of rigid scenes (equations/native.c and its library for this platform).
+    Without a C compiler the FMU falls back to the numpy path (or compiles on the target)."""
+    from ..equations import native
+    src = root / "equations" / "native.c"
+    if not src.exists():
+        return {}
+    out = {"equations/native.c": src.read_bytes()}
+    try:
+        lib = native.library_path()
+    except Exception as exc:  # no compiler: still a working (slower) FMU
+        warnings.warn(f"FMU without compiled right-hand side ({exc}); it will use the numpy path", RuntimeWarning)
+        return out
+    out[f"equations/{lib.name}"] = lib.read_bytes()
+    return out
 
 
 def forbidden_imports(files: dict[str, bytes]) -> list[str]:
@@ -115,6 +134,8 @@ def forbidden_imports(files: dict[str, bytes]) -> list[str]:
     rel = re.compile(r"^\s*from\s+\.+\s*(?:import\s+)?(scene|fmu|bench|cli)\b", re.M)
     found = []
     for path, content in files.items():
+        if not path.endswith(".py"):
+            continue
         text = content.decode("utf-8", "replace")
         found += [f"{path}: {m.group(1)}" for m in pat.finditer(text)]
         found += [f"{path}: .{m.group(1)}" for m in rel.finditer(text)]
