@@ -122,6 +122,25 @@ static int ensure_python(void) {
     return 0;                 /* never finalized: see the header comment */
 }
 
+/* Exit-order fix for pythonfmu 0.7.0's binary. It keeps its PyState in a static
+   std::shared_ptr `pyState` and releases it twice over: (a) the shared_ptr's C++ destructor,
+   registered with __cxa_atexit by the library's constructor, and (b) an ELF destructor
+   (onLibraryUnload -> finalizePythonInterpreter: `pyState = nullptr`). On dlclose (b) runs before
+   (a) and all is well. At process exit without dlclose of that library (a C host returning from
+   main: the shim never dlcloses it), exit() runs the __cxa_atexit handlers first, so (a) frees the
+   PyState's control block but leaves its pointer in `pyState`, and _dl_fini then runs (b), whose
+   `lock xadd` decrements the use count inside the freed heap chunk, i.e. its bin's bk pointer.
+   The next free() that walks that bin aborts ("free(): corrupted unsorted chunks", seen in
+   scipy's libgfortran close_units). Fix: call finalizePythonInterpreter ourselves from an exit
+   handler registered *after* dlopen ran the library's constructors; handlers run in reverse
+   order, so ours resets `pyState` while it is alive, and (a) and (b) then see an empty pointer.
+   Python is untouched: the shim initialized it, so pythonfmu's worker thread never finalizes.
+   (atexit from a shared object: if the host dlcloses the shim, the handler runs then; also fine.) */
+static void (*real_finalize)(void) = NULL;
+static void release_pystate(void) {
+    if (real_finalize) real_finalize();
+}
+
 static int load_real(void) {
     if (real) return 0;
     Dl_info info;
@@ -139,6 +158,8 @@ static int load_real(void) {
         snprintf(error, sizeof error, "mbsfmu: cannot load %s: %s", path, dlerror());
         return -1;
     }
+    real_finalize = (void (*)(void))dlsym(real, "finalizePythonInterpreter");
+    if (real_finalize) atexit(release_pystate);   /* see release_pystate */
     return 0;
 }
 
