@@ -101,6 +101,10 @@ class Simulation:
         self.problem = Problem(self.ev)
         self.variables = self._variables()
         self._by_name = {v.name: v for v in self.variables}
+        npos = self.problem.npos
+        self._state_index = {f"y.{c}": i for i, c in enumerate(self.ev.coordinates)}
+        self._state_index.update({f"yd.{c}": npos + i for i, c in enumerate(self.ev.velocity_coordinates)})
+        self._outputs = None
         self.values = {v.name: v.start for v in self.variables if v.causality in ("input", "parameter")}
         self.integrator = None
         self.time = spec["experiment"]["start"]
@@ -155,9 +159,18 @@ class Simulation:
     def get(self, name):
         if name in self.values:
             return self.values[name]
-        if self.x is None:
-            self._outputs = self._compute_outputs(*self.ev.initial_state())
-        return self._outputs[name]
+        if self.x is None:  # before initialization: the outputs of the initial state
+            x = np.concatenate(self.ev.initial_state())
+            return self._output(name, x, self.time, self._compute_outputs(x[:self.problem.npos], x[self.problem.npos:]))
+        if self._outputs is None:  # computed on demand: a master may never read the point outputs
+            self._outputs = self._compute_outputs(self.y, self.yd)
+        return self._output(name, self.x, self.time, self._outputs)
+
+    def _output(self, name, x, t, points):
+        i = self._state_index.get(name)
+        if i is not None:
+            return float(x[i])
+        return points[name]
 
     # -- running ------------------------------------------------------------------------------------
     def initialize(self, t0=None):
@@ -176,7 +189,7 @@ class Simulation:
         self._applied = None
         self._inputs_dirty = True
         self._params_dirty = False
-        self._outputs = self._compute_outputs(y0, yd0)
+        self._outputs = None
 
     def _apply_inputs(self):
         """Copy FMU inputs into the problem (held constant over the step); refuse NaN/Inf."""
@@ -220,20 +233,11 @@ class Simulation:
             msg = self.ev.singularity_message(y, x_before[:self.ev.model.npos])
             if msg:
                 raise IntegrationError(msg, self.time)
-        self._outputs = self._compute_outputs(y, yd)
+        self._outputs = None
 
     def _compute_outputs(self, y, yd):
-        out = {f"y.{c}": float(v) for c, v in zip(self.ev.coordinates, y)}
-        out.update({f"yd.{c}": float(v) for c, v in zip(self.ev.velocity_coordinates, yd)})
-        if self.spec["outputs"]:
-            d = self.ev.kinematics(y, yd, self.time)
-            for o in self.spec["outputs"]:
-                r, v = self.ev.output_point(d, o)
-                for sym, vec in (("r", r), ("v", v)):
-                    if (sym == "r" and "position" in o["quantities"]) or (sym == "v" and "velocity" in o["quantities"]):
-                        for k, ax in enumerate("xyz"):
-                            out[f"{o['name']}.{sym}.{ax}"] = float(vec[k])
-        return out
+        """Values of the `outputs:` points (y and ẏ are read straight from the state)."""
+        return self.ev.output_values(y, yd, self.time)
 
     @property
     def y(self):
@@ -248,7 +252,7 @@ class Simulation:
         """Everything that determines the future: time, state, inputs, parameters, integrator history."""
         return {"time": self.time, "x": None if self.x is None else self.x.copy(), "values": dict(self.values),
                 "integrator": None if self.integrator is None else self.integrator.get_state(),
-                "outputs": dict(getattr(self, "_outputs", {}))}
+                "outputs": None if self._outputs is None else dict(self._outputs)}
 
     def set_state(self, s):
         self.values = dict(s["values"])
@@ -260,7 +264,7 @@ class Simulation:
         self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
         self.integrator.set_state(s["integrator"])
         self.time, self.x = s["time"], s["x"].copy()
-        self._outputs = dict(s["outputs"])
+        self._outputs = None if s.get("outputs") is None else dict(s["outputs"])
         self._applied = None
         self._apply_inputs()
         self._params_dirty = False

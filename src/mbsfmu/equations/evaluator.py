@@ -25,6 +25,16 @@ class Evaluator:
         self.force_inputs = list(m.inputs)
         self.inputs = [f"q.{c}" for c in self.velocity_coordinates] + [f"{n}.{x}" for n in m.inputs for x in "xyz"]
         self._q_index = {f"q.{c}": i for i, c in enumerate(self.velocity_coordinates)}
+        self._bind_outputs()
+
+    def _bind_outputs(self):
+        """The `outputs:` points with their parameter-dependent body-frame offsets evaluated once."""
+        m = self.model
+        self._out_points = []
+        for o in m.outputs:
+            syms = [s for q, s in (("position", "r"), ("velocity", "v")) if q in o["quantities"]]
+            r_b = None if o.get("node") is not None else np.array([parse(x)(m.env) for x in o["point"]], dtype=float)
+            self._out_points.append((o, m.index[o["body"]], r_b, syms))
 
     # -- parameters and initial state ---------------------------------------------------------------
     @property
@@ -36,6 +46,7 @@ class Evaluator:
         self.model.bind({k: float(v) for k, v in params.items()})
         if self.native is not None:
             self.native.bind()
+        self._bind_outputs()
 
     def initial_state(self):
         """y(0), ẏ(0) from the scene's `initial`, `initial_velocity` and initial rotations."""
@@ -134,6 +145,30 @@ class Evaluator:
         d = kinematics(self.model, np.asarray(y, float), np.asarray(yd, float), t)
         r, v, _ = point(d, self.model.index[body], np.asarray(r_body, float))
         return r, v
+
+    def output_values(self, y, yd, t):
+        """{FMU output name: value} of the scene's `outputs:` points (world position r, velocity v)."""
+        if not self._out_points:
+            return {}
+        if self.native is not None:
+            frames = self.native.frames(np.concatenate([y, yd]), t)
+        else:
+            d = kinematics(self.model, np.asarray(y, float), np.asarray(yd, float), t)
+        out = {}
+        for o, i, r_b, syms in self._out_points:
+            if r_b is None:
+                r, v, _ = _node_pt(self.model, d, i, o["node"])
+            elif self.native is not None:
+                S, org, w, vel = frames[i]
+                rho = S @ r_b
+                r, v = org + rho, vel + cross(w, rho)
+            else:
+                r, v, _ = point(d, i, r_b)
+            for sym in syms:
+                vec = r if sym == "r" else v
+                for k, ax in enumerate("xyz"):
+                    out[f"{o['name']}.{sym}.{ax}"] = float(vec[k])
+        return out
 
     def output_point(self, d, o):
         """World position and velocity of an `outputs:` entry from a kinematics workspace."""

@@ -416,6 +416,13 @@ static int cholesky_solve(int n, double *M, double *r)
     return 0;
 }
 
+/* Kinematics only (output points): S, o, ω, v of every body in the workspace. */
+int mbs_kinematics(const Tree *m)
+{
+    kinematics(m);
+    return 0;
+}
+
 /* M, k, q at the state m->x (scratch: 6 f doubles after the workspace of the bodies). */
 int mbs_equations(const Tree *m)
 {

@@ -92,7 +92,7 @@ def library():
         warnings.warn(f"mbsfmu: compiled right-hand side unavailable ({detail}); using the numpy path (slower)")
         _lib = False
         return None
-    for fn in (lib.mbs_rhs, lib.mbs_equations):
+    for fn in (lib.mbs_rhs, lib.mbs_equations, lib.mbs_kinematics):
         fn.argtypes, fn.restype = [ctypes.POINTER(_Tree)], ctypes.c_int
     _lib = lib
     return lib
@@ -210,6 +210,13 @@ class NativeTree:
         if self.lib.mbs_rhs(self._ref):
             return None
         return self.xdot.copy()
+
+    def frames(self, x, t):
+        """Per body (S, o, ω, v) of its origin at state x: views into the workspace, valid until the next call."""
+        self._load(x, t, None, None)
+        self.lib.mbs_kinematics(self._ref)
+        W = self.work[:len(self.model.bodies) * (24 + 6 * self.model.nvel)].reshape(len(self.model.bodies), -1)
+        return [(w[:9].reshape(3, 3), w[9:12], w[12:15], w[15:18]) for w in W]
 
     def equations(self, y, yd, t, q_in=None, F_in=None):
         """M, k, q (copies)."""
