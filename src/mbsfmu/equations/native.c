@@ -394,7 +394,7 @@ static int cholesky_solve(int n, double *M, double *r)
     for (int j = 0; j < n; j++) {
         double s = M[j * n + j];
         for (int k = 0; k < j; k++) s -= M[j * n + k] * M[j * n + k];
-        if (!(s > 0.0)) return 1;
+        if (s <= 0.0) return 1; /* NaN passes on as NaN, like numpy's solve: the integrator shrinks h */
         double d = sqrt(s);
         M[j * n + j] = d;
         for (int i = j + 1; i < n; i++) {
@@ -452,6 +452,42 @@ int mbs_rhs(const Tree *m)
         xd[qi[1]] = 0.5 * (p0 * w0 - p3 * w1 + p2 * w2);
         xd[qi[2]] = 0.5 * (p3 * w0 + p0 * w1 - p1 * w2);
         xd[qi[3]] = 0.5 * (-p2 * w0 + p1 * w1 + p0 * w2);
+    }
+    return 0;
+}
+
+/* Gimbal lock of Cardan joints (|cos b| < 1e-3, as Evaluator.singularity_message): 1 if any. */
+static int gimbal(const Tree *m)
+{
+    for (int i = 0; i < m->nb; i++) {
+        const int *ib = m->ib + i * IB;
+        int k = ib[IB_JTYPE] == J_SPH_CARDAN ? 1 : ib[IB_JTYPE] == J_FREE_CARDAN ? 4 : -1;
+        if (k >= 0 && ib[IB_POS + k] >= 0 && fabs(cos(m->x[ib[IB_POS + k]])) < 1e-3) return 1;
+    }
+    return 0;
+}
+
+/* Explicit Runge-Kutta stages i0..s-1 in one call, for scenes whose right-hand side does not depend on t
+ * (no drives, no time-dependent forces; inputs are held over the step):
+ *   k_i = f(x + h Σ_j a_ij k_j),  A row-major with leading dimension lda, K rows of length n.
+ * xs returns the argument of the last stage evaluated (for an FSAL row: x_new).
+ * Returns 0; 1 if M is not positive definite, 2 at gimbal lock (xs holds that state). */
+int mbs_erk_stages(const Tree *m, int i0, int s, const double *A, int lda, double h, const double *x,
+                   double *K, double *xs)
+{
+    const int n = m->npos + m->nvel;
+    Tree st = *m;
+    st.x = xs;
+    for (int i = i0; i < s; i++) {
+        const double *a = A + (size_t)i * lda;
+        for (int r = 0; r < n; r++) {
+            double acc = 0.0;
+            for (int j = 0; j < i; j++) acc += a[j] * K[(size_t)j * n + r];
+            xs[r] = x[r] + h * acc;
+        }
+        if (gimbal(&st)) return 2;
+        st.xdot = K + (size_t)i * n;
+        if (mbs_rhs(&st)) return 1;
     }
     return 0;
 }

@@ -94,6 +94,9 @@ def library():
         return None
     for fn in (lib.mbs_rhs, lib.mbs_equations, lib.mbs_kinematics):
         fn.argtypes, fn.restype = [ctypes.POINTER(_Tree)], ctypes.c_int
+    lib.mbs_erk_stages.argtypes = [ctypes.POINTER(_Tree), ctypes.c_int, ctypes.c_int, _P, ctypes.c_int,
+                                   ctypes.c_double, _P, _P, _P]
+    lib.mbs_erk_stages.restype = ctypes.c_int
     _lib = lib
     return lib
 
@@ -180,6 +183,8 @@ class NativeTree:
                       q=self.q, xdot=self.xdot)
         for a in arrays.values():
             assert a.flags.c_contiguous
+        # the right-hand side does not depend on t: Runge–Kutta stages can run in one compiled loop
+        self.autonomous = not self.drives and all("input" in fe for _, fe in self._vector_forces)
         self.tree = _Tree(nb=nb, npos=m.npos, nvel=m.nvel, nforce=len(forces), nquat=len(self.quat),
                           nplain=len(self.plain_pos), has_gravity=int(m.g is not None),
                           **{k: a.ctypes.data for k, a in arrays.items()})
@@ -203,6 +208,15 @@ class NativeTree:
                 self.dforce[e, DF_VEC:DF_VEC + 3] = 0.0 if vec is None else vec
             else:
                 self.dforce[e, DF_VEC:DF_VEC + 3] = [v(env) for v in fe["value"]]
+
+    def stages(self, A, K, i0, s, h, x, q_in, F_in):
+        """Runge–Kutta stages K[i0:s] in one compiled loop (autonomous scenes only, see native.c):
+        returns (status, argument of the last stage); status 1: M singular, 2: gimbal lock there."""
+        self._load(x, 0.0, q_in, F_in)
+        xs = np.empty_like(self.x)
+        rc = self.lib.mbs_erk_stages(self._ref, i0, s, A.ctypes.data, A.shape[1], h, self.x.ctypes.data,
+                                     K.ctypes.data, xs.ctypes.data)
+        return rc, xs
 
     def rhs(self, t, x, q_in=None, F_in=None):
         """ẋ = [Z(y) ẏ; M⁻¹(q − k)], or None when M is not positive definite."""

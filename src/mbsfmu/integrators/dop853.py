@@ -8,13 +8,13 @@ from . import dop853_tables as T
 from .erk import FsalIntegrator, erk_stages
 
 S = T.N_STAGES  # 12 stages; the 13th row of K holds the FSAL stage f(t+h, x_new)
-A = np.ascontiguousarray(T.A[:S, :S])
-C = np.ascontiguousarray(T.C[:S])
-B = np.ascontiguousarray(T.B)
+# one tableau for the 12 stages, the FSAL row (= b, c = 1) and the 3 extra stages of the dense output
+AX = np.zeros((T.N_STAGES_EXTENDED, T.N_STAGES_EXTENDED))
+AX[:S + 1, :S + 1] = T.A
+AX[S + 1:] = T.A_EXTRA
+C = np.ascontiguousarray(T.C)
 E3 = np.ascontiguousarray(T.E3)
 E5 = np.ascontiguousarray(T.E5)
-A_EXTRA = np.ascontiguousarray(T.A_EXTRA)
-C_EXTRA = np.ascontiguousarray(T.C_EXTRA)
 D = np.ascontiguousarray(T.D)
 
 # Hairer's DOP853 defaults: safety 0.9, 1/3 <= hnew/h <= 6, no PI part (beta = 0), exponent 1/8
@@ -52,14 +52,11 @@ class Dop853(FsalIntegrator):
         self.k1 = None
         self.last_rejected = False
 
-
     def _attempt(self, t_new, h):
         """One DOP853 step (12 stages + FSAL) with error test and I-controller."""
-        f, t, x, K = self.problem.f, self.t, self.x, self._K
+        t, x, K = self.t, self.x, self._K
         K[0] = self.k1
-        erk_stages(f, t, x, h, A, C, K, S)
-        x_new = x + (h * B) @ K[:S]
-        K[S] = f(t_new, x_new)
+        x_new = erk_stages(self.problem, t, x, h, AX, C, self._Kx, 1, S + 1, t_new)  # row S = b: FSAL stage
         self.stats["rhs_evaluations"] += S
         sc = self.atol + self.rtol * np.maximum(np.abs(x), np.abs(x_new))
         err = dop853_error(K, h, sc)
@@ -81,11 +78,9 @@ class Dop853(FsalIntegrator):
 
     def _dense_coeffs(self, t_old, x_old, x_new, h):
         """Order-7 continuous extension: 3 extra stages, then [x_old; F0..F6] as in SciPy's DOP853."""
-        K, f = self._Kx, self.problem.f
-        for i in range(A_EXTRA.shape[0]):
-            s = S + 1 + i
-            K[s] = f(t_old + C_EXTRA[i] * h, x_old + (h * A_EXTRA[i, :s]) @ K[:s])
-        self.stats["rhs_evaluations"] += A_EXTRA.shape[0]
+        K = self._Kx
+        erk_stages(self.problem, t_old, x_old, h, AX, C, K, S + 1, T.N_STAGES_EXTENDED, t_old + h)
+        self.stats["rhs_evaluations"] += T.N_STAGES_EXTENDED - S - 1
         Q = np.empty((T.INTERPOLATOR_POWER + 1, self.n))
         dy = x_new - x_old
         Q[0] = x_old

@@ -63,11 +63,9 @@ class Dopri5(FsalIntegrator):
 
     def _attempt(self, t_new, h):
         """One DOPRI5 step with error test; FSAL: k7 = f(t+h, x_new) becomes next k1."""
-        f, t, x, K = self.problem.f, self.t, self.x, self._K
+        t, x, K = self.t, self.x, self._K
         K[0] = self.k1
-        hA = erk_stages(f, t, x, h, A, C, K, 6)
-        x_new = x + hA[6, :6] @ K[:6]
-        K[6] = f(t_new, x_new)
+        x_new = erk_stages(self.problem, t, x, h, A, C, K, 1, 7, t_new)  # row 7 = b: FSAL stage f(t_new, x_new)
         self.stats["rhs_evaluations"] += 6
         err = error_norm((h * E) @ K, x, x_new, self.atol, self.rtol)
         if not math.isfinite(err):
@@ -85,7 +83,7 @@ class Dopri5(FsalIntegrator):
         self.last_rejected = False
         self.h = h_new
         if self.detect_stiffness:
-            self._stiffness_test(h, K, x, x_new, hA)
+            self._stiffness_test(h, K, x, x_new)
         self.k1 = K[6].copy()
         return x_new
 
@@ -105,9 +103,9 @@ class Dopri5(FsalIntegrator):
         """With stop_when_stiff, hand control back as soon as stiffness is detected."""
         return self.stop_when_stiff and self.stiff_detected
 
-    def _stiffness_test(self, h, K, x, x_new, hA):
+    def _stiffness_test(self, h, K, x, x_new):
         """DOPRI5's test: h·‖k7−k6‖/‖x7−x6‖ estimates h·|λ_dominant|; stiff when it sits at the boundary."""
-        x6 = x + hA[5, :5] @ K[:5]  # argument of stage 6 (c6 = 1, same time as x_new)
+        x6 = x + (h * A[5, :5]) @ K[:5]  # argument of stage 6 (c6 = 1, same time as x_new)
         dk = K[6] - K[5]
         dx = x_new - x6
         stden = dx.dot(dx)

@@ -4,13 +4,20 @@ from .base import Integrator
 from .initial_step import initial_step
 
 
-def erk_stages(f, t, x, h, A, C, K, s):
-    """Fill K[1:s] with k_i = f(t + c_i h, x + h Σ_j a_ij k_j); K[0] must already hold f(t, x)."""
+def erk_stages(problem, t, x, h, A, C, K, i0, s, t_end):
+    """Fill K[i0:s] with k_i = f(t + c_i h, x + h Σ_j a_ij k_j) (K[:i0] already filled) and return the
+    argument of the last stage (for an FSAL row: x_new). A stage with c_i = 1 is evaluated at t_end."""
+    stages = getattr(problem, "stages", None)  # compiled loop where the problem has one (rigid, autonomous)
+    xs = stages(A, K, i0, s, h, x, t) if stages is not None else None
+    if xs is not None:
+        return xs
+    f = problem.f
     hA = h * A  # one scaling of the tableau instead of one per stage
-    for i in range(1, s):
+    for i in range(i0, s):
         # (row of h·A) @ K[:i] is a single BLAS call regardless of the number of stages
-        K[i] = f(t + C[i] * h, x + hA[i, :i] @ K[:i])
-    return hA
+        xs = x + hA[i, :i] @ K[:i]
+        K[i] = f(t_end if C[i] == 1.0 else t + C[i] * h, xs)
+    return xs
 
 
 class FsalIntegrator(Integrator):
