@@ -34,7 +34,7 @@ typedef struct {
     const double *drv;    /* per driven coordinate: p, v, a (filled by Python when the scene has drives) */
     const double *x;      /* [y; ẏ] */
     const double *q_in;   /* generalized-force inputs (nvel) */
-    double *work;         /* nb × (24 + 6 nvel) */
+    double *work;         /* nb × (26 + 6 nvel), then 6 nvel scratch */
     double *M, *k, *q;    /* nvel×nvel, nvel, nvel */
     double *xdot;         /* npos + nvel */
 } Tree;
@@ -49,10 +49,6 @@ static void cross(const double *a, const double *b, double *c)
 static void mv(const double *A, const double *x, double *y)
 {
     for (int r = 0; r < 3; r++) y[r] = A[3 * r] * x[0] + A[3 * r + 1] * x[1] + A[3 * r + 2] * x[2];
-}
-static void mtv(const double *A, const double *x, double *y)
-{
-    for (int r = 0; r < 3; r++) y[r] = A[r] * x[0] + A[3 + r] * x[1] + A[6 + r] * x[2];
 }
 static void mm(const double *A, const double *B, double *C)
 {
@@ -168,16 +164,22 @@ static void joint_motion(int type, const double *db, const double *p, const doub
     }
 }
 
-/* per-body workspace: S(9) o w v a al (5×3) → 24, then J_R, J_T (3 × nvel each, row-major) */
+/* per-body workspace: S(9) o w v a al (5×3), the range [lo, hi) of columns where J_R, J_T can be nonzero
+ * (the body's and its ancestors' velocity coordinates: loops skip the rest), then J_R, J_T (3 × nvel each) */
 #define W_S 0
 #define W_O 9
 #define W_W 12
 #define W_V 15
 #define W_A 18
 #define W_AL 21
-#define W_J 24
+#define W_LO 24
+#define W_HI 25
+#define W_J 26
+#define W_SIZE(f) (26 + 6 * (f))
 
-static double *body_work(const Tree *m, int i) { return m->work + (size_t)i * (24 + 6 * m->nvel); }
+static double *body_work(const Tree *m, int i) { return m->work + (size_t)i * W_SIZE(m->nvel); }
+static int col_lo(const double *wk) { return (int)wk[W_LO]; }
+static int col_hi(const double *wk) { return (int)wk[W_HI]; }
 
 /* Recursive kinematics of all body origins (tree.py: kinematics). */
 static void kinematics(const Tree *m)
@@ -193,6 +195,7 @@ static void kinematics(const Tree *m)
         const int par = ib[IB_PARENT], nv = ib[IB_NVEL], np = ib[IB_NPOS];
         const double *S_p, *o_p, *w_p, *v_p, *a_p, *al_p;
         double S_J[9], rho[3] = {0, 0, 0};
+        int lo = f, hi = 0;
         if (par < 0) {
             S_p = E; o_p = w_p = v_p = a_p = al_p = Z;
             memset(J_R, 0, 6 * f * sizeof(double));
@@ -202,6 +205,8 @@ static void kinematics(const Tree *m)
             const double *pw = body_work(m, par);
             S_p = pw + W_S; o_p = pw + W_O; w_p = pw + W_W; v_p = pw + W_V; a_p = pw + W_A; al_p = pw + W_AL;
             memcpy(J_R, pw + W_J, 6 * f * sizeof(double));
+            lo = col_lo(pw);
+            hi = col_hi(pw);
             mm(S_p, db + DB_R0, S_J);
             mv(S_p, db + DB_AT, rho);
         }
@@ -249,7 +254,7 @@ static void kinematics(const Tree *m)
             a[r] = a_p[r] + axr[r] + wwxr[r] + 2.0 * t2[r] + SbT[r];
         }
         /* J_T = J_Tp − ρ̃ J_Rp, then the joint's own columns */
-        for (int c = 0; c < f; c++) {
+        for (int c = lo; c < hi; c++) {
             double jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, x[3];
             cross(rho, jr, x);
             for (int r = 0; r < 3; r++) J_T[r * f + c] -= x[r];
@@ -257,23 +262,27 @@ static void kinematics(const Tree *m)
         for (int k = 0; k < nv; k++) {
             int col = ib[IB_VEL + k];
             if (col < 0) continue;
+            if (col < lo) lo = col;
+            if (col + 1 > hi) hi = col + 1;
             double hr[3], ht[3];
             mv(S_J, H_R + 3 * k, hr);
             mv(S_J, H_T + 3 * k, ht);
             for (int r = 0; r < 3; r++) { J_R[r * f + col] += hr[r]; J_T[r * f + col] += ht[r]; }
         }
         mm(S_J, R, wk + W_S);
+        wk[W_LO] = lo;
+        wk[W_HI] = hi;
     }
 }
 
-/* World position, velocity and J_T (3 × f) of a point fixed on body i (r_b in the body frame). */
+/* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only) of a point fixed on body i
+ * (r_b in the body frame); i < 0: a point of the world. */
 static void point(const Tree *m, int i, const double *r_b, double *x, double *v, double *J)
 {
     const int f = m->nvel;
     if (i < 0) {
         memcpy(x, r_b, 3 * sizeof(double));
         memset(v, 0, 3 * sizeof(double));
-        memset(J, 0, 3 * f * sizeof(double));
         return;
     }
     const double *wk = body_work(m, i), *J_R = wk + W_J, *J_T = J_R + 3 * f;
@@ -281,17 +290,19 @@ static void point(const Tree *m, int i, const double *r_b, double *x, double *v,
     mv(wk + W_S, r_b, r);
     cross(wk + W_W, r, wxr);
     for (int k = 0; k < 3; k++) { x[k] = wk[W_O + k] + r[k]; v[k] = wk[W_V + k] + wxr[k]; }
-    for (int c = 0; c < f; c++) {
+    for (int c = col_lo(wk); c < col_hi(wk); c++) {
         double jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, s[3];
         cross(r, jr, s);
         for (int k = 0; k < 3; k++) J[k * f + c] = J_T[k * f + c] - s[k];
     }
 }
 
-/* q += Jᵀ F for a 3 × f Jacobian */
-static void add_JtF(int f, const double *J, const double *F, double sign, double *q)
+/* q += Jᵀ F for a 3 × f Jacobian of body i (its columns [lo, hi)) */
+static void add_JtF(const Tree *m, int i, const double *J, const double *F, double sign, double *q)
 {
-    for (int c = 0; c < f; c++) q[c] += sign * (J[c] * F[0] + J[f + c] * F[1] + J[2 * f + c] * F[2]);
+    const int f = m->nvel;
+    const double *wk = body_work(m, i);
+    for (int c = col_lo(wk); c < col_hi(wk); c++) q[c] += sign * (J[c] * F[0] + J[f + c] * F[1] + J[2 * f + c] * F[2]);
 }
 
 /* M, k and the gravity part of q (tree.py: mass_matrix_and_bias); J is 3 × f scratch. */
@@ -325,14 +336,15 @@ static void mass_matrix_and_bias(const Tree *m, double *J)
         double mg[3] = {0, 0, 0}, mac[3], rot[3];
         if (m->has_gravity) for (int r = 0; r < 3; r++) mg[r] = mass * m->g[r];
         for (int r = 0; r < 3; r++) { mac[r] = mass * a_c[r]; rot[r] = Iw_al[r] + gyr[r]; }
-        add_JtF(f, J, mac, 1.0, k);
-        add_JtF(f, J_R, rot, 1.0, k);
-        add_JtF(f, J, mg, 1.0, q);
-        for (int cj = 0; cj < f; cj++) {
+        add_JtF(m, i, J, mac, 1.0, k);
+        add_JtF(m, i, J_R, rot, 1.0, k);
+        add_JtF(m, i, J, mg, 1.0, q);
+        const int lo = col_lo(wk), hi = col_hi(wk);
+        for (int cj = lo; cj < hi; cj++) {
             /* columns of I_w J_R and m J_T */
             double IJ[3], jr[3] = {J_R[cj], J_R[f + cj], J_R[2 * f + cj]};
             mv(I_w, jr, IJ);
-            for (int ci = 0; ci <= cj; ci++) {
+            for (int ci = lo; ci <= cj; ci++) {
                 double s = mass * (J[ci] * J[cj] + J[f + ci] * J[f + cj] + J[2 * f + ci] * J[2 * f + cj])
                          + J_R[ci] * IJ[0] + J_R[f + ci] * IJ[1] + J_R[2 * f + ci] * IJ[2];
                 M[ci * f + cj] += s;
@@ -369,8 +381,8 @@ static void applied_forces(const Tree *m, double *Ja, double *Jb)
             double e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
             double mag = fd[DF_K] * (l - fd[DF_L]) + fd[DF_D] * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
             double F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
-            if (fi[IF_A] >= 0) add_JtF(f, Ja, F, 1.0, q);
-            if (fi[IF_B] >= 0) add_JtF(f, Jb, F, -1.0, q);
+            if (fi[IF_A] >= 0) add_JtF(m, fi[IF_A], Ja, F, 1.0, q);
+            if (fi[IF_B] >= 0) add_JtF(m, fi[IF_B], Jb, F, -1.0, q);
             break;
         }
         case F_FORCE:
@@ -380,8 +392,8 @@ static void applied_forces(const Tree *m, double *Ja, double *Jb)
             double vec[3], xp[3], vp[3];
             if (fi[IF_FRAME]) mv(wk + W_S, fd + DF_VEC, vec);
             else memcpy(vec, fd + DF_VEC, sizeof vec);
-            if (fi[IF_TYPE] == F_TORQUE) add_JtF(f, wk + W_J, vec, 1.0, q);
-            else { point(m, i, fd + DF_AT_A, xp, vp, Ja); add_JtF(f, Ja, vec, 1.0, q); }
+            if (fi[IF_TYPE] == F_TORQUE) add_JtF(m, i, wk + W_J, vec, 1.0, q);
+            else { point(m, i, fd + DF_AT_A, xp, vp, Ja); add_JtF(m, i, Ja, vec, 1.0, q); }
             break;
         }
         }
@@ -426,7 +438,7 @@ int mbs_kinematics(const Tree *m)
 /* M, k, q at the state m->x (scratch: 6 f doubles after the workspace of the bodies). */
 int mbs_equations(const Tree *m)
 {
-    double *scratch = m->work + (size_t)m->nb * (24 + 6 * m->nvel);
+    double *scratch = m->work + (size_t)m->nb * W_SIZE(m->nvel);
     kinematics(m);
     mass_matrix_and_bias(m, scratch);
     applied_forces(m, scratch, scratch + 3 * m->nvel);

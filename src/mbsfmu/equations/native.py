@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 SOURCE = Path(__file__).with_name("native.c")
-CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c99")
+CFLAGS = ("-O3", "-fPIC", "-shared", "-std=c99")
 JOINT_TYPES = {("fixed", None): 0, ("revolute", None): 1, ("prismatic", None): 2, ("cylindrical", None): 3,
                ("universal", None): 4, ("planar", None): 5, ("spherical", "quaternion"): 6,
                ("spherical", "cardan"): 7, ("free", "quaternion"): 8, ("free", "cardan"): 9}
@@ -115,9 +115,11 @@ class NativeTree:
         f, nb = model.nvel, len(model.bodies)
         self.x = np.zeros(model.npos + model.nvel)
         self.q_in = np.zeros(f)
-        self.work = np.zeros(nb * (24 + 6 * f) + 6 * f)
+        self.work = np.zeros(nb * (26 + 6 * f) + 6 * f)  # per body see W_* in native.c, then scratch
         self.M, self.k, self.q = np.zeros((f, f)), np.zeros(f), np.zeros(f)
         self.xdot = np.zeros(model.npos + model.nvel)
+        self.xs = np.zeros(model.npos + model.nvel)  # argument of the last Runge–Kutta stage
+        self._x_ptr, self._xs_ptr, self._pointers = self.x.ctypes.data, self.xs.ctypes.data, {}
         self.quat = np.array([np.r_[p, w] for p, w in zip(model.quaternions, model.quat_vel)], dtype=np.intc).reshape(-1, 7)
         self.plain_pos = np.ascontiguousarray(model.plain_pos, dtype=np.intc)
         self.plain_vel = np.ascontiguousarray(model.plain_vel, dtype=np.intc)
@@ -213,10 +215,19 @@ class NativeTree:
         """Runge–Kutta stages K[i0:s] in one compiled loop (autonomous scenes only, see native.c):
         returns (status, argument of the last stage); status 1: M singular, 2: gimbal lock there."""
         self._load(x, 0.0, q_in, F_in)
-        xs = np.empty_like(self.x)
-        rc = self.lib.mbs_erk_stages(self._ref, i0, s, A.ctypes.data, A.shape[1], h, self.x.ctypes.data,
-                                     K.ctypes.data, xs.ctypes.data)
-        return rc, xs
+        rc = self.lib.mbs_erk_stages(self._ref, i0, s, self._pointer(A), A.shape[1], h, self._x_ptr,
+                                     self._pointer(K), self._xs_ptr)
+        return rc, self.xs.copy()
+
+    def _pointer(self, a):
+        """Data address of a long-lived array (tableaus, stage buffers), looked up once: ndarray.ctypes
+        costs about 1 µs per access. The cache keeps the array alive, so its id cannot be reused."""
+        hit = self._pointers.get(id(a))
+        if hit is None or hit[0] is not a:
+            if len(self._pointers) > 64:
+                self._pointers.clear()
+            hit = self._pointers[id(a)] = (a, a.ctypes.data)
+        return hit[1]
 
     def rhs(self, t, x, q_in=None, F_in=None):
         """ẋ = [Z(y) ẏ; M⁻¹(q − k)], or None when M is not positive definite."""
@@ -229,7 +240,7 @@ class NativeTree:
         """Per body (S, o, ω, v) of its origin at state x: views into the workspace, valid until the next call."""
         self._load(x, t, None, None)
         self.lib.mbs_kinematics(self._ref)
-        W = self.work[:len(self.model.bodies) * (24 + 6 * self.model.nvel)].reshape(len(self.model.bodies), -1)
+        W = self.work[:len(self.model.bodies) * (26 + 6 * self.model.nvel)].reshape(len(self.model.bodies), -1)
         return [(w[:9].reshape(3, 3), w[9:12], w[12:15], w[15:18]) for w in W]
 
     def equations(self, y, yd, t, q_in=None, F_in=None):

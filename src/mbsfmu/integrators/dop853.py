@@ -89,12 +89,3 @@ class Dop853(FsalIntegrator):
         Q[3] = 2.0 * dy - h * (K[S] + K[0])
         Q[4:] = (h * D) @ K
         return Q
-
-    def _dense_eval(self, Q, theta):
-        """Horner-like evaluation alternating θ and 1−θ (SciPy's Dop853DenseOutput)."""
-        y = np.zeros(self.n)
-        th1 = 1.0 - theta
-        for i, row in enumerate(Q[:0:-1]):
-            y += row
-            y *= theta if i % 2 == 0 else th1
-        return y + Q[0]

@@ -88,16 +88,12 @@ class Dopri5(FsalIntegrator):
         return x_new
 
     def _dense_coeffs(self, t_old, x_old, x_new, h):
-        """Hairer's rcont1..5 from the stages of the accepted step (K[0] = f at start, K[6] = f at end)."""
+        """Hairer's rcont1..5 of CONTD5, r1 + θ(r2 + (1−θ)(r3 + θ(r4 + (1−θ) r5))), from the stages of the
+        accepted step (K[0] = f at start, K[6] = f at end)."""
         K = self._K
         ydiff = x_new - x_old
         bspl = h * K[0] - ydiff
         return np.array([x_old, ydiff, bspl, ydiff - h * K[6] - bspl, (h * D) @ K])
-
-    def _dense_eval(self, Q, theta):
-        """CONTD5: r1 + θ(r2 + (1−θ)(r3 + θ(r4 + (1−θ) r5)))."""
-        th1 = 1.0 - theta
-        return Q[0] + theta * (Q[1] + th1 * (Q[2] + theta * (Q[3] + th1 * Q[4])))
 
     def _stop_early(self):
         """With stop_when_stiff, hand control back as soon as stiffness is detected."""

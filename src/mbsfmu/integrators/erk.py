@@ -1,5 +1,7 @@
 """Stage loop and FSAL start shared by the explicit embedded Runge–Kutta pairs (DOPRI5, DOP853)."""
 
+import numpy as np
+
 from .base import Integrator
 from .initial_step import initial_step
 
@@ -20,12 +22,26 @@ def erk_stages(problem, t, x, h, A, C, K, i0, s, t_end):
     return xs
 
 
+def alternating_weights(theta, m):
+    """Weights w with Q0 + θ(Q1 + (1−θ)(Q2 + θ(Q3 + …))) = w·Q (Hairer's CONTD5/CONTD8 nesting), so the
+    continuous extension is one matrix–vector product instead of m small vector updates."""
+    th1 = 1.0 - theta
+    w = [1.0]
+    for k in range(1, m):
+        w.append(w[-1] * (theta if k % 2 else th1))
+    return w
+
+
 class FsalIntegrator(Integrator):
     """Explicit pairs with FSAL (dopri5, dop853): k1 = f(t, x) is cached across steps and calls."""
 
     def _invalidate_derivative(self):
         """New inputs: the cached first stage is not f at the new inputs."""
         self.k1 = None
+
+    def _dense_eval(self, Q, theta):
+        """Value of the continuous extension at θ ∈ [0, 1] of the step: w(θ)·Q."""
+        return np.dot(alternating_weights(theta, len(Q)), Q)
 
     def _start(self, t_end):
         """Evaluate f(t, x) unless the FSAL stage is cached; HINIT on the very first call only."""
