@@ -66,17 +66,16 @@ class Problem:
             raise IntegrationError(self.ev.singularity_message(x[:self.npos]) or "the mass matrix is singular", t)
         return xd
 
-    def stages(self, A, K, i0, s, h, x, t):
-        """Runge–Kutta stages K[i0:s] from the compiled kernel for autonomous rigid scenes (else None:
-        the integrator evaluates f stage by stage). Returns the argument of the last stage."""
+    def stages(self, A, C, K, i0, s, h, x, t, t_end):
+        """Runge–Kutta stages K[i0:s] from the compiled kernel for rigid scenes (else None: the integrator
+        evaluates f stage by stage). Returns the argument of the last stage."""
         native = self.ev.native
-        if native is None or not native.autonomous or not (A.flags.c_contiguous and K.flags.c_contiguous):
+        if native is None or not (A.flags.c_contiguous and K.flags.c_contiguous) or s > len(native.td):
             return None
-        rc, xs = native.stages(A, K, i0, s, h, x, self.q_in, self.F_in)
+        rc, xs = native.stages(A, C, K, i0, s, h, x, t, t_end, self.q_in, self.F_in)
         self.rhs_calls += s - i0
         if rc:
-            y = xs[:self.npos]
-            raise IntegrationError(self.ev.singularity_message(y) or "the mass matrix is singular", t)
+            raise IntegrationError(self.ev.singularity_message(xs[:self.npos]) or "the mass matrix is singular", t)
         return xs
 
     def _check_gimbal(self, t, y):

@@ -23,15 +23,16 @@ enum { IF_TYPE, IF_A, IF_B, IF_FRAME, IF = 4 };
 enum { DF_K, DF_D, DF_L, DF_AT_A = 3, DF_AT_B = 6, DF_VEC = 9, DF = 12 };
 
 typedef struct {
-    int nb, npos, nvel, nforce, nquat, nplain, has_gravity;
+    int nb, npos, nvel, nforce, nquat, nplain, has_gravity, ndrv, nvec;
     const int *ib;        /* nb × IB */
     const double *db;     /* nb × DB */
     const int *iforce;    /* nforce × IF */
-    const double *dforce; /* nforce × DF (DF_VEC filled by Python for force/torque elements) */
+    double *dforce;       /* nforce × DF (DF_VEC of the time-dependent elements is copied from td) */
     const double *g;      /* 3 */
     const int *quat;      /* nquat × 7: 4 position indices, 3 velocity indices */
     const int *plain_pos, *plain_vel;
-    const double *drv;    /* per driven coordinate: p, v, a (filled by Python when the scene has drives) */
+    const int *vec_rows;  /* the nvec force/torque elements whose vector depends on t or inputs */
+    const double *td;     /* time-dependent numbers from Python: p, v, a per drive (ndrv), then 3 per vec_rows */
     const double *x;      /* [y; ẏ] */
     const double *q_in;   /* generalized-force inputs (nvel) */
     double *work;         /* nb × (26 + 6 nvel), then 6 nvel scratch */
@@ -214,12 +215,12 @@ static void kinematics(const Tree *m)
         double p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
         for (int k = 0; k < np; k++) {
             int pi = ib[IB_POS + k], s = ib[IB_DRV + k];
-            p[k] = pi >= 0 ? y[pi] : m->drv[3 * s];
+            p[k] = pi >= 0 ? y[pi] : m->td[3 * s];
         }
         for (int k = 0; k < nv; k++) {
             int vi = ib[IB_VEL + k], s = ib[IB_DRV + k];
             if (vi >= 0) v[k] = yd[vi];
-            else { v[k] = m->drv[3 * s + 1]; acc[k] = m->drv[3 * s + 2]; }
+            else { v[k] = m->td[3 * s + 1]; acc[k] = m->td[3 * s + 2]; }
         }
         joint_motion(ib[IB_JTYPE], db, p, v, R, d, H_R, H_T, b_R, b_T);
         double w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0};
@@ -438,6 +439,8 @@ int mbs_kinematics(const Tree *m)
 /* M, k, q at the state m->x (scratch: 6 f doubles after the workspace of the bodies). */
 int mbs_equations(const Tree *m)
 {
+    for (int k = 0; k < m->nvec; k++)
+        memcpy(m->dforce + (size_t)m->vec_rows[k] * DF + DF_VEC, m->td + 3 * (m->ndrv + k), 3 * sizeof(double));
     double *scratch = m->work + (size_t)m->nb * W_SIZE(m->nvel);
     kinematics(m);
     mass_matrix_and_bias(m, scratch);
@@ -479,18 +482,20 @@ static int gimbal(const Tree *m)
     return 0;
 }
 
-/* Explicit Runge-Kutta stages i0..s-1 in one call, for scenes whose right-hand side does not depend on t
- * (no drives, no time-dependent forces; inputs are held over the step):
- *   k_i = f(x + h Σ_j a_ij k_j),  A row-major with leading dimension lda, K rows of length n.
+/* Explicit Runge-Kutta stages i0..s-1 in one call (inputs are held over the step):
+ *   k_i = f(t_i, x + h Σ_j a_ij k_j),  A row-major with leading dimension lda, K rows of length n.
+ * td: NULL when nothing depends on t, else the time-dependent numbers of every stage time t_i
+ * (row i, ntd = 3 (ndrv + nvec) per row), evaluated by Python beforehand: stage times are known in advance.
  * xs returns the argument of the last stage evaluated (for an FSAL row: x_new).
  * Returns 0; 1 if M is not positive definite, 2 at gimbal lock (xs holds that state). */
 int mbs_erk_stages(const Tree *m, int i0, int s, const double *A, int lda, double h, const double *x,
-                   double *K, double *xs)
+                   double *K, double *xs, const double *td)
 {
-    const int n = m->npos + m->nvel;
+    const int n = m->npos + m->nvel, ntd = 3 * (m->ndrv + m->nvec);
     Tree st = *m;
     st.x = xs;
     for (int i = i0; i < s; i++) {
+        if (td) st.td = td + (size_t)i * ntd;
         const double *a = A + (size_t)i * lda;
         for (int r = 0; r < n; r++) {
             double acc = 0.0;

@@ -37,9 +37,9 @@ _P = ctypes.c_void_p
 
 
 class _Tree(ctypes.Structure):
-    _fields_ = [(n, ctypes.c_int) for n in ("nb", "npos", "nvel", "nforce", "nquat", "nplain", "has_gravity")] + \
-               [(n, _P) for n in ("ib", "db", "iforce", "dforce", "g", "quat", "plain_pos", "plain_vel", "drv",
-                                  "x", "q_in", "work", "M", "k", "q", "xdot")]
+    _fields_ = [(n, ctypes.c_int) for n in ("nb", "npos", "nvel", "nforce", "nquat", "nplain", "has_gravity", "ndrv", "nvec")] + \
+               [(n, _P) for n in ("ib", "db", "iforce", "dforce", "g", "quat", "plain_pos", "plain_vel", "vec_rows",
+                                  "td", "x", "q_in", "work", "M", "k", "q", "xdot")]
 
 
 # ------------------------------------------------------------------------------------------ library
@@ -95,7 +95,7 @@ def library():
     for fn in (lib.mbs_rhs, lib.mbs_equations, lib.mbs_kinematics):
         fn.argtypes, fn.restype = [ctypes.POINTER(_Tree)], ctypes.c_int
     lib.mbs_erk_stages.argtypes = [ctypes.POINTER(_Tree), ctypes.c_int, ctypes.c_int, _P, ctypes.c_int,
-                                   ctypes.c_double, _P, _P, _P]
+                                   ctypes.c_double, _P, _P, _P, _P]
     lib.mbs_erk_stages.restype = ctypes.c_int
     _lib = lib
     return lib
@@ -124,7 +124,6 @@ class NativeTree:
         self.plain_pos = np.ascontiguousarray(model.plain_pos, dtype=np.intc)
         self.plain_vel = np.ascontiguousarray(model.plain_vel, dtype=np.intc)
         self.drives = [d for b in model.bodies for d in b.drives]
-        self.drv = np.zeros(3 * max(1, len(self.drives)))
         self.bind()
 
     def bind(self):
@@ -159,7 +158,7 @@ class NativeTree:
         forces = m.bound_forces
         iforce = np.zeros((max(1, len(forces)), IF), dtype=np.intc)
         dforce = np.zeros((max(1, len(forces)), DF))
-        self._vector_forces = []  # (row, element) whose vector Python sets per call
+        self._vector_forces = []  # (row, element) whose vector depends on t or on inputs
         for e, fe in enumerate(forces):
             kind = fe["type"]
             iforce[e, IF_TYPE] = FORCE_TYPES[kind]
@@ -179,44 +178,60 @@ class NativeTree:
                 else:
                     self._vector_forces.append((e, fe))
         self.ib, self.db, self.iforce, self.dforce = ib, db, iforce, dforce
+        self.autonomous = not self.drives and all("input" in fe for _, fe in self._vector_forces)
+        # time-dependent numbers (td): p, v, a per drive, then the vectors of _vector_forces; row 0 for
+        # single calls, one row per Runge–Kutta stage for mbs_erk_stages (16 rows: DOP853's extended tableau)
+        self.ntd = 3 * (len(self.drives) + len(self._vector_forces))
+        self.td = np.zeros((16, max(1, self.ntd)))
+        self.vec_rows = np.array([e for e, _ in self._vector_forces] or [0], dtype=np.intc)
         self.g = np.array(m.g if m.g is not None else np.zeros(3), dtype=float)
         arrays = dict(ib=ib, db=db, iforce=iforce, dforce=dforce, g=self.g, quat=self.quat, plain_pos=self.plain_pos,
-                      plain_vel=self.plain_vel, drv=self.drv, x=self.x, q_in=self.q_in, work=self.work, M=self.M, k=self.k,
+                      plain_vel=self.plain_vel, vec_rows=self.vec_rows, td=self.td, x=self.x, q_in=self.q_in, work=self.work, M=self.M, k=self.k,
                       q=self.q, xdot=self.xdot)
         for a in arrays.values():
             assert a.flags.c_contiguous
-        # the right-hand side does not depend on t: Runge–Kutta stages can run in one compiled loop
-        self.autonomous = not self.drives and all("input" in fe for _, fe in self._vector_forces)
         self.tree = _Tree(nb=nb, npos=m.npos, nvel=m.nvel, nforce=len(forces), nquat=len(self.quat),
-                          nplain=len(self.plain_pos), has_gravity=int(m.g is not None),
+                          nplain=len(self.plain_pos), has_gravity=int(m.g is not None), ndrv=len(self.drives),
+                          nvec=len(self._vector_forces),
                           **{k: a.ctypes.data for k, a in arrays.items()})
         self._ref = ctypes.byref(self.tree)
 
+    def _time_dependent(self, t, F_in, row):
+        """Drive values and force vectors at time t into one row of td."""
+        env = self.model.env
+        env["t"] = t
+        for s, (_, f, fd, fdd) in enumerate(self.drives):
+            row[3 * s:3 * s + 3] = f(env), fd(env), fdd(env)
+        k = 3 * len(self.drives)
+        for _, fe in self._vector_forces:
+            if "input" in fe:
+                vec = F_in.get(fe["input"]) if F_in else None
+                row[k:k + 3] = 0.0 if vec is None else vec
+            else:
+                row[k:k + 3] = [v(env) for v in fe["value"]]
+            k += 3
+
     def _load(self, x, t, q_in, F_in):
-        """Copy the state and this call's time-dependent numbers into the kernel's buffers."""
+        """Copy the state, the inputs and the numbers at time t into the kernel's buffers."""
         self.x[:] = x
         if q_in is None:
             self.q_in.fill(0.0)
         else:
             self.q_in[:] = q_in
-        env = self.model.env
-        if self.drives or self._vector_forces:
-            env["t"] = t
-        for s, (_, f, fd, fdd) in enumerate(self.drives):
-            self.drv[3 * s:3 * s + 3] = f(env), fd(env), fdd(env)
-        for e, fe in self._vector_forces:
-            if "input" in fe:
-                vec = F_in.get(fe["input"]) if F_in else None
-                self.dforce[e, DF_VEC:DF_VEC + 3] = 0.0 if vec is None else vec
-            else:
-                self.dforce[e, DF_VEC:DF_VEC + 3] = [v(env) for v in fe["value"]]
+        if self.ntd:
+            self._time_dependent(t, F_in, self.td[0])
 
-    def stages(self, A, K, i0, s, h, x, q_in, F_in):
-        """Runge–Kutta stages K[i0:s] in one compiled loop (autonomous scenes only, see native.c):
+    def stages(self, A, C, K, i0, s, h, x, t, t_end, q_in, F_in):
+        """Runge–Kutta stages K[i0:s] in one compiled call (stage times t + c_i h, t_end where c_i = 1):
         returns (status, argument of the last stage); status 1: M singular, 2: gimbal lock there."""
-        self._load(x, 0.0, q_in, F_in)
+        self._load(x, t, q_in, F_in)
+        td = None
+        if not self.autonomous:
+            td = self._pointer(self.td)
+            for i in range(i0, s):
+                self._time_dependent(t_end if C[i] == 1.0 else t + C[i] * h, F_in, self.td[i])
         rc = self.lib.mbs_erk_stages(self._ref, i0, s, self._pointer(A), A.shape[1], h, self._x_ptr,
-                                     self._pointer(K), self._xs_ptr)
+                                     self._pointer(K), self._xs_ptr, td)
         return rc, self.xs.copy()
 
     def _pointer(self, a):

@@ -9,8 +9,8 @@ from .initial_step import initial_step
 def erk_stages(problem, t, x, h, A, C, K, i0, s, t_end):
     """Fill K[i0:s] with k_i = f(t + c_i h, x + h Σ_j a_ij k_j) (K[:i0] already filled) and return the
     argument of the last stage (for an FSAL row: x_new). A stage with c_i = 1 is evaluated at t_end."""
-    stages = getattr(problem, "stages", None)  # compiled loop where the problem has one (rigid, autonomous)
-    xs = stages(A, K, i0, s, h, x, t) if stages is not None else None
+    stages = getattr(problem, "stages", None)  # one compiled loop where the problem has it (rigid scenes)
+    xs = stages(A, C, K, i0, s, h, x, t, t_end) if stages is not None else None
     if xs is not None:
         return xs
     f = problem.f
