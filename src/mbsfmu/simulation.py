@@ -37,6 +37,9 @@ class Problem:
         self.q_in, self.F_in = None, None
         self.quats = m.quaternions
         self.quat_vel = m.quat_vel
+        # a joint's 4 quaternion entries are consecutive: a slice is a view (in-place update, no fancy indexing)
+        self._quat_slices = [slice(int(q[0]), int(q[0]) + 4) for q in self.quats]
+        assert all((q == np.arange(q[0], q[0] + 4)).all() for q in self.quats)
         self.rhs_calls = 0
         self.cardan = any(b.kind in ("spherical", "free") and b.param == "cardan" for b in m.bodies)
 
@@ -88,8 +91,9 @@ class Problem:
         """Project quaternions back to unit length after each step."""
         if self.quats:
             x = x.copy()
-            for qi in self.quats:
-                x[qi] /= math.sqrt(x[qi] @ x[qi])
+            for qi in self._quat_slices:
+                p = x[qi]
+                p /= math.sqrt(p.dot(p))
         return x
 
     def retract(self, y, dy):

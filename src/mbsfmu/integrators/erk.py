@@ -1,5 +1,8 @@
 """Stage loop and FSAL start shared by the explicit embedded Runge–Kutta pairs (DOPRI5, DOP853)."""
 
+from itertools import accumulate
+from operator import mul
+
 import numpy as np
 
 from .base import Integrator
@@ -25,11 +28,7 @@ def erk_stages(problem, t, x, h, A, C, K, i0, s, t_end):
 def alternating_weights(theta, m):
     """Weights w with Q0 + θ(Q1 + (1−θ)(Q2 + θ(Q3 + …))) = w·Q (Hairer's CONTD5/CONTD8 nesting), so the
     continuous extension is one matrix–vector product instead of m small vector updates."""
-    th1 = 1.0 - theta
-    w = [1.0]
-    for k in range(1, m):
-        w.append(w[-1] * (theta if k % 2 else th1))
-    return w
+    return list(accumulate([theta, 1.0 - theta] * (m // 2) + [theta] * (m % 2), mul, initial=1.0))[:m]
 
 
 class FsalIntegrator(Integrator):
