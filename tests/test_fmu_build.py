@@ -543,6 +543,8 @@ def test_real_runtime_is_clean(real_fmu):
     assert f"resources/{pkg}/simulation.py" in rt and f"resources/{pkg}/integrators/__init__.py" in rt
     assert not [n for n in rt if "/bodies/" in n or "/scene/" in n or "/fmu/" in n or "/bench/" in n
                 or n.endswith("cli.py")]
+    # the compiled right-hand side travels with a rigid scene (the FMU needs no compiler on the target)
+    assert [n for n in rt if re.search(r"/equations/libmbsfmu_native_[0-9a-f]+\.so\.1$", n)]
     sources = {n: z.read(n) for n in rt if n.endswith(".py")}
     assert forbidden_imports(sources) == []
     for n, src in sources.items():
@@ -557,6 +559,7 @@ def test_real_elastic_scene_packs_bodies(real_dir):
     fmu = build_fmu(path, real_dir / "flex")
     names = zipfile.ZipFile(fmu).namelist()
     assert [n for n in names if re.search(r"/mbsfmu_rt_[0-9a-f]+/bodies/__init__\.py$", n)]
+    assert not [n for n in names if "native" in n and not n.endswith(".py")]  # elastic: numpy path only
     assert validate_fmu(str(fmu)) == []
     md = read_model_description(str(fmu))
     assert {"y.beam.q1", "y.beam.q2", "yd.beam.q1"} <= {v.name for v in md.modelVariables}

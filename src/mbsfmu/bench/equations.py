@@ -1,4 +1,4 @@
-"""Cost of one evaluation of the equations: mbsfmu Evaluator.equations vs Pinocchio crba + nonLinearEffects,
+"""Cost of one evaluation of the equations: mbsfmu (compiled kernel and numpy reference path) vs Pinocchio crba + nonLinearEffects,
 plus a full fmpy run of the built FMU versus the same run in process (when build_fmu works).
 """
 
@@ -43,7 +43,9 @@ def benchmark_equations(scene_path, out_dir=None, n_states=20, fmu=True, stop=No
                 y[qi] /= np.linalg.norm(y[qi])
         states.append((y, rng.normal(size=yd0.size), 0.0))
     res = {"scene": spec["name"], "n": int(yd0.size), "notes": []}
-    res["mbsfmu_equations_us"] = _time_per_call(ev.equations, states)
+    res["mbsfmu_equations_us"] = _time_per_call(ev.equations, states)  # numpy reference path (tree.py)
+    if ev.native is not None:
+        res["mbsfmu_native_us"] = _time_per_call(ev.native.equations, states)
     sim = Simulation(spec)
     sim.initialize(0.0)
     xs = [(0.0, np.concatenate([y, yd])) for y, yd, _ in states]
@@ -126,8 +128,10 @@ def markdown(r):
 
     def ratio(x):
         return f"{x / p:.1f}" if p else "—"
-    L.append(f"| mbsfmu `Evaluator.equations` (M, k, q) | {r['mbsfmu_equations_us']:.1f} | {ratio(r['mbsfmu_equations_us'])} |")
-    L.append(f"| mbsfmu `Problem.f` (equations + solve M ÿ = q − k) | {r['mbsfmu_rhs_us']:.1f} | {ratio(r['mbsfmu_rhs_us'])} |")
+    if "mbsfmu_native_us" in r:
+        L.append(f"| mbsfmu compiled kernel `native.equations` (M, k, q; ctypes call included) | {r['mbsfmu_native_us']:.1f} | {ratio(r['mbsfmu_native_us'])} |")
+    L.append(f"| mbsfmu `Problem.f` (equations + solve M ÿ = q − k, what the integrators call) | {r['mbsfmu_rhs_us']:.1f} | {ratio(r['mbsfmu_rhs_us'])} |")
+    L.append(f"| mbsfmu numpy reference path `Evaluator.equations` (tree.py) | {r['mbsfmu_equations_us']:.1f} | {ratio(r['mbsfmu_equations_us'])} |")
     if p:
         L.append(f"| Pinocchio `crba` + `nonLinearEffects` (Python bindings, C++) | {p:.1f} | 1.0 |")
         L.append(f"| Pinocchio `aba` (forward dynamics) | {r['pinocchio_aba_us']:.1f} | {ratio(r['pinocchio_aba_us'])} |")

@@ -12,7 +12,8 @@
 error = max over communication points t_k and position coordinates i of |y_i(t_k) − y_ref,i(t_k)|, with
 y_ref from mbsfmu dop853 at rtol = 1e-13, atol = 1e-15 (cross-checked against scipy DOP853 at the same
 tolerance; the difference of the two references is reported as the error floor).
-CPU time = `time.process_time()` of the whole run (set-up of the integrator included, compilation excluded).
+CPU time = `time.process_time()` of the whole run (set-up of the integrator included, compilation excluded);
+runs under 0.2 s are repeated up to 5 times and the fastest counts.
 """
 
 import argparse
@@ -33,6 +34,7 @@ RTOLS = tuple(10.0 ** -k for k in range(3, 11))
 QUICK_RTOLS = (1e-3, 1e-5, 1e-7)
 REF_RTOL = 1e-13
 TARGET_ERROR = 1e-6
+REPEATS, REPEAT_BELOW = 5, 0.2  # short runs are timed up to 5 times, the fastest counts
 
 
 class Budget(Exception):
@@ -326,11 +328,11 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
             bar.set_postfix_str(f"{family}:{m} {setting}")
         try:
             if family == "mbsfmu":
-                Y, cpu, st = run_mbsfmu(spec, m, ts, budget=budget, **kw)
+                Y, cpu, st = _best_of(REPEATS, lambda: run_mbsfmu(spec, m, ts, budget=budget, **kw))
             elif family == "scipy":
-                Y, cpu, st = run_scipy(spec, m, ts, budget=budget, **kw)
+                Y, cpu, st = _best_of(REPEATS, lambda: run_scipy(spec, m, ts, budget=budget, **kw))
             else:
-                Y, cpu, st = run_exudyn(spec, m, ts, **kw)
+                Y, cpu, st = _best_of(REPEATS, lambda: run_exudyn(spec, m, ts, **kw))
             err = float(np.max(np.abs(Y - Yref))) if np.all(np.isfinite(Y)) else float("inf")
             rows.append({"method": f"{family}:{m}", "setting": setting, "cpu_seconds": cpu, "error": err,
                          "steps": st.get("steps", ""), "rhs_evaluations": st.get("rhs_evaluations", "")})
@@ -347,6 +349,17 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
         with open(os.path.join(out_dir, "summary.md"), "w") as fh:
             fh.write(summary(rows, spec, ts, ref_cpu, floor, notes))
     return rows
+
+
+def _best_of(n, fn):
+    """Run fn() (→ Y, cpu, stats) up to n times while runs are short (< REPEAT_BELOW CPU s): millisecond
+    timings on a shared machine jitter by tens of percent, the minimum is the reproducible number."""
+    Y, cpu, st = fn()
+    for _ in range(n - 1):
+        if cpu >= REPEAT_BELOW:
+            break
+        cpu = min(cpu, fn()[1])
+    return Y, cpu, st
 
 
 def spec_has_quaternions(spec):
@@ -397,7 +410,8 @@ def summary(rows, spec, ts, ref_cpu, floor, notes):
              "**error** = max over communication points t_k and position coordinates i of |y_i(t_k) − y_ref,i(t_k)| "
              f"(y_ref: mbsfmu dop853, rtol {REF_RTOL:g}, atol {REF_RTOL * 1e-2:g}; CPU {ref_cpu:.2f} s; "
              f"max difference to scipy DOP853 at the same tolerance: {floor:.2e} — errors below that are not resolved).",
-             "**cpu_seconds** = time.process_time of the run (simulation object + integrator set-up included). "
+             f"**cpu_seconds** = time.process_time of the run (simulation object + integrator set-up included; runs under "
+             f"{REPEAT_BELOW:g} s: fastest of {REPEATS}). "
              "mbsfmu runs step through `Simulation.do_step` (one call per communication step, the FMU path); "
              "scipy runs `solve_ivp(problem.f, t_eval=communication points)` on the same right-hand side; "
              "Exudyn runs its C++ KinematicTree with a fixed step. Adaptive methods: atol = rtol·1e-2. "
