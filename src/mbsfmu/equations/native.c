@@ -185,7 +185,7 @@ static int col_hi(const double *wk) { return (int)wk[W_HI]; }
 /* Recursive kinematics of all body origins (tree.py: kinematics). */
 static void kinematics(const Tree *m)
 {
-    static const double E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, Z[24] = {0};
+    static const double Z[3] = {0, 0, 0};
     const int f = m->nvel;
     const double *y = m->x, *yd = m->x + m->npos;
     for (int i = 0; i < m->nb; i++) {
@@ -194,24 +194,24 @@ static void kinematics(const Tree *m)
         double *wk = body_work(m, i);
         double *J_R = wk + W_J, *J_T = J_R + 3 * f;
         const int par = ib[IB_PARENT], nv = ib[IB_NVEL], np = ib[IB_NPOS];
-        const double *S_p, *o_p, *w_p, *v_p, *a_p, *al_p;
+        const double *o_p, *w_p, *v_p, *a_p, *al_p;
         double S_J[9], rho[3] = {0, 0, 0};
         int lo = f, hi = 0;
         if (par < 0) {
-            S_p = E; o_p = w_p = v_p = a_p = al_p = Z;
+            o_p = w_p = v_p = a_p = al_p = Z;
             memset(J_R, 0, 6 * f * sizeof(double));
             memcpy(S_J, db + DB_R0, sizeof S_J);
             memcpy(rho, db + DB_AT, sizeof rho);
         } else {
             const double *pw = body_work(m, par);
-            S_p = pw + W_S; o_p = pw + W_O; w_p = pw + W_W; v_p = pw + W_V; a_p = pw + W_A; al_p = pw + W_AL;
+            const double *S_p = pw + W_S;
+            o_p = pw + W_O; w_p = pw + W_W; v_p = pw + W_V; a_p = pw + W_A; al_p = pw + W_AL;
             memcpy(J_R, pw + W_J, 6 * f * sizeof(double));
             lo = col_lo(pw);
             hi = col_hi(pw);
             mm(S_p, db + DB_R0, S_J);
             mv(S_p, db + DB_AT, rho);
         }
-        (void)S_p;
         double p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
         for (int k = 0; k < np; k++) {
             int pi = ib[IB_POS + k], s = ib[IB_DRV + k];
