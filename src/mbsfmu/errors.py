@@ -22,5 +22,5 @@ class IntegrationError(RuntimeError):
     """The integrator could not advance (tolerance not met, non-finite state or input)."""
 
     def __init__(self, message, t=None):
-        self.t = t
+        self.t, self.message = t, message
         super().__init__(message if t is None else f"t={t:.9g}: {message}")

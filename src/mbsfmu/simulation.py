@@ -242,7 +242,7 @@ class Simulation:
         except IntegrationError as e:
             self.time, self.x = self.integrator.t, self.integrator.x.copy()
             msg = self.ev.singularity_message(self.x[:self.ev.model.npos])
-            raise IntegrationError(f"{e}" + (f"; {msg}" if msg and msg not in str(e) else ""), self.time) from None
+            raise IntegrationError(e.message + (f"; {msg}" if msg and msg not in e.message else ""), self.time) from None
         self.time, self.x = self.integrator.t, x
         y, yd = x[:self.ev.model.npos], x[self.ev.model.npos:]
         if self.problem.cardan:  # a coarse step may jump across b = ±90° without landing near it

@@ -424,7 +424,7 @@ def summary(rows, spec, ts, ref_cpu, floor, notes):
     lines.append("|---|---|---|---|---|")
     for f, r in b.items():
         if r:
-            lines.append(f"| {f} | {r['method']} | {r['setting']} | {r['cpu_seconds']:.3f} | {r['error']:.2e} |")
+            lines.append(f"| {f} | {r['method']} | {r['setting']} | {r['cpu_seconds']:.4f} | {r['error']:.2e} |")
         elif any(x["method"].startswith(f + ":") for x in rows):
             lines.append(f"| {f} | none reached {TARGET_ERROR:g} | | | |")
     lines.append("")
@@ -443,7 +443,7 @@ def summary(rows, spec, ts, ref_cpu, floor, notes):
                 per[r["method"]] = r
     if per:
         lines.append(f"Per method, cheapest run at error ≤ {TARGET_ERROR:g}: " + ", ".join(
-            f"{m} {r['cpu_seconds']:.3f} s ({r['setting']})" for m, r in sorted(per.items(), key=lambda kv: kv[1]["cpu_seconds"])) + ".")
+            f"{m} {r['cpu_seconds']:.4f} s ({r['setting']})" for m, r in sorted(per.items(), key=lambda kv: kv[1]["cpu_seconds"])) + ".")
         lines.append("")
     if notes:
         lines += ["## Notes", ""] + [f"- {n}" for n in notes] + [""]
