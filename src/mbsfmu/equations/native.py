@@ -77,7 +77,11 @@ def library_path():
     shipped = Path(__file__).with_name(_library_name())
     if shipped.exists():
         return shipped
-    return compile_library(Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu"))
+    cache = Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu")
+    try:
+        return compile_library(cache)
+    except PermissionError:  # read-only home (some CI runners, containers): a per-user temporary directory
+        return compile_library(Path(tempfile.gettempdir()) / f"mbsfmu-{os.getuid() if hasattr(os, 'getuid') else 0}")
 
 
 def library():
