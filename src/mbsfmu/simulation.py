@@ -40,6 +40,8 @@ class Problem:
         # a joint's 4 quaternion entries are consecutive: a slice is a view (in-place update, no fancy indexing)
         self._quat_slices = [slice(int(q[0]), int(q[0]) + 4) for q in self.quats]
         assert all((q == np.arange(q[0], q[0] + 4)).all() for q in self.quats)
+        if not self.quats:
+            self.normalize = None  # integrators skip the projection entirely
         self.rhs_calls = 0
         self.cardan = any(b.kind in ("spherical", "free") and b.param == "cardan" for b in m.bodies)
 
@@ -244,9 +246,9 @@ class Simulation:
             msg = self.ev.singularity_message(self.x[:self.ev.model.npos])
             raise IntegrationError(e.message + (f"; {msg}" if msg and msg not in e.message else ""), self.time) from None
         self.time, self.x = self.integrator.t, x
-        y, yd = x[:self.ev.model.npos], x[self.ev.model.npos:]
         if self.problem.cardan:  # a coarse step may jump across b = ±90° without landing near it
-            msg = self.ev.singularity_message(y, x_before[:self.ev.model.npos])
+            npos = self.problem.npos
+            msg = self.ev.singularity_message(x[:npos], x_before[:npos])
             if msg:
                 raise IntegrationError(msg, self.time)
         self._outputs = None

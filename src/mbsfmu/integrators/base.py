@@ -146,7 +146,7 @@ class Integrator:
         t_old, h, Q = self._seg
         x = self._dense_eval(Q, (t_end - t_old) / h)
         if self._normalize is not None:
-            x = np.asarray(self._normalize(x), dtype=float)
+            x = self._normalize(x)
         self.t, self.x = t_end, x
 
     def get_state(self):
