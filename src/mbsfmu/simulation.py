@@ -54,7 +54,7 @@ class Problem:
         try:
             return np.linalg.solve(M, q - k)
         except np.linalg.LinAlgError:
-            raise IntegrationError(self.ev.singularity_message(y) or "the mass matrix is singular", t) from None
+            raise self._singular(t, y) from None
 
     def f(self, t, x):
         self.rhs_calls += 1
@@ -68,7 +68,7 @@ class Problem:
         self._check_gimbal(t, x[:self.npos])
         xd = self.ev.native.rhs(t, x, self.q_in, self.F_in)
         if xd is None:
-            raise IntegrationError(self.ev.singularity_message(x[:self.npos]) or "the mass matrix is singular", t)
+            raise self._singular(t, x[:self.npos])
         return xd
 
     def stages(self, A, C, K, i0, s, h, x, t, t_end):
@@ -80,8 +80,12 @@ class Problem:
         rc, xs = native.stages(A, C, K, i0, s, h, x, t, t_end, self.q_in, self.F_in)
         self.rhs_calls += s - i0
         if rc:
-            raise IntegrationError(self.ev.singularity_message(xs[:self.npos]) or "the mass matrix is singular", t)
+            raise self._singular(t, xs[:self.npos])
         return xs
+
+    def _singular(self, t, y):
+        """M is not positive definite at y: gimbal lock of Cardan angles, or a mass-less chain."""
+        return IntegrationError(self.ev.singularity_message(y) or "the mass matrix is singular", t)
 
     def _check_gimbal(self, t, y):
         if self.cardan:  # only scenes with Cardan joints pay for the gimbal-lock check
@@ -90,12 +94,11 @@ class Problem:
                 raise IntegrationError(msg, t)
 
     def normalize(self, x):
-        """Project quaternions back to unit length after each step."""
-        if self.quats:
-            x = x.copy()
-            for qi in self._quat_slices:
-                p = x[qi]
-                p /= math.sqrt(p.dot(p))
+        """Project quaternions back to unit length after each step (None for scenes without quaternions)."""
+        x = x.copy()
+        for qi in self._quat_slices:
+            p = x[qi]
+            p /= math.sqrt(p.dot(p))
         return x
 
     def retract(self, y, dy):
