@@ -1,7 +1,8 @@
 """The FMU in a C host without Python (like ecos/libcosim): a tiny FMI 2.0 master compiled with gcc.
 
-pythonfmu's binary does not link libpython, so a C host needs libpython loaded globally
-(LD_PRELOAD or dlopen(RTLD_GLOBAL) before loading the FMU). Skipped without gcc or a shared libpython.
+pythonfmu's binary does not link libpython; the FMU's loader shim (fmu/shim.c) loads it with global
+symbols, so the host runs with no LD_PRELOAD/PYTHONPATH/PYTHONHOME and must exit cleanly.
+Skipped without gcc or a shared libpython.
 """
 from __future__ import annotations
 
