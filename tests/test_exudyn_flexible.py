@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import mbsfmu
+from mbsfmu.bodies.tree import node_point
 from mbsfmu.simulation import simulate
 
 exu = pytest.importorskip("exudyn")
@@ -100,8 +101,8 @@ def test_flexible_pendulum_matches_exudyn(tmp_path, m_tip):
     ev = mbsfmu.compile(scene)
     nodal = next(b for b in ev.model.bodies if b.elastic).nodal
     t, Y, YD = simulate(scene, stop=T_END, step=0.01, rtol=1e-8, atol=1e-10)
-    ours = np.array([ev.output_point(ev.kinematics(y, yd, tt), {"body": "beam", "node": -1, "point": [0, 0, 0]})[0]
-                     for y, yd, tt in zip(Y, YD, t)])
+    beam = ev.model.index["beam"]
+    ours = np.array([node_point(ev.model, ev.kinematics(y, yd, tt), beam, -1)[0] for y, yd, tt in zip(Y, YD, t)])
     D = exudyn_tip(nodal, m_tip)
     theirs = np.column_stack([np.interp(t, D[:, 0], D[:, k]) for k in (1, 2, 3)])
     diff = np.linalg.norm(ours - theirs, axis=1)

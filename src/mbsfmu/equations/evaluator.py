@@ -170,15 +170,6 @@ class Evaluator:
                     out[f"{o['name']}.{sym}.{ax}"] = float(vec[k])
         return out
 
-    def output_point(self, d, o):
-        """World position and velocity of an `outputs:` entry from a kinematics workspace."""
-        i = self.model.index[o["body"]]
-        if o.get("node") is not None:
-            r, v, _ = _node_pt(self.model, d, i, o["node"])
-            return r, v
-        r, v, _ = point(d, i, np.array([parse(x)(self.model.env) for x in o["point"]], dtype=float))
-        return r, v
-
     def singularity_message(self, y, y_before=None):
         """Why M is (or was, between y_before and y) singular: Cardan angles at gimbal lock (b = ±90°), else None."""
         for b in self.model.bodies:
