@@ -215,20 +215,20 @@ class NativeTree:
                 row[k:k + 3] = [v(env) for v in fe["value"]]
             k += 3
 
-    def _load(self, x, t, q_in, F_in):
-        """Copy the state, the inputs and the numbers at time t into the kernel's buffers."""
+    def _load(self, x, t, q_in, F_in, td=True):
+        """Copy the state, the inputs and (td) the numbers at time t into the kernel's buffers."""
         self.x[:] = x
         if q_in is None:
             self.q_in.fill(0.0)
         else:
             self.q_in[:] = q_in
-        if self.ntd:
+        if td and self.ntd:
             self._time_dependent(t, F_in, self.td[0])
 
     def stages(self, A, C, K, i0, s, h, x, t, t_end, q_in, F_in):
         """Runge–Kutta stages K[i0:s] in one compiled call (stage times t + c_i h, t_end where c_i = 1):
         returns (status, argument of the last stage); status 1: M singular, 2: gimbal lock there."""
-        self._load(x, t, q_in, F_in)
+        self._load(x, t, q_in, F_in, td=self.autonomous)  # otherwise every stage gets its own td row below
         td = None
         if not self.autonomous:
             td = self._pointer(self.td)
