@@ -9,7 +9,7 @@ import numpy as np
 
 from .equations import Evaluator
 from .errors import IntegrationError
-from .integrators import make_integrator
+from .integrators import advance_many, make_integrator
 from .kinematics.rotations import quat_exp_step
 
 
@@ -94,11 +94,15 @@ class Problem:
                 raise IntegrationError(msg, t)
 
     def normalize(self, x):
-        """Project quaternions back to unit length after each step (None for scenes without quaternions)."""
+        """Project quaternions back to unit length after each step (None for scenes without quaternions);
+        x is one state or states as rows."""
         x = x.copy()
         for qi in self._quat_slices:
-            p = x[qi]
-            p /= math.sqrt(p.dot(p))
+            p = x[..., qi]
+            if x.ndim == 1:
+                p /= math.sqrt(p.dot(p))
+            else:
+                p /= np.sqrt(np.einsum("ij,ij->i", p, p))[:, None]
         return x
 
     def retract(self, y, dy):
@@ -227,6 +231,43 @@ class Simulation:
 
     def do_step(self, t, h):
         """Advance from t to t + h with the inputs held; raises IntegrationError (state stays at self.time)."""
+        self._prepare(t)
+        x_before = self.x
+        try:
+            x = self.integrator.advance(t + h)
+        except IntegrationError as e:
+            raise self._failed(e) from None
+        self.time, self.x = self.integrator.t, x
+        if self.problem.cardan:  # a coarse step may jump across b = ±90° without landing near it
+            npos = self.problem.npos
+            msg = self.ev.singularity_message(x[:npos], x_before[:npos])
+            if msg:
+                raise IntegrationError(msg, self.time)
+        self._outputs = None
+
+    def run(self, ts):
+        """States at the communication points ts (ts[0] = now) with the inputs held throughout: the same
+        steps as one do_step per interval, but points inside one dense-output step are interpolated
+        together (like solve_ivp's t_eval). Returns X with a row [y; ẏ] per point."""
+        ts = np.asarray(ts, dtype=float)
+        self._prepare(ts[0])
+        X = np.empty((len(ts), self.problem.n))
+        X[0] = self.x
+        if self.problem.cardan:  # the gimbal check looks at every consecutive pair of points
+            for k in range(len(ts) - 1):
+                self.do_step(ts[k], ts[k + 1] - ts[k])
+                X[k + 1] = self.x
+            return X
+        try:
+            X[1:] = advance_many(self.integrator, ts[1:])
+        except IntegrationError as e:
+            raise self._failed(e) from None
+        self.time, self.x = self.integrator.t, X[-1].copy()
+        self._outputs = None
+        return X
+
+    def _prepare(self, t):
+        """Before a step at t: initialize on first use, bind changed parameters and inputs."""
         if self.integrator is None:
             self.initialize(t)
         if self._params_dirty:
@@ -241,20 +282,13 @@ class Simulation:
                 self.integrator.inputs_changed()
         if abs(t - self.time) > 1e-9 * max(1.0, abs(t)):
             raise IntegrationError(f"do_step called at t={t} but the simulation is at t={self.time}", self.time)
-        x_before = self.x
-        try:
-            x = self.integrator.advance(t + h)
-        except IntegrationError as e:
-            self.time, self.x = self.integrator.t, self.integrator.x.copy()
-            msg = self.ev.singularity_message(self.x[:self.ev.model.npos])
-            raise IntegrationError(e.message + (f"; {msg}" if msg and msg not in e.message else ""), self.time) from None
-        self.time, self.x = self.integrator.t, x
-        if self.problem.cardan:  # a coarse step may jump across b = ±90° without landing near it
-            npos = self.problem.npos
-            msg = self.ev.singularity_message(x[:npos], x_before[:npos])
-            if msg:
-                raise IntegrationError(msg, self.time)
+
+    def _failed(self, e):
+        """The integrator stopped at its last good point: move there, name a singularity if there is one."""
+        self.time, self.x = self.integrator.t, self.integrator.x.copy()
         self._outputs = None
+        msg = self.ev.singularity_message(self.x[:self.ev.model.npos])
+        return IntegrationError(e.message + (f"; {msg}" if msg and msg not in e.message else ""), self.time)
 
     def _compute_outputs(self, y, yd):
         """Values of the `outputs:` points (y and ẏ are read straight from the state)."""
@@ -296,7 +330,8 @@ class Simulation:
 
 
 def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
-    """In-process run: returns (t, Y, YD) at the communication points. `inputs(t) -> {name: value}`."""
+    """In-process run: returns (t, Y, YD) at the communication points. `inputs`: {name: value} held for the
+    whole run, or a function `inputs(t) -> {name: value}` called at every communication point."""
     spec = scene if isinstance(scene, dict) else scene.spec
     sim = Simulation(spec)
     if method is not None:
@@ -308,13 +343,17 @@ def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
     n = int(round((stop - t0) / step))
     ts = t0 + step * np.arange(n + 1)
     sim.initialize(t0)
-    X = [sim.x.copy()]
-    for k in range(n):
-        if inputs is not None:
+    if inputs is None or isinstance(inputs, dict):  # held for the whole run: points of one step together
+        for name, val in (inputs or {}).items():
+            sim.set(name, val)
+        X = sim.run(ts)
+    else:
+        X = [sim.x.copy()]
+        for k in range(n):
             for name, val in inputs(ts[k]).items():
                 sim.set(name, val)
-        sim.do_step(ts[k], ts[k + 1] - ts[k])
-        X.append(sim.x.copy())
-    X = np.array(X)
+            sim.do_step(ts[k], ts[k + 1] - ts[k])
+            X.append(sim.x.copy())
+        X = np.array(X)
     npos = sim.ev.model.npos
     return ts, X[:, :npos], X[:, npos:]

@@ -1,7 +1,6 @@
 """Common driver: reset/advance to exact communication points, step-size carry-over, stats, state snapshots.
 
-Dense output (dopri5, dop853, auto's explicit phase; opt-in with ``dense=True`` — off by default for now
-because FMU-level tests expect bit-identical replay across inputs_changed() with unchanged values):
+Dense output (dopri5, dop853, auto's explicit phase; on by default, ``dense=False`` stops at every point):
 while the inputs are unchanged, advance(t_end) takes its natural step past t_end and returns the
 continuous-extension value at t_end.  The integrator then keeps an internal "ahead" point (t_int, x_int)
 together with the interpolation coefficients of that last step; the next advance interpolates again when
@@ -13,6 +12,7 @@ interval.  Consequently the visible states differ from a stop-at-every-point run
 and implicit methods (rk4, radau5, gen_alpha) always land exactly on t_end.
 """
 
+import bisect
 import math
 
 import numpy as np
@@ -40,6 +40,30 @@ def deep_copy(v):
     if isinstance(v, (list, tuple)):
         return type(v)(deep_copy(w) for w in v)
     return v
+
+
+def advance_many(integ, ts):
+    """x at each of the increasing times ts (> integ.t): the same steps as one advance() per time, but all times
+    inside an accepted dense-output step come from its continuous extension in one product (solve_ivp's t_eval)."""
+    ts = [float(t) for t in ts]
+    X = np.empty((len(ts), integ.problem.n))
+    i = 0
+    while i < len(ts):
+        X[i] = integ.advance(ts[i])  # steps past ts[i] (dense) or lands on it
+        i += 1
+        a = getattr(integ, "_active", integ)  # auto: the sub-integrator in charge
+        if a._ahead is None:
+            continue
+        j = bisect.bisect_left(ts, a._ahead[0], lo=i)  # times strictly inside the step (its end lands exactly)
+        if j > i:
+            t_old, h, Q = a._seg
+            Xs = a._dense_weights((np.array(ts[i:j]) - t_old) / h, len(Q)) @ Q
+            if a._normalize is not None:
+                Xs = a._normalize(Xs)
+            X[i:j] = Xs
+            a.t, a.x = ts[j - 1], Xs[-1].copy()
+            i = j
+    return X
 
 
 class Integrator:
@@ -275,6 +299,10 @@ class Integrator:
 
     def _dense_eval(self, Q, theta):
         """Value of the continuous extension at t_old + theta·h."""
+        raise NotImplementedError
+
+    def _dense_weights(self, theta, m):
+        """Rows w(θ_i) with x(t_old + θ_i·h) = w(θ_i)·Q (m rows of Q), for an array of θ (advance_many)."""
         raise NotImplementedError
 
     def _stop_early(self):

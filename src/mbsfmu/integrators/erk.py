@@ -42,6 +42,10 @@ class FsalIntegrator(Integrator):
         """Value of the continuous extension at θ ∈ [0, 1] of the step: w(θ)·Q."""
         return np.dot(alternating_weights(theta, len(Q)), Q)
 
+    def _dense_weights(self, theta, m):
+        """w(θ_i) as rows, for an array θ."""
+        return np.column_stack(np.broadcast_arrays(*alternating_weights(theta, m)))
+
     def _start(self, t_end):
         """Evaluate f(t, x) unless the FSAL stage is cached; HINIT on the very first call only."""
         if self.k1 is None:
