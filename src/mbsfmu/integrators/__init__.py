@@ -1,8 +1,9 @@
 """Time integrators run inside the FMU's do_step (pure numpy/scipy, no compiled extras).
 
 Problem (duck-typed): n, npos, nvel; f(t, x) -> ẋ for x = [y; v]; optional jac(t, x) (else finite
-differences), normalize(x) (applied after every accepted step); for gen_alpha also accel(t, y, v) -> v̇ and
-retract(y, dy) (y ⊕ dy; plain addition is assumed when absent and npos == nvel).
+differences), normalize(x) (applied after every accepted step; x may also be states as rows); for
+gen_alpha also accel(t, y, v) -> v̇ and retract(y, dy) (y ⊕ dy; plain addition is assumed when absent
+and npos == nvel).
 
 Integrator (same API for every method in METHODS):
     integ = make_integrator(method, problem, rtol=1e-6, atol=1e-8, max_step=inf, h=None, max_steps=1e6)
