@@ -87,3 +87,14 @@ def test_run_with_cardan_angles_reports_gimbal_lock():
     with pytest.raises(IntegrationError, match="quaternion"):
         sim.run(np.linspace(0.0, 2.0, 21))
     assert 0.0 <= sim.time < 2.0
+
+
+def test_outputs_before_initialization_follow_the_parameters_set():
+    """An FMU master may read outputs in initialization mode, after setting parameters: bob at L·(−sin θ0, 0, −cos θ0)."""
+    sim = Simulation(_spec("pendulum.yaml"))
+    th = math.pi / 6  # the scene's initial angle
+    for L in (0.8, 1.6):
+        sim.set("L", L)
+        assert sim.get("bob.r.x") == pytest.approx(-L * math.sin(th), abs=1e-14)
+        assert sim.get("bob.r.z") == pytest.approx(-L * math.cos(th), abs=1e-14)
+    assert sim.get("y.theta") == pytest.approx(th, abs=1e-15)

@@ -130,6 +130,7 @@ class Simulation:
         self._state_index = {f"y.{c}": i for i, c in enumerate(self.ev.coordinates)}
         self._state_index.update({f"yd.{c}": npos + i for i, c in enumerate(self.ev.velocity_coordinates)})
         self._outputs = None
+        self._initial = None  # (x0, point outputs) read before initialization
         self.values = {v.name: v.start for v in self.variables if v.causality in ("input", "parameter")}
         self.integrator = None
         self.time = spec["experiment"]["start"]
@@ -172,6 +173,7 @@ class Simulation:
         v = self._by_name.get(name)
         if v is None or v.causality == "output":
             raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
+        self._initial = None
         if v.type == "String":
             self.values[name] = str(value)
         else:
@@ -184,9 +186,12 @@ class Simulation:
     def get(self, name):
         if name in self.values:
             return self.values[name]
-        if self.x is None:  # before initialization: the outputs of the initial state
-            x = np.concatenate(self.ev.initial_state())
-            return self._output(name, x, self.time, self._compute_outputs(x[:self.problem.npos], x[self.problem.npos:]))
+        if self.x is None:  # before initialization: the initial state at the parameters set so far
+            if self._initial is None:
+                self._bind_parameters()
+                x = np.concatenate(self.ev.initial_state())
+                self._initial = x, self._compute_outputs(x[:self.problem.npos], x[self.problem.npos:])
+            return self._output(name, self._initial[0], self.time, self._initial[1])
         if self._outputs is None:  # computed on demand: a master may never read the point outputs
             self._outputs = self._compute_outputs(self.y, self.yd)
         return self._output(name, self.x, self.time, self._outputs)
@@ -202,7 +207,7 @@ class Simulation:
         """Bind parameters, build the integrator and the initial state (exit of initialization mode)."""
         if t0 is not None:
             self.time = float(t0)
-        self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
+        self._bind_parameters()
         y0, yd0 = self.ev.initial_state()
         self.x = np.concatenate([y0, yd0])
         v = self.values
@@ -215,6 +220,10 @@ class Simulation:
         self._inputs_dirty = True
         self._params_dirty = False
         self._outputs = None
+
+    def _bind_parameters(self):
+        """Hand the scene parameters' current values to the evaluator."""
+        self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
 
     def _apply_inputs(self):
         """Copy FMU inputs into the problem (held constant over the step); refuse NaN/Inf."""
@@ -274,7 +283,7 @@ class Simulation:
             bad = [p["name"] for p in self.spec["parameters"] if not math.isfinite(self.values[p["name"]])]
             if bad:
                 raise IntegrationError(f"parameter {bad[0]} is not finite; step refused", self.time)
-            self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
+            self._bind_parameters()
             self._params_dirty = False
             self.integrator.inputs_changed()
         if self._inputs_dirty:
@@ -311,12 +320,13 @@ class Simulation:
 
     def set_state(self, s):
         self.values = dict(s["values"])
+        self._initial = None
         if s["integrator"] is None:
             self.integrator, self.x, self.time = None, None, s["time"]
             return
         if self.integrator is None or self.integrator.method != s["integrator"]["method"]:
             self.initialize(s["time"])
-        self.ev.set_parameters({p["name"]: self.values[p["name"]] for p in self.spec["parameters"]})
+        self._bind_parameters()
         self.integrator.set_state(s["integrator"])
         self.time, self.x = s["time"], s["x"].copy()
         self._outputs = None if s.get("outputs") is None else dict(s["outputs"])
