@@ -12,13 +12,14 @@ wall_seconds, steps, rhs_evaluations, message.
 """
 
 import argparse
-import csv
 import math
 import os
 import time
 from pathlib import Path
 
 import numpy as np
+
+from . import output
 
 METHODS = ("auto", "dopri5", "dop853", "radau5", "rk4", "gen_alpha")
 COLUMNS = ["case", "method", "status", "expected", "error", "energy_drift", "wall_seconds", "steps",
@@ -163,14 +164,8 @@ def run(out_dir=None, quick=False, progress=True, only=None, methods=None):
     rows = []
     todo = [c for c in cases() if only is None or c.name in only]
     jobs = [(c, m) for c in todo for m in (c.quick_methods if quick else c.methods) if methods is None or m in methods]
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(jobs), desc="stress", unit="run")
     refs = {}
-    for case, method in jobs:
-        if bar is not None:
-            bar.set_postfix_str(f"{case.name} {method}")
+    for case, method in output.progress(jobs, "stress", lambda j: f"{j[0].name} {j[1]}", progress):
         spec = _load_spec(case.scene)
         ts = _ts(spec, case, quick)
         if case.reference and case.name not in refs:
@@ -197,17 +192,9 @@ def run(out_dir=None, quick=False, progress=True, only=None, methods=None):
                      "steps": st.get("steps", ""), "rhs_evaluations": st.get("rhs_evaluations", ""),
                      "message": r["message"], "switched": st.get("switched", ""),
                      "description": case.description, "n_comm": len(ts) - 1, "stop": ts[-1], "step": ts[1] - ts[0]})
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
-        with open(os.path.join(out_dir, "stress.csv"), "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=COLUMNS, extrasaction="ignore")
-            w.writeheader()
-            for r in rows:
-                w.writerow({k: (f"{r[k]:.4g}" if isinstance(r[k], float) else r[k]) for k in COLUMNS})
+        output.write_csv(rows, os.path.join(out_dir, "stress.csv"), COLUMNS, 4)
         with open(os.path.join(out_dir, "stress.md"), "w") as fh:
             fh.write(markdown(rows, quick))
     return rows

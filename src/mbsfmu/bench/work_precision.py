@@ -18,12 +18,13 @@ runs under 0.2 s are repeated up to 5 times and the fastest counts.
 """
 
 import argparse
-import csv
 import math
 import os
 import time
 
 import numpy as np
+
+from . import output
 
 COLUMNS = ["method", "setting", "cpu_seconds", "error", "steps", "rhs_evaluations"]
 ADAPTIVE = ("dopri5", "dop853", "radau5", "auto")
@@ -324,15 +325,10 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
     jobs = plan(spec, methods, quick, ts)
     Yref, ref_cpu, floor = reference(spec, ts)
     rows = []
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(jobs), desc=f"work-precision {name}", unit="run")
     kws = {}
+    jobs = output.progress(jobs, f"work-precision {name}", lambda j: f"{j[0]}:{j[1]} {j[2]}", progress)
     for family, m, setting, kw in jobs:
         kws[f"{family}:{m}", setting] = kw
-        if bar is not None:
-            bar.set_postfix_str(f"{family}:{m} {setting}")
         try:
             if family == "mbsfmu":
                 Y, cpu, st = _best_of(REPEATS, lambda: run_mbsfmu(spec, m, ts, budget=budget, **kw))
@@ -345,10 +341,6 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
                          "steps": st.get("steps", ""), "rhs_evaluations": st.get("rhs_evaluations", "")})
         except Exception as e:  # noqa: BLE001 - a failed run is a result, recorded in the notes
             notes.append(f"{family}:{m} {setting} did not finish: {type(e).__name__}: {e}")
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
     loop = None
     best = best_at(rows, "mbsfmu")
     if best is not None:  # the same run as an FMU master drives it: one do_step per communication step
@@ -356,7 +348,7 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
         loop = _best_of(REPEATS, lambda: run_mbsfmu(spec, best["method"].split(":")[1], ts, loop=True, **kw))[1]
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
-        write_csv(rows, os.path.join(out_dir, "work_precision.csv"))
+        output.write_csv(rows, os.path.join(out_dir, "work_precision.csv"), COLUMNS, 6)
         plot(rows, os.path.join(out_dir, "work_precision.png"), name, ts)
         with open(os.path.join(out_dir, "summary.md"), "w") as fh:
             fh.write(summary(rows, spec, ts, ref_cpu, floor, notes, loop))
@@ -377,14 +369,6 @@ def _best_of(n, fn):
 def spec_has_quaternions(spec):
     from mbsfmu.equations import Evaluator
     return bool(Evaluator(spec).model.quaternions)
-
-
-def write_csv(rows, path):
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=COLUMNS)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in COLUMNS})
 
 
 def plot(rows, path, name, ts):

@@ -1,0 +1,25 @@
+"""What the benchmark commands share: a progress bar over their runs and the CSV writer."""
+
+import csv
+
+
+def progress(jobs, desc, label, enabled=True):
+    """Yield the jobs; with `enabled`, under a tqdm bar whose postfix is label(job)."""
+    if not enabled:
+        yield from jobs
+        return
+    from tqdm import tqdm
+    with tqdm(total=len(jobs), desc=desc, unit="run") as bar:
+        for job in jobs:
+            bar.set_postfix_str(label(job))
+            yield job
+            bar.update(1)
+
+
+def write_csv(rows, path, columns, digits):
+    """rows (dicts) → CSV with the given columns, floats to `digits` significant digits."""
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{r[k]:.{digits}g}" if isinstance(r[k], float) else r[k]) for k in columns})
