@@ -577,7 +577,7 @@ def test_rk4_no_false_instability_alarm(h):
 
 
 # ----------------------------------------------------------------------------- dense output
-DENSE = ["dopri5", "dop853", "auto"]
+DENSE = ["dopri5", "dop853", "radau5", "auto"]
 
 
 class Recording(VanDerPol):
@@ -671,7 +671,7 @@ def test_dense_snapshot_replay_bit_identical(method):
     assert other.stats == stats1
 
 
-@pytest.mark.parametrize("method", ["dopri5", "dop853"])
+@pytest.mark.parametrize("method", ["dopri5", "dop853", "radau5"])
 def test_dense_interpolated_quaternion_normalized(method):
     p = FreeRigidBody()
     integ = make_integrator(method, p, dense=True, rtol=1e-6, atol=1e-8)
@@ -685,12 +685,15 @@ def test_dense_interpolated_quaternion_normalized(method):
 def test_dense_option_validation():
     with pytest.raises(ValueError):
         make_integrator("rk4", Oscillator(), dense=True)
-    assert make_integrator("radau5", Oscillator()).dense is False
+    with pytest.raises(ValueError):
+        make_integrator("gen_alpha", Oscillator(), dense=True)
+    assert make_integrator("radau5", Oscillator()).dense is True
+    assert make_integrator("radau5", Oscillator(), dense=False).dense is False
     assert make_integrator("dopri5", Oscillator(), dense=True).dense is True
     assert make_integrator("auto", Oscillator(), dense=True).dense is True
 
 
-@pytest.mark.parametrize("method", DENSE + ["rk4", "radau5"])
+@pytest.mark.parametrize("method", DENSE + ["rk4", "gen_alpha"])
 def test_advance_many_takes_the_steps_of_one_advance_per_point(method):
     p = VanDerPol(2.0)
     ts = np.linspace(0.0, 4.0, 801)
@@ -707,7 +710,7 @@ def test_advance_many_takes_the_steps_of_one_advance_per_point(method):
     assert np.max(np.abs(one.advance(4.5) - many.advance(4.5))) < 1e-13
 
 
-@pytest.mark.parametrize("method", ["dopri5", "dop853"])
+@pytest.mark.parametrize("method", ["dopri5", "dop853", "radau5"])
 def test_advance_many_normalizes_interpolated_quaternions(method):
     p = FreeRigidBody()
     integ = make_integrator(method, p, rtol=1e-6, atol=1e-8)

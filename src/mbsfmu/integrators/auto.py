@@ -19,7 +19,7 @@ class Auto:
         kw = dict(rtol=rtol, atol=atol, max_step=max_step, max_steps=max_steps)
         self.problem = problem
         self.nonstiff = Dopri5(problem, stop_when_stiff=True, dense=dense, **kw)
-        self.stiff = Radau5(problem, **kw)
+        self.stiff = Radau5(problem, dense=dense, **kw)
         self.phase = "dopri5"
         self.switched_at = None
 
@@ -51,7 +51,7 @@ class Auto:
 
     @property
     def dense(self):
-        """Whether the explicit phase uses dense output (RADAU5 always lands on t_end)."""
+        """Whether the integrators step past communication points and interpolate."""
         return self.nonstiff.dense
 
     def inputs_changed(self):

@@ -1,6 +1,6 @@
 """Common driver: reset/advance to exact communication points, step-size carry-over, stats, state snapshots.
 
-Dense output (dopri5, dop853, auto's explicit phase; on by default, ``dense=False`` stops at every point):
+Dense output (dopri5, dop853, radau5 and so auto; on by default, ``dense=False`` stops at every point):
 while the inputs are unchanged, advance(t_end) takes its natural step past t_end and returns the
 continuous-extension value at t_end.  The integrator then keeps an internal "ahead" point (t_int, x_int)
 together with the interpolation coefficients of that last step; the next advance interpolates again when
@@ -8,8 +8,8 @@ its target lies inside that step, otherwise it continues stepping from (t_int, x
 mean the last returned communication point and its (normalized) state.  inputs_changed() drops the ahead
 point and restarts from the visible (interpolated) state, so the new inputs are held exactly over the next
 interval.  Consequently the visible states differ from a stop-at-every-point run by the interpolation error
-(of the order of the tolerance), not bit for bit.  max_step still bounds every internal step.  The fixed-step
-and implicit methods (rk4, radau5, gen_alpha) always land exactly on t_end.
+(of the order of the tolerance), not bit for bit.  max_step still bounds every internal step.  rk4 and
+gen_alpha always land exactly on t_end.
 """
 
 import bisect

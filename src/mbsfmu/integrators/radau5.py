@@ -3,6 +3,7 @@
 Simplified Newton on the transformed stage system: T⁻¹·A⁻¹·T splits the 3n×3n iteration matrix into one
 real (γ/h·I − J) and one complex ((α+iβ)/h·I − J) n×n matrix. The Jacobian is reused across steps while
 Newton converges fast; the LU pair is reused while h stays within a factor [1, 1.2] of its old value.
+Dense output is the collocation polynomial of the accepted step (Hairer's CONTR5).
 """
 
 import math
@@ -76,6 +77,7 @@ class Radau5(Integrator):
     """Implicit, L-stable, order 5; for stiff problems (large negative eigenvalues, stiff springs)."""
 
     method = "radau5"
+    _has_dense = True
     _state_keys = ("f0", "J", "current_jac", "lu_real", "lu_complex", "lu_h", "h_old", "err_old",
                    "Q", "x_prev", "t_prev", "h_prev", "last_rejected", "faccon", "recompute_jac", "first")
 
@@ -252,6 +254,20 @@ class Radau5(Integrator):
         self.x_prev, self.t_prev, self.h_prev = x, t, h
         self.current_jac = False
         return x_new
+
+    def _dense_coeffs(self, t_old, x_old, x_new, h):
+        """Collocation polynomial of the step just accepted: x(t_old + θh) = x_old + Σ_k Q_k θ^k (k = 1…3)."""
+        Qd = np.empty((4, self.n))  # C order, like its snapshot copies: the same rounding in replays
+        Qd[0], Qd[1:] = x_old, self.Q.T
+        return Qd
+
+    def _dense_eval(self, Q, theta):
+        """Value of the collocation polynomial at θ ∈ [0, 1] of the step."""
+        return np.dot([1.0, theta, theta * theta, theta ** 3], Q)
+
+    def _dense_weights(self, theta, m):
+        """Rows [1, θ_i, θ_i², θ_i³]."""
+        return theta[:, None] ** np.arange(m)
 
     def _accepted(self):
         """f at the new (normalized) point; fresh Jacobian there if Newton was slow."""
