@@ -60,7 +60,7 @@ def test_run_takes_the_steps_of_the_do_step_loop(scene, method, inputs):
 
 def test_simulate_with_held_inputs_equals_an_input_function():
     spec = _spec("cart_pole.yaml")
-    held = simulate(spec, stop=0.3, step=0.01, inputs={"F_cart.x": 5.0})
+    held = mbsfmu.simulate(ROOT / "models" / "cart_pole.yaml", stop=0.3, step=0.01, inputs={"F_cart.x": 5.0})
     called = simulate(spec, stop=0.3, step=0.01, inputs=lambda t: {"F_cart.x": 5.0})
     for a, b in zip(held, called):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)

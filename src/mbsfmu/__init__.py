@@ -7,7 +7,7 @@ imports only numpy/scipy.
 from .errors import IntegrationError, ModelError
 
 __version__ = "0.1.0"
-__all__ = ["load", "loads", "compile", "build_fmu", "ModelError", "IntegrationError", "__version__"]
+__all__ = ["load", "loads", "compile", "simulate", "build_fmu", "ModelError", "IntegrationError", "__version__"]
 
 
 def load(path):
@@ -30,6 +30,16 @@ def compile(scene):
     if not hasattr(scene, "spec"):
         scene = load(scene)
     return Evaluator(scene.spec)
+
+
+def simulate(scene, stop=None, step=None, inputs=None, method=None, **integrator_options):
+    """In-process run with the FMU's integrators → (t, Y, YD) at the communication points. scene: path, loaded
+    scene or spec; inputs: {name: value} held throughout, or a function t → {name: value}; integrator_options:
+    rtol, atol, max_step, step."""
+    from .simulation import simulate as _simulate
+    if not isinstance(scene, dict) and not hasattr(scene, "spec"):
+        scene = load(scene)
+    return _simulate(scene, stop=stop, step=step, inputs=inputs, method=method, **integrator_options)
 
 
 def build_fmu(scene, outdir=".", **options):
