@@ -91,9 +91,13 @@ class Dopri5(FsalIntegrator):
         """Hairer's rcont1..5 of CONTD5, r1 + θ(r2 + (1−θ)(r3 + θ(r4 + (1−θ) r5))), from the stages of the
         accepted step (K[0] = f at start, K[6] = f at end)."""
         K = self._K
-        ydiff = x_new - x_old
-        bspl = h * K[0] - ydiff
-        return np.array([x_old, ydiff, bspl, ydiff - h * K[6] - bspl, (h * D) @ K])
+        Q = np.empty((5, self.n))
+        Q[0] = x_old
+        ydiff = np.subtract(x_new, x_old, out=Q[1])
+        bspl = np.subtract(h * K[0], ydiff, out=Q[2])
+        Q[3] = ydiff - h * K[6] - bspl
+        np.dot(h * D, K, out=Q[4])
+        return Q
 
     def _stop_early(self):
         """With stop_when_stiff, hand control back as soon as stiffness is detected."""

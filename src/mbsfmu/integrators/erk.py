@@ -43,8 +43,12 @@ class FsalIntegrator(Integrator):
         return np.dot(alternating_weights(theta, len(Q)), Q)
 
     def _dense_weights(self, theta, m):
-        """w(θ_i) as rows, for an array θ."""
-        return np.column_stack(np.broadcast_arrays(*alternating_weights(theta, m)))
+        """w(θ_i) as rows, for an array θ: running products of the factors 1, θ, 1−θ, θ, …"""
+        F = np.empty((len(theta), m))
+        F[:, 0] = 1.0
+        F[:, 1::2] = theta[:, None]
+        F[:, 2::2] = (1.0 - theta)[:, None]
+        return np.cumprod(F, axis=1)
 
     def _start(self, t_end):
         """Evaluate f(t, x) unless the FSAL stage is cached; HINIT on the very first call only."""
