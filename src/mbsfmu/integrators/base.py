@@ -73,7 +73,7 @@ class Integrator:
     # attributes (besides t, x, h, stats) that influence future results; subclasses extend
     _state_keys = ()
 
-    # True for methods with a continuous extension (subclasses implement _dense_coeffs/_dense_eval)
+    # True for methods with a continuous extension (subclasses implement _dense_coeffs, _dense_eval, _dense_weights)
     _has_dense = False
 
     def __init__(self, problem, rtol=1e-6, atol=1e-8, max_step=math.inf, h=None, max_steps=1_000_000,
