@@ -1,0 +1,199 @@
+/* Inside the integrators: the common driver (integ_base.c) and the methods plugged into it.
+ *
+ * HOW TO WRITE A METHOD (integ_<name>.c defines `const MbsMethodClass mbs_<name>_class`)
+ * --------------------------------------------------------------------------------------
+ * The driver does what base.py's Integrator does: option checks, reset, advance to exact communication
+ * points (clip to t_end, the "stretch by 1 %" rule, unclipped h carried over, max_steps and underflow
+ * messages), dense output (the ahead point and its segment), normalization after every accepted step,
+ * stats, snapshots.  A method supplies the hooks of base.py's subclasses:
+ *
+ *   sizes(n, opt, &sz)         how much memory: sz->state (bytes of the method's POD history struct),
+ *                              sz->hist / sz->hist_int (doubles / ints of history arrays), sz->work /
+ *                              sz->work_int (doubles / ints of scratch), sz->view (bytes of the method's
+ *                              pointer struct).  Called once, before allocation, in mbs_integ_new.
+ *   init(it, err, errlen)      after allocation: check method options (return 1 with a message in err),
+ *                              set constants (e.g. radau5's rtol transformation changes it->rtol/atol),
+ *                              carve arrays: fill the pointer struct it->view from it->ha, it->hi (history)
+ *                              and it->wa, it->wi (scratch) at FIXED offsets (the same for equal n).
+ *   reset_history(it)          forget everything method-specific (called by mbs_integ_reset).
+ *   invalidate_derivative(it)  cached derivatives are stale (inputs_changed, or the ahead point dropped).
+ *   start(it, t_end)           make the derivative at (t, x) and a proposed c->h exist (c->has_h = 1):
+ *                              mbs_integ_f + mbs_integ_check_start, mbs_integ_initial_step on the
+ *                              first call.  0, or 1 = failure with the message set.
+ *   attempt(it, t_new, h, x_new)  one trial step from (c->t, it->x) to t_new = t + h (h exactly t_new - t).
+ *                              Set c->h to the proposal for the next step (accepted or not) and return
+ *                              MBS_ACCEPT with x_new filled, MBS_REJECT (the driver counts it and retries
+ *                              with c->h), or MBS_FAIL (message set: stop now, e.g. f returned SINGULAR).
+ *                              Non-finite error estimate: return mbs_integ_trial_nonfinite(it, h, what).
+ *                              Set c->last_failure (MBS_LAST_ERROR / MBS_LAST_NEWTON) on rejection.
+ *   accepted(it)               after (c->t, it->x) moved to the accepted, normalized point.  0 or 1 (fail).
+ *   dense_coeffs(it, t_old, x_old, x_new, h, Q)   only when dense_rows > 0: write the dense_rows × n
+ *                              coefficients (row-major, row r at Q + r*n) of the continuous extension
+ *                              of the step just accepted; the stages are still in the scratch arrays.
+ *                              0 or 1 (fail; dop853 evaluates f for its extra stages).
+ *   dense_eval(it, Q, theta, x)   x(t_old + theta·h) from Q (called once per interpolated point; plain C,
+ *                              so no separate "weights for many theta" hook is needed).
+ *   stop_early(it)             1 makes the driver return before t_end (dopri5 in auto: stiffness found).
+ *   advance(it, t_end)         NULL: the adaptive driver.  Fixed-step methods (rk4, gen_alpha with h)
+ *                              put their own loop here; they may call mbs_integ_adaptive(it, t_end) for
+ *                              the adaptive case.  0, or 1 = failure (integrator at the last good point).
+ *   check(it, ms, hi)          snapshot loading: ms is a candidate method POD struct, hi the candidate
+ *                              int history arrays (same offsets as it->hi).  Return 0 when every integer
+ *                              field is in range (flags 0/1, counters >= 0, LU pivots valid via
+ *                              mbs_lu_pivots_valid, ...), else 1.  Doubles need no check (NaN is harmless).
+ *
+ * THE HISTORY RULE.  Everything that influences future results lives in
+ *   - the common POD struct MbsCommon (it->c: t, h, ahead point, stats, ...),
+ *   - the method's POD struct (it->ms, sz.state bytes: ints and doubles, NO pointers),
+ *   - double / int arrays carved from the history block (it->ha: sz.hist doubles, it->hi: sz.hist_int ints),
+ * which are all one contiguous block (it->hist, it->hist_bytes): a snapshot is a copy of those bytes, and a
+ * restored run repeats bit for bit.  Scratch that never carries information from one advance call to the
+ * next (stages, Newton iterates, the trial x_new) lives in the work block (it->wa, it->wi).  Nothing is
+ * allocated after mbs_integ_new and nothing big is cleared per step.
+ *
+ * HELPERS a method calls: mbs_integ_f (ode->f, counted; on failure sets the ODE's message), mbs_err_norm,
+ * mbs_integ_initial_step, mbs_integ_check_start, mbs_integ_trial_nonfinite, mbs_all_finite, and the
+ * message builders mbs_msg_* (no stdio: messages are built by appending strings and numbers formatted
+ * like Python's {v:.3g} / {v:g}).  Messages are bare (no "t=...:" prefix; the caller knows mbs_integ_t).
+ *
+ * REGISTRATION: integ_base.c's table mbs_method_classes[MBS_NMETHODS] points at mbs_rk4_class,
+ * mbs_dopri5_class, mbs_dop853_class (integ_erk.c), mbs_radau5_class (integ_radau5.c), mbs_gen_alpha_class
+ * (integ_gen_alpha.c).  MBS_AUTO has no class: integ_auto.c composes a dopri5 (stop_when_stiff) and a
+ * radau5 child; it sets the radau5 child's c->h/has_h after reset to hand the step size over.
+ * Until a file exists, compiling with -DMBS_NO_RADAU5 / -DMBS_NO_GEN_ALPHA leaves its entry NULL
+ * (mbs_integ_new then says the method is not available).
+ */
+#ifndef MBS_INTEG_INTERNAL_H
+#define MBS_INTEG_INTERNAL_H
+
+#include <stddef.h>
+#include "mbs_integrator.h"
+
+#define MBS_EPS 2.220446049250313e-16
+#define MBS_MAX_NONFINITE_TRIALS 3 /* consecutive non-finite trials (each shrinks h by 4) before failing */
+#define MBS_MSG_LEN 512
+
+enum { MBS_ACCEPT = 0, MBS_REJECT = 1, MBS_FAIL = 2 };           /* attempt() results */
+enum { MBS_LAST_NONE = 0, MBS_LAST_ERROR = 1, MBS_LAST_NEWTON = 2 }; /* why the last rejection */
+
+/* Common history (POD; the first bytes of the history block). */
+typedef struct {
+    double t;            /* visible point (last returned communication point) */
+    double h;            /* proposed next step, valid when has_h */
+    double t_int;        /* ahead point (x_int), valid when has_ahead */
+    double seg_t, seg_h; /* the segment: continuous extension of the step ending at t_int (Q), valid when has_seg */
+    long long steps, rejected, rhs_evaluations, jac_evaluations, lu_decompositions;
+    int started;         /* reset succeeded: t, x valid */
+    int has_h, has_ahead, has_seg;
+    int nonfinite;       /* consecutive non-finite trials, 0..MBS_MAX_NONFINITE_TRIALS */
+    int last_failure;    /* MBS_LAST_* */
+} MbsCommon;
+
+typedef struct {
+    size_t state;          /* bytes of the method's POD history struct */
+    size_t hist, hist_int; /* doubles / ints of history arrays */
+    size_t work, work_int; /* doubles / ints of scratch */
+    size_t view;           /* bytes of the method's pointer struct (it->view) */
+} MbsSizes;
+
+typedef struct MbsMethodClass {
+    const char *name;
+    int dense_rows;  /* rows of the continuous extension's coefficients Q; 0: no dense output */
+    void (*sizes)(int n, const MbsIntegOptions *opt, MbsSizes *sz);
+    int (*init)(MbsIntegrator *it, char *err, size_t errlen);
+    void (*reset_history)(MbsIntegrator *it);
+    void (*invalidate_derivative)(MbsIntegrator *it);
+    int (*start)(MbsIntegrator *it, double t_end);
+    int (*attempt)(MbsIntegrator *it, double t_new, double h, double *x_new);
+    int (*accepted)(MbsIntegrator *it);                                   /* NULL: nothing */
+    int (*dense_coeffs)(MbsIntegrator *it, double t_old, const double *x_old, const double *x_new, double h,
+                        double *Q);                                      /* NULL when dense_rows == 0 */
+    void (*dense_eval)(const MbsIntegrator *it, const double *Q, double theta, double *x);
+    int (*stop_early)(const MbsIntegrator *it);                           /* NULL: never */
+    int (*advance)(MbsIntegrator *it, double t_end);                      /* NULL: mbs_integ_adaptive */
+    int (*check)(const MbsIntegrator *it, const void *ms, const int *hi); /* NULL: nothing to check */
+} MbsMethodClass;
+
+struct MbsIntegrator {
+    const MbsMethodClass *cls; /* NULL for auto */
+    int method;                /* MBS_* */
+    MbsOde ode;
+    int n;
+    /* configuration (not history): from the options, fixed after mbs_integ_new */
+    double rtol, atol;      /* rtol capped below at 10 eps; a method's init may transform both */
+    double max_step;        /* +inf: no limit */
+    double h_fixed;         /* 0: none */
+    double rho_inf;
+    long max_steps;
+    int dense;              /* 1: step past communication points and interpolate */
+    int detect_stiffness, stop_when_stiff; /* dopri5 (auto sets both on its child) */
+
+    /* history block: [MbsCommon | method POD | doubles: x, x_int, Q, ha | ints: hi] */
+    unsigned char *hist;
+    size_t hist_bytes;
+    unsigned char *hist_tmp; /* same size: snapshot candidates are validated here before being copied */
+    MbsCommon *c;
+    void *ms;
+    double *x, *x_int, *Q; /* common history arrays: n, n, dense_rows·n */
+    double *ha;            /* method history doubles */
+    int *hi;               /* method history ints */
+    size_t off_ms, off_ha, off_hi; /* byte offsets inside the block (for hist_tmp) */
+
+    /* work block: driver scratch, then the method's */
+    double *work;
+    double *xnew, *xold, *tmp1, *tmp2; /* n each: trial point, previous point, initial-step scratch */
+    double *wa;
+    int *wi;
+    void *view;            /* method's pointer struct (sz.view bytes) */
+
+    MbsIntegrator *sub[2]; /* auto: dopri5 and radau5 children */
+    char msg[MBS_MSG_LEN];
+    size_t msg_len;
+};
+
+extern const MbsMethodClass mbs_rk4_class, mbs_dopri5_class, mbs_dop853_class, mbs_radau5_class,
+    mbs_gen_alpha_class;
+
+/* ---- helpers for methods (integ_base.c) ---- */
+/* ode->f counted as one evaluation; on MBS_F_SINGULAR/GIMBAL the message is the ODE's: return MBS_FAIL. */
+int mbs_integ_f(MbsIntegrator *it, double t, const double *x, double *xdot);
+/* Hairer's RMS norm of err / (atol + rtol·max(|x_old|, |x_new|)). */
+double mbs_err_norm(int n, const double *err, const double *x_old, const double *x_new, double atol, double rtol);
+int mbs_all_finite(int n, const double *v);
+/* HINIT (Hairer I, II.4) at (c->t, x) with f0 = f(t, x): sets c->h, c->has_h; 0, or 1 when f failed. */
+int mbs_integ_initial_step(MbsIntegrator *it, const double *f0, int order, double t_end);
+/* 1 with "right-hand side returned non-finite values ... at the current state" when f0 is not finite. */
+int mbs_integ_check_start(MbsIntegrator *it, const double *f0);
+/* A trial produced NaN/Inf: c->h = h/4 and MBS_REJECT, or MBS_FAIL after MBS_MAX_NONFINITE_TRIALS. what:
+ * "right-hand side" or "accelerations". */
+int mbs_integ_trial_nonfinite(MbsIntegrator *it, double h, const char *what);
+/* The adaptive driver (base.py's _advance) from (c->t, x) to t_end; 0 or 1. */
+int mbs_integ_adaptive(MbsIntegrator *it, double t_end);
+/* The fixed-step substep count of rk4 / gen_alpha: equal steps <= h_max over span (max_steps checked,
+ * message set): 0 and *nsub, or 1. */
+int mbs_integ_fixed_substeps(MbsIntegrator *it, double span, double h_max, long *nsub);
+/* Normalize x with ode->normalize when present. */
+void mbs_integ_normalize(MbsIntegrator *it, double *x);
+
+/* Messages (no stdio): set, then append pieces. */
+void mbs_msg_set(MbsIntegrator *it, const char *s);
+void mbs_msg_add(MbsIntegrator *it, const char *s);
+void mbs_msg_num(MbsIntegrator *it, double v, int digits); /* like Python's {v:.<digits>g} */
+void mbs_msg_long(MbsIntegrator *it, long long v);
+/* Python-style %g into buf (at least 32 bytes). */
+void mbs_fmt_g(char *buf, double v, int digits);
+
+/* ---- auto (integ_auto.c), dispatched from the public functions in integ_base.c ---- */
+int mbs_auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen);
+int mbs_auto_reset(MbsIntegrator *it, double t0, const double *x0);
+void mbs_auto_inputs_changed(MbsIntegrator *it);
+int mbs_auto_advance(MbsIntegrator *it, double t_end);
+MbsIntegrator *mbs_auto_active(const MbsIntegrator *it);
+void mbs_auto_stats(const MbsIntegrator *it, MbsStats *out);
+size_t mbs_auto_snapshot_size(const MbsIntegrator *it);
+void mbs_auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf);
+int mbs_auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len);
+/* dopri5 (integ_erk.c): 1 once its stiffness test fired. */
+int mbs_dopri5_stiff(const MbsIntegrator *it);
+
+#endif
