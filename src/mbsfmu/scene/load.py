@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..expr import FUNCTIONS, ExprError, parse
+from .shapes import check_shapes
 from .yaml_lines import Map, Seq, read_yaml
 
 JOINT_TYPES = ("fixed", "revolute", "prismatic", "cylindrical", "universal", "planar", "spherical", "free")
@@ -232,7 +233,7 @@ class _Checker:
 
     def body(self, bodies, name):
         node, path = bodies[name], f"bodies.{name}"
-        self.keys(node, path, ("parent", "joint", "mass", "center_of_mass", "inertia", "elastic", "description"), required=("parent", "joint"))
+        self.keys(node, path, ("parent", "joint", "mass", "center_of_mass", "inertia", "elastic", "description", "shape"), required=("parent", "joint"))
         parent = node["parent"]
         if parent != "world" and parent not in bodies:
             self.fail(node, "parent", path + ".parent", f"unknown parent '{parent}'", _suggest(parent, ["world"] + list(bodies)))
@@ -244,6 +245,8 @@ class _Checker:
         b["inertia"] = self.inertia(node, path) if "inertia" in node else [[0.0] * 3 for _ in range(3)]
         b["joint"] = self.joint(node, path, name, bodies)
         b["elastic"] = self.elastic(node, path, name) if "elastic" in node else None
+        if "shape" in node:  # drawing only (mbsfmu animate)
+            b["shape"] = check_shapes(self, node, path)
         return b
 
     def inertia(self, node, path):
