@@ -1,9 +1,13 @@
-"""Command line: `mbsfmu build|check|simulate|info|validate|bench|stress`.
+"""Command line: `mbsfmu build|check|simulate|crosscheck|info|validate|bench|stress`.
 
-Errors users can fix (bad scene, bad FMU path) print one line and exit 1 — no traceback.
+Every failure prints one line on stderr and exits non-zero (1; 2 for a bad command line) — never a
+traceback. A closed pipe (`mbsfmu simulate … | head`) ends the command quietly with 141, as other Unix
+tools do. The scene format, the FMU interface and every command are described in docs/.
 """
 
 import argparse
+import math
+import os
 import sys
 
 from .errors import IntegrationError, ModelError
@@ -12,21 +16,64 @@ EPILOG = """examples:
   mbsfmu build models/double_pendulum.yaml -o out/        # writes out/double_pendulum.fmu
   mbsfmu check models/robot_arm_6dof.yaml                 # validate a scene, list its coordinates
   mbsfmu simulate models/pendulum.yaml --stop 2 --plot pendulum.png
-  mbsfmu simulate out/double_pendulum.fmu --csv result.csv
+  mbsfmu simulate models/pendulum.yaml --signals 'y.*,bob.r.z' --csv result.csv
   mbsfmu simulate out/double_pendulum.fmu --input torque.csv --plot out.png   # CSV: time,<input names>
   mbsfmu crosscheck models/double_pendulum.yaml --out xc/double_pendulum      # FMI cross-check files
   mbsfmu info out/double_pendulum.fmu
   mbsfmu validate out/double_pendulum.fmu
-  mbsfmu bench models/pendulum.yaml --out reports/pendulum
-  mbsfmu stress --out reports
+  mbsfmu bench models/pendulum.yaml --quick                # writes a fresh bench-pendulum-<time>/ folder
+  mbsfmu stress --quick                                    # writes a fresh stress-<time>/ folder
+
+documentation: docs/README.md (scene format, FMU interface, Python API, integrators, this command line)
 """
+TABLE_ROWS = 20  # rows the stdout table shows at most (every n-th row beyond that)
+MAX_POINTS = 10_000_000  # communication points one simulate command may ask for
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _seconds(text):
+    """A positive, finite number of seconds (--stop, --step)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got '{text}'") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return v
+
+
+# -- files -------------------------------------------------------------------------------------------
+def _is_fmu(path):
+    """True for an FMU (a zip archive), False for anything else; the file must exist."""
+    import zipfile
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"no such file: {path}")
+    return zipfile.is_zipfile(path)
+
+
+def _need_scene(path):
+    if _is_fmu(path):
+        raise ValueError(f"{path} is an FMU, not a scene file (for FMUs: mbsfmu info, validate, simulate)")
+
+
+def _need_fmu(path):
+    if not _is_fmu(path):
+        raise ValueError(f"{path} is not an FMU (not a zip archive); for scene files use: mbsfmu check, build, simulate")
+
+
+# -- commands ----------------------------------------------------------------------------------------
 def _build(args):
     import time
     from . import build_fmu
     n = len(args.scene)
     for i, scene in enumerate(args.scene, 1):
+        _need_scene(scene)
         t0 = time.perf_counter()
         if n > 1:
             print(f"[{i}/{n}] {scene} ...", end=" ", flush=True)
@@ -34,32 +81,9 @@ def _build(args):
         print(f"{path}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
 
 
-def _read_input_csv(path, fmu):
-    """A structured array for fmpy's ``input=``: a ``time`` column plus FMU input names."""
-    import numpy as np
-    from fmpy import read_model_description
-    data = np.genfromtxt(path, delimiter=",", names=True, deletechars="", dtype=float)
-    names = data.dtype.names or ()
-    if not names or names[0] != "time":
-        raise ValueError(f"{path}: the first column must be 'time' (got {names[:1]})")
-    md = read_model_description(fmu)
-    inputs = {v.name for v in md.modelVariables if v.causality == "input"}
-    unknown = [n for n in names[1:] if n not in inputs]
-    if unknown:
-        raise ValueError(f"{path}: not inputs of {md.modelName}: {', '.join(unknown)} "
-                         f"(inputs: {', '.join(sorted(inputs)) or 'none'})")
-    return np.atleast_1d(data)
-
-
-def _crosscheck(args):
-    from .fmu.crosscheck import write_crosscheck
-    out = write_crosscheck(args.scene, args.out)
-    for f in sorted(out.iterdir()):
-        print(f)
-
-
 def _check(args):
     from . import compile, load
+    _need_scene(args.scene)
     scene = load(args.scene)
     ev = compile(scene)
     print(f"{scene.name}: {len(scene.spec['bodies'])} bodies, {len(ev.velocity_coordinates)} degrees of freedom")
@@ -68,64 +92,141 @@ def _check(args):
     print("  inputs: " + ", ".join(ev.inputs))
 
 
+def _crosscheck(args):
+    from .fmu.crosscheck import write_crosscheck
+    _need_scene(args.scene)
+    out = write_crosscheck(args.scene, args.out)
+    for f in sorted(out.iterdir()):
+        print(f)
+
+
 def _simulate(args):
-    import numpy as np
-    from pathlib import Path
-    if not Path(args.model).is_file():
-        raise FileNotFoundError(f"no such file: {args.model}")
-    if args.input and not args.model.endswith(".fmu"):
+    import tempfile
+    is_fmu = _is_fmu(args.model)
+    if args.input and not is_fmu:  # inputs from a CSV go through an FMU built in a temporary folder
         from . import build_fmu
-        import tempfile
-        tmp = tempfile.mkdtemp(prefix="mbsfmu_sim_")
-        args.model = str(build_fmu(args.model, tmp))
-    if args.model.endswith(".fmu"):
-        from fmpy import read_model_description, simulate_fmu
-        inp = _read_input_csv(args.input, args.model) if args.input else None
-        outputs = [v.name for v in read_model_description(args.model).modelVariables if v.causality == "output"]
-        res = simulate_fmu(args.model, stop_time=args.stop, output_interval=args.step, input=inp,
-                           output=outputs)
-        names = [n for n in res.dtype.names if n != "time"]
-        t = res["time"]
-        cols = np.column_stack([res[n] for n in names]) if names else np.zeros((len(t), 0))
+        with tempfile.TemporaryDirectory(prefix="mbsfmu_sim_") as tmp:
+            result = _run_fmu(str(build_fmu(args.model, tmp)), args)
     else:
-        from . import load
-        from .simulation import simulate
-        scene = load(args.model)
-        t, Y, YD = simulate(scene, stop=args.stop, step=args.step, method=args.method)
-        from .equations import Evaluator
-        ev = Evaluator(scene.spec)
-        names = [f"y.{c}" for c in ev.coordinates] + [f"yd.{c}" for c in ev.velocity_coordinates]
-        cols = np.hstack([Y, YD])
+        result = _run_fmu(args.model, args) if is_fmu else _run_scene(args.model, args)
+    title, t, cols, names, units = result
+    keep = _select(names, args.signals)
+    cols, names, units = cols[:, keep], [names[k] for k in keep], [units[k] for k in keep]
     if args.csv:
-        np.savetxt(args.csv, np.column_stack([t, cols]), delimiter=",", header=",".join(["time"] + names), comments="")
+        import numpy as np
+        np.savetxt(args.csv, np.column_stack([t, cols]), delimiter=",", header=",".join(["time"] + names),
+                   comments="", fmt="%.17g")
         print(f"wrote {args.csv}")
     if args.plot:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        fig, ax = plt.subplots(figsize=(8, 4.5))
-        for k, n in enumerate(names):
-            ax.plot(t, cols[:, k], label=n)
-        ax.set_xlabel("time [s]")
-        ax.set_ylabel("outputs")
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize="small")
-        fig.tight_layout()
-        fig.savefig(args.plot, dpi=120)
+        from .plot import plot_result
+        plot_result(args.plot, t, cols, names, units, title)
         print(f"wrote {args.plot}")
     if not args.csv and not args.plot:
-        print(",".join(["time"] + names))
-        for row in np.column_stack([t, cols])[:: max(1, len(t) // 20)]:
-            print(",".join(f"{v:.6g}" for v in row))
+        _print_table(t, cols, names)
 
 
-def _need_fmu(path):
-    import zipfile
-    from pathlib import Path
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"no such file: {path}")
-    if not zipfile.is_zipfile(path):
-        raise ValueError(f"{path} is not an FMU (not a zip archive)")
+def _check_times(start, stop, step):
+    if stop <= start:
+        raise ValueError(f"--stop {stop:g} must come after the start time {start:g}")
+    if step > stop - start:
+        raise ValueError(f"--step {step:g} is longer than the run ({start:g} to {stop:g} s)")
+    if (stop - start) / step > MAX_POINTS:
+        raise ValueError(f"{(stop - start) / step:.3g} communication points: use a larger --step (at most {MAX_POINTS:g} points)")
+
+
+def _run_scene(path, args):
+    """In-process run of a scene → (title, t, columns, names, units): the FMU's outputs, `outputs:` points included."""
+    import numpy as np
+    from . import load, simulate
+    from .simulation import Simulation
+    scene = load(path)
+    spec, e = scene.spec, scene.spec["experiment"]
+    stop, step = args.stop or e["stop"], args.step or e["step"]
+    _check_times(e["start"], stop, step)
+    t, Y, YD = simulate(scene, stop=stop, step=step, method=args.method)
+    sim = Simulation(spec)
+    values = {f"y.{c}": Y[:, i] for i, c in enumerate(sim.ev.coordinates)}
+    values.update({f"yd.{c}": YD[:, i] for i, c in enumerate(sim.ev.velocity_coordinates)})
+    points = [sim.ev.output_values(y, yd, ti) for ti, y, yd in zip(t, Y, YD)]
+    outputs = [v for v in sim.variables if v.causality == "output"]
+    cols = np.column_stack([values[v.name] if v.name in values else [p[v.name] for p in points] for v in outputs])
+    method = args.method or spec["integrator"]["method"]
+    title = f"{spec['name']} (scene): {method}, rtol {spec['integrator']['rtol']:g}"
+    return title, t, cols, [v.name for v in outputs], [v.unit for v in outputs]
+
+
+def _run_fmu(path, args):
+    """fmpy run of an FMU → (title, t, columns, names, units) of all its outputs."""
+    import numpy as np
+    from fmpy import read_model_description, simulate_fmu
+    md = read_model_description(path)
+    e = md.defaultExperiment
+    start = float(e.startTime) if e is not None and e.startTime is not None else 0.0
+    stop = args.stop or (float(e.stopTime) if e is not None and e.stopTime is not None else start + 1.0)
+    step = args.step or (float(e.stepSize) if e is not None and e.stepSize is not None else (stop - start) / 500)
+    _check_times(start, stop, step)
+    byname = {v.name: v for v in md.modelVariables}
+    start_values = {}
+    if args.method:
+        if "integrator.method" not in byname:
+            raise ValueError(f"{path}: --method needs an mbsfmu FMU (no parameter integrator.method)")
+        start_values["integrator.method"] = args.method
+    outputs = [v for v in md.modelVariables if v.causality == "output"]
+    inp = _read_input_csv(args.input, md) if args.input else None
+    res = simulate_fmu(path, stop_time=stop, output_interval=step, input=inp, start_values=start_values,
+                       output=[v.name for v in outputs])
+    t = res["time"]
+    if t[-1] < stop - 1e-9 * max(1.0, abs(stop)):
+        print(f"warning: the FMU stopped at t = {t[-1]:g} s, before {stop:g} s (it refused a step; "
+              "the scene run `mbsfmu simulate <scene>.yaml` names the reason)", file=sys.stderr)
+    setting = [args.method or getattr(byname.get("integrator.method"), "start", None)]
+    if "integrator.rtol" in byname:
+        setting.append(f"rtol {float(byname['integrator.rtol'].start):g}")
+    title = f"{md.modelName} (FMU): " + ", ".join(filter(None, setting))
+    cols = np.column_stack([res[v.name] for v in outputs]) if outputs else np.zeros((len(t), 0))
+    return title, t, cols, [v.name for v in outputs], [v.unit for v in outputs]
+
+
+def _read_input_csv(path, md):
+    """A structured array for fmpy's ``input=``: a ``time`` column plus FMU input names."""
+    import numpy as np
+    data = np.genfromtxt(path, delimiter=",", names=True, deletechars="", dtype=float)
+    names = data.dtype.names or ()
+    if not names or names[0] != "time":
+        raise ValueError(f"{path}: the first column must be 'time' (got {names[:1]})")
+    inputs = {v.name for v in md.modelVariables if v.causality == "input"}
+    unknown = [n for n in names[1:] if n not in inputs]
+    if unknown:
+        raise ValueError(f"{path}: not inputs of {md.modelName}: {', '.join(unknown)} "
+                         f"(inputs: {', '.join(sorted(inputs)) or 'none'})")
+    return np.atleast_1d(data)
+
+
+def _select(names, patterns):
+    """Column indices of the signals matching --signals (comma-separated names or shell patterns), in order."""
+    if not patterns:
+        return list(range(len(names)))
+    import fnmatch
+    keep = set()
+    for p in (p.strip() for p in patterns.split(",") if p.strip()):
+        hits = {k for k, n in enumerate(names) if fnmatch.fnmatchcase(n, p)}
+        if not hits:
+            raise ValueError(f"--signals: no output matches '{p}' (outputs: {', '.join(names)})")
+        keep |= hits
+    return sorted(keep)
+
+
+def _print_table(t, cols, names):
+    import numpy as np
+    n = len(t)
+    every = max(1, math.ceil((n - 1) / TABLE_ROWS))
+    rows = sorted(set(range(0, n, every)) | {n - 1})
+    if every > 1:
+        last = " and the last" if (n - 1) % every else ""
+        print(f"# showing {len(rows)} of {n} rows, one every {every}{last} (all rows: --csv FILE)")
+    print(",".join(["time"] + names))
+    for row in np.column_stack([t, cols])[rows]:
+        print(",".join(f"{v:.6g}" for v in row))
 
 
 def _info(args):
@@ -155,47 +256,90 @@ def _validate(args):
     print(f"{args.fmu}: valid")
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
-                                     epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", required=True)
+def _bench(name, rest):
+    """`bench` and `stress` parse their own options; without --out they write to a fresh folder."""
+    import importlib
+    if not any(a in ("-h", "--help", "--out") or a.startswith("--out=") for a in rest):
+        rest = rest + ["--out", _fresh_folder(name, rest)]
+    mod = importlib.import_module(f".bench.{'work_precision' if name == 'bench' else 'stress'}", __package__)
+    return getattr(mod, f"{name}_main")(rest)
+
+
+def _fresh_folder(name, rest):
+    """`<name>[-<scene>]-<YYYYmmdd-HHMMSS>` in the current folder (not the tracked reports/)."""
+    import time
+    from pathlib import Path
+    scene = next((Path(a).stem for a in rest if not a.startswith("-")), None) if name == "bench" else None
+    base = "-".join(filter(None, [name, scene, time.strftime("%Y%m%d-%H%M%S")]))
+    path, k = Path(base), 1
+    while path.exists():
+        k += 1
+        path = Path(f"{base}-{k}")
+    print(f"output folder: {path}/", flush=True)
+    return str(path)
+
+
+# -- the parser ----------------------------------------------------------------------------------------
+def parser():
+    top = _Parser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
+                  epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     p = sub.add_parser("build", help="build FMUs from scene files")
-    p.add_argument("scene", nargs="+")
+    p.add_argument("scene", nargs="+", help="scene files (.yaml)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
     p.set_defaults(run=_build)
     p = sub.add_parser("check", help="validate a scene and list its coordinates and inputs")
-    p.add_argument("scene")
+    p.add_argument("scene", help="scene file (.yaml)")
     p.set_defaults(run=_check)
-    p = sub.add_parser("simulate", help="simulate a scene (in-process) or an FMU (fmpy)")
-    p.add_argument("model", help="scene .yaml or .fmu")
-    p.add_argument("--stop", type=float, default=None)
-    p.add_argument("--step", type=float, default=None)
-    p.add_argument("--method", default=None, help="integrator (scenes only)")
-    p.add_argument("--csv", help="write the result as CSV")
-    p.add_argument("--input", help="input CSV: a 'time' column, then FMU input names (scenes are built first)")
-    p.add_argument("--plot", help="write a PNG plot of all outputs")
+    p = sub.add_parser("simulate", help="simulate a scene (in-process) or an FMU (fmpy)",
+                       description="Simulate a scene in-process, or an FMU with fmpy. Without --csv or --plot "
+                                   f"a table of at most {TABLE_ROWS} rows goes to stdout.")
+    p.add_argument("model", help="scene file (.yaml) or FMU (.fmu)")
+    p.add_argument("--stop", type=_seconds, default=None, help="end time in s (default: the experiment's stop)")
+    p.add_argument("--step", type=_seconds, default=None,
+                   help="communication step in s (default: the experiment's step)")
+    p.add_argument("--method", default=None,
+                   help="integrator: auto, rk4, dopri5, dop853, radau5, gen_alpha (default: the scene's)")
+    p.add_argument("--signals", default=None, metavar="NAMES",
+                   help="comma-separated outputs or shell patterns to keep, e.g. 'y.*,bob.r.z' (default: all)")
+    p.add_argument("--csv", metavar="FILE", help="write every row of the result as CSV")
+    p.add_argument("--input", metavar="FILE",
+                   help="input CSV: a 'time' column, then FMU input names; held between rows (scenes are built "
+                        "into a temporary FMU first)")
+    p.add_argument("--plot", metavar="FILE", help="write a PNG plot, one panel per unit")
     p.set_defaults(run=_simulate)
     p = sub.add_parser("crosscheck", help="write the FMI cross-check files (<model>.fmu, _ref.csv, _ref.opt, _in.csv)")
-    p.add_argument("scene")
+    p.add_argument("scene", help="scene file (.yaml)")
     p.add_argument("--out", required=True, help="directory for the files")
     p.set_defaults(run=_crosscheck)
     p = sub.add_parser("info", help="show an FMU's variables")
-    p.add_argument("fmu")
+    p.add_argument("fmu", help="FMU file (.fmu)")
     p.set_defaults(run=_info)
     p = sub.add_parser("validate", help="validate an FMU with fmpy")
-    p.add_argument("fmu")
+    p.add_argument("fmu", help="FMU file (.fmu)")
     p.set_defaults(run=_validate)
-    for name, fn in (("bench", "bench_main"), ("stress", "stress_main")):
-        p = sub.add_parser(name, help="work-precision benchmark" if name == "bench" else "stability suite", add_help=False)
+    for name, text in (("bench", "work-precision benchmark of a scene (options: mbsfmu bench --help)"),
+                       ("stress", "numerical stability suite (options: mbsfmu stress --help)")):
+        p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
-        p.set_defaults(run=lambda a, fn=fn, name=name: _bench(name, fn, a.rest))
-    args, extra = parser.parse_known_args(argv)
+        p.set_defaults(run=lambda a, name=name: _bench(name, a.rest))
+    return top
+
+
+def main(argv=None):
+    top = parser()
+    args, extra = top.parse_known_args(argv)
     if args.command in ("bench", "stress"):  # their own parsers read options, --help included
         args.rest = extra + list(args.rest)
     elif extra:
-        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        top.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
-        args.run(args)
+        status = args.run(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        return status if isinstance(status, int) else 0
+    except BrokenPipeError:  # the reader (e.g. head) has gone: stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except ModelError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
@@ -210,13 +354,6 @@ def main(argv=None):
     except Exception as e:  # anything else: still one line, no traceback
         print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
         return 1
-    return 0
-
-
-def _bench(name, fn, rest):
-    import importlib
-    mod = importlib.import_module(f".bench.{'work_precision' if name == 'bench' else 'stress'}", __package__)
-    return getattr(mod, fn)(rest)
 
 
 if __name__ == "__main__":
