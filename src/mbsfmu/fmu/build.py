@@ -353,7 +353,7 @@ def _attach_shim(dest: Path, name: str) -> bool:
 
 
 def _fmt(x) -> str:
-    return f"{float(x):.17g}"
+    return repr(float(x))  # the shortest text that reads back to the same double (0.4, not 0.40000000000000002)
 
 
 def model_description(spec: dict, name: str, variables, version: str, guid: str | None = None) -> bytes:
@@ -386,9 +386,14 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         "providesDirectionalDerivative": "false",
     })
 
+    param_units = {p["name"]: p.get("unit") for p in spec.get("parameters") or () if isinstance(p, dict)}  # `unit:`
+
+    def unit_of(v):
+        return getattr(v, "unit", None) or (param_units.get(v.name) if v.causality == "parameter" else None)
+
     used_units = []
     for v in variables:
-        u = getattr(v, "unit", None)
+        u = unit_of(v)
         if getattr(v, "type", "Real") == "Real" and u and u not in used_units:
             used_units.append(u)
     if used_units:
@@ -438,8 +443,8 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
                 tattr["start"] = "" if v.start is None else str(v.start)
             SubElement(node, "String", tattr)
         else:
-            if getattr(v, "unit", None):
-                tattr["unit"] = v.unit
+            if unit_of(v):
+                tattr["unit"] = unit_of(v)
             if v.causality != "output":
                 tattr["start"] = _fmt(0.0 if v.start is None else v.start)
             SubElement(node, "Real", tattr)
