@@ -1,0 +1,95 @@
+/* mbsfmu engine — public interface (Python compiles, C runs).
+ *
+ * One C library, independent of any particular scene: the scene is data (the compiled scene, written by
+ * mbsfmu/engine/compile.py) that mbs_model_load reads.  Everything that runs per step lives behind this
+ * header: equations M(y,t)·ÿ + k(y,ẏ,t) = q, force elements, drives and expressions (bytecode), elastic
+ * bodies, integrators, instance state.  The same library serves in-process runs (ctypes), the pythonfmu
+ * FMU and the native FMU (fmi2.c).
+ *
+ * Rules: an MbsModel is immutable after loading and may be shared by many instances; an MbsInstance owns
+ * all its memory (allocated in mbs_instance_new, never per step); no global state; every failure is a
+ * status code plus a message (mbs_message, and the logger when one is given).
+ */
+#ifndef MBS_ENGINE_H
+#define MBS_ENGINE_H
+
+#include <stddef.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#if defined(_WIN32) && defined(MBS_SHARED)
+#define MBS_API __declspec(dllexport)
+#else
+#define MBS_API
+#endif
+
+#define MBS_FORMAT_VERSION 1 /* version of the compiled-scene layout this engine reads */
+
+/* Status codes, ordered like fmi2Status (OK, Warning, Discard, Error). */
+enum { MBS_OK = 0, MBS_WARNING = 1, MBS_DISCARD = 2, MBS_ERROR = 3 };
+
+/* Kinds of variables (the compiled scene's variable table; value reference = row index). */
+enum { MBS_V_PARAM, MBS_V_METHOD, MBS_V_RTOL, MBS_V_ATOL, MBS_V_MAX_STEP, MBS_V_STEP, MBS_V_QIN, MBS_V_FIN,
+       MBS_V_Y, MBS_V_YD, MBS_V_OUT };
+
+typedef void (*mbs_logger)(void *env, int status, const char *message);
+
+typedef struct MbsModel MbsModel;
+typedef struct MbsInstance MbsInstance;
+
+/* ---- the compiled scene ---- */
+MBS_API MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen);
+MBS_API MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen);
+MBS_API void mbs_model_free(MbsModel *m);
+MBS_API const char *mbs_model_guid(const MbsModel *m);   /* the FMU's GUID, written by Python */
+MBS_API int mbs_model_nvars(const MbsModel *m);          /* rows of the variable table */
+MBS_API int mbs_model_var_kind(const MbsModel *m, int vr); /* MBS_V_*, -1 out of range */
+MBS_API int mbs_model_npos(const MbsModel *m);
+MBS_API int mbs_model_nvel(const MbsModel *m);
+
+/* ---- instances ---- */
+MBS_API MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env);
+MBS_API void mbs_instance_free(MbsInstance *s);
+MBS_API int mbs_reset(MbsInstance *s);                   /* back to the state after mbs_instance_new */
+
+/* Variables by value reference (vr = row of the variable table). Setting an output, an unknown vr or a
+ * fixed parameter after initialization → MBS_ERROR; a non-finite input → accepted, the next step
+ * returns MBS_DISCARD. Getting before mbs_initialize gives the initial state at the parameters set so far. */
+MBS_API int mbs_set_real(MbsInstance *s, int vr, double value);
+MBS_API int mbs_get_real(MbsInstance *s, int vr, double *value);
+MBS_API int mbs_set_string(MbsInstance *s, int vr, const char *value); /* integrator.method */
+MBS_API int mbs_get_string(MbsInstance *s, int vr, const char **value);
+
+/* Exit of initialization mode: bind parameters, initial state, build the integrator. */
+MBS_API int mbs_initialize(MbsInstance *s, double t0);
+/* Advance from t (= current time) to t + h with inputs held. MBS_DISCARD: the step failed, the
+ * instance stays at its last good point (mbs_time) and mbs_message says why. */
+MBS_API int mbs_do_step(MbsInstance *s, double t, double h);
+/* States at the times ts[0..n-1] (ts[0] = now): rows [y; ẏ] into X (n × (npos+nvel)); the same steps as
+ * n-1 do_steps, points inside one dense-output step interpolated together. */
+MBS_API int mbs_run(MbsInstance *s, const double *ts, int n, double *X);
+MBS_API double mbs_time(const MbsInstance *s);
+MBS_API const double *mbs_state(const MbsInstance *s);  /* [y; ẏ], npos + nvel */
+MBS_API const char *mbs_message(const MbsInstance *s);   /* last failure, "" if none */
+/* steps, rejected, rhs_evaluations, jac_evaluations, lu_decompositions, switched (0/1) */
+MBS_API void mbs_stats(const MbsInstance *s, long out[6], double *switched_at);
+
+/* ---- state: in-memory snapshot and serialized bytes are the same fixed layout ----
+ * header: magic "MBSS", state format version, model GUID, payload length, checksum; then the payload.
+ * mbs_state_load validates everything and leaves the instance unchanged on any error. */
+MBS_API size_t mbs_state_size(const MbsInstance *s);
+MBS_API int mbs_state_save(const MbsInstance *s, void *buf, size_t len);
+MBS_API int mbs_state_load(MbsInstance *s, const void *buf, size_t len);
+
+/* ---- evaluation at a given state with the current inputs and parameters (tests, mbsfmu.compile) ---- */
+MBS_API int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *k, double *q);
+MBS_API int mbs_rhs(MbsInstance *s, double t, const double *x, double *xdot);
+/* world position (3) and velocity (3) of output point o */
+MBS_API int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double out[6]);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,172 @@
+/* Loading the compiled scene: every count, offset and index is checked here, once, so that a corrupt or
+ * foreign file ends in a message instead of a crash, and the per-step code can trust the tables. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mbs_integrator.h"
+#include "mbs_model.h"
+
+#define FAIL(...) do { snprintf(err, errlen, __VA_ARGS__); goto fail; } while (0)
+
+typedef struct { int32_t id, kind; int64_t offset, count; } Section;
+
+static const void *section(const unsigned char *b, size_t len, const Section *tab, int nsec, int id, int kind,
+                           int64_t want, int *count)
+{
+    for (int s = 0; s < nsec; s++) {
+        if (tab[s].id != id) continue;
+        size_t size = kind == 1 ? 8 : kind == 2 ? 1 : 4;
+        if (tab[s].kind != kind || tab[s].offset < 0 || tab[s].count < 0 || tab[s].count > (int64_t)(len / size) ||
+            (size_t)tab[s].offset > len - (size_t)tab[s].count * size || (tab[s].offset % size) ||
+            (want >= 0 && tab[s].count != want))
+            return NULL;
+        if (count) *count = (int)tab[s].count;
+        return b + tab[s].offset;
+    }
+    return want == 0 ? b : NULL;  /* an absent section is an empty one */
+}
+
+static int in(int v, int lo, int hi) { return v >= lo && v < hi; }
+
+MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen)
+{
+    MbsModel *m = calloc(1, sizeof *m);
+    unsigned char *b = NULL;
+    if (!m) { snprintf(err, errlen, "out of memory"); return NULL; }
+    if (!bytes || len < 76 || memcmp(bytes, "MBSC", 4)) FAIL("not a compiled mbsfmu scene (bad magic)");
+    int32_t version, nsec;
+    memcpy(&version, (const char *)bytes + 4, 4);
+    if (version != MBS_FORMAT_VERSION)
+        FAIL("compiled scene has format version %d, this engine reads version %d: rebuild the FMU with the "
+             "same mbsfmu version as its engine", (int)version, MBS_FORMAT_VERSION);
+    b = malloc(len);
+    if (!b) FAIL("out of memory");
+    memcpy(b, bytes, len);
+    m->blob = b;
+    memcpy(m->guid, b + 8, 63);
+    m->guid[63] = 0;
+    memcpy(&nsec, b + 72, 4);
+    if (nsec < 1 || nsec > 64 || 76 + (size_t)nsec * sizeof(Section) > len) FAIL("corrupt section table");
+    Section tab[64];
+    memcpy(tab, b + 76, (size_t)nsec * sizeof(Section));
+    const int32_t *h = section(b, len, tab, nsec, S_HEADER, 0, H_SIZE, NULL);
+    if (!h) FAIL("missing header");
+    memcpy(m->hdr, h, sizeof m->hdr);
+    const int32_t *H = m->hdr;
+    const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], nf = H[H_NFORCE];
+    for (int k = 0; k < H_SIZE; k++) if (H[k] < 0) FAIL("corrupt header (field %d)", k);
+    if (nb > 1000000 || np > 1000000 || nv > 100000 || nf > 1000000) FAIL("scene too large");
+    if (!(H[H_D_PARAM] == 0 && H[H_D_CONST] == H[H_NPARAM] && H[H_D_CONST] <= H[H_D_BODY] &&
+          H[H_D_FORCE] == H[H_D_BODY] + nb * DB && H[H_D_G] == H[H_D_FORCE] + nf * DF && H[H_D_X0] == H[H_D_G] + 3 &&
+          H[H_D_OUT] == H[H_D_X0] + np + nv && H[H_D_INTEG] == H[H_D_OUT] + 3 * H[H_NOUT] && H[H_ND] == H[H_D_INTEG] + DI))
+        FAIL("corrupt number layout");
+    if (!in(H[H_METHOD], 0, MBS_NMETHODS) || H[H_NQUAT] * 4 > np) FAIL("corrupt header");
+    int ne_i = 0, ne_d = 0;
+#define SEC(ptr, id, kind, want) if (!(ptr = section(b, len, tab, nsec, id, kind, want, NULL))) FAIL("missing or corrupt section %d", id)
+    SEC(m->ib, S_BODY_I, 0, (int64_t)nb * IB);
+    SEC(m->iforce, S_FORCE_I, 0, (int64_t)nf * IF);
+    SEC(m->quat, S_QUAT, 0, (int64_t)H[H_NQUAT] * 7);
+    SEC(m->plain, S_PLAIN, 0, 2 * (int64_t)H[H_NPLAIN]);
+    SEC(m->vars, S_VARS, 0, 2 * (int64_t)H[H_NVARS]);
+    SEC(m->out, S_OUT_I, 0, 3 * (int64_t)H[H_NOUT]);
+    SEC(m->prog, S_PROG, 0, 4 * (int64_t)H[H_NPROG]);
+    SEC(m->code, S_CODE, 0, H[H_NCODE]);
+    SEC(m->D, S_D, 1, H[H_ND]);
+    m->elastic_i = section(b, len, tab, nsec, S_ELASTIC_I, 0, -1, &ne_i);
+    m->elastic_d = section(b, len, tab, nsec, S_ELASTIC_D, 1, -1, &ne_d);
+    m->n_elastic_i = m->elastic_i ? ne_i : 0;
+    m->n_elastic_d = m->elastic_d ? ne_d : 0;
+    const int ntd = 3 * (H[H_NDRV] + H[H_NVEC]);
+    for (int i = 0; i < nb; i++) {
+        const int32_t *ib = m->ib + i * IB;
+        const int t = ib[IB_JTYPE], npj = ib[IB_NPOS], nvj = ib[IB_NVEL];
+        if (!in(ib[IB_PARENT], -1, i) || !in(t, J_FIXED, J_FREE_CARDAN + 1) || !in(npj, 0, 8) || !in(nvj, 0, 7) ||
+            !in(ib[IB_ROT], 0, 3) || !in(ib[IB_IROT], 0, 3) || !in(ib[IB_ELASTIC], -1, nb) || ib[IB_NODE] < -1)
+            FAIL("corrupt body table (body %d)", i);
+        for (int k = 0; k < npj; k++)
+            if (!in(ib[IB_POS + k], -1, np) || (ib[IB_POS + k] < 0 && !in(3 * ib[IB_DRV + k], 0, ntd))) FAIL("corrupt body %d coordinates", i);
+        for (int k = 0; k < nvj; k++)
+            if (!in(ib[IB_VEL + k], -1, nv) || (ib[IB_VEL + k] < 0 && !in(3 * ib[IB_DRV + k], 0, ntd))) FAIL("corrupt body %d velocities", i);
+#ifndef MBS_WITH_ELASTIC
+        if (ib[IB_ELASTIC] >= 0 || ib[IB_NODE] >= 0)
+            FAIL("the scene has elastic bodies but this engine was built without them (rebuild the FMU)");
+#endif
+    }
+    for (int e = 0; e < nf; e++) {
+        const int32_t *fi = m->iforce + e * IF;
+        int ok = in(fi[IF_TYPE], 0, 4) && in(fi[IF_SRC], -1, ntd - 2 > 0 ? ntd - 2 : 0) && fi[IF_NODE_A] >= -1 && fi[IF_NODE_B] >= -1;
+        if (fi[IF_TYPE] == FE_JOINT_SPRING) ok = ok && in(fi[IF_A], 0, np) && in(fi[IF_B], 0, nv);
+        else if (fi[IF_TYPE] == FE_SPRING) ok = ok && in(fi[IF_A], -1, nb) && in(fi[IF_B], -1, nb);
+        else ok = ok && in(fi[IF_A], 0, nb);
+        if (!ok) FAIL("corrupt force table (element %d)", e);
+    }
+    for (int k = 0; k < 4 * H[H_NQUAT]; k++) if (!in(m->quat[(k / 4) * 7 + k % 4], 0, np)) FAIL("corrupt quaternion table");
+    for (int k = 0; k < 3 * H[H_NQUAT]; k++) if (!in(m->quat[(k / 3) * 7 + 4 + k % 3], 0, nv)) FAIL("corrupt quaternion table");
+    for (int k = 0; k < H[H_NPLAIN]; k++)
+        if (!in(m->plain[k], 0, np) || !in(m->plain[H[H_NPLAIN] + k], 0, nv)) FAIL("corrupt coordinate table");
+    for (int k = 0; k < H[H_NVARS]; k++) {
+        int kind = m->vars[2 * k], idx = m->vars[2 * k + 1];
+        static const int hi_of[] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0};
+        int hi = kind == MBS_V_PARAM ? H[H_NPARAM] : kind == MBS_V_QIN || kind == MBS_V_YD ? nv : kind == MBS_V_Y ? np :
+                 kind == MBS_V_FIN ? 3 * H[H_NINPUT] : kind == MBS_V_OUT ? 6 * H[H_NOUT] : in(kind, 0, 11) ? hi_of[kind] : 0;
+        if (!in(idx, 0, hi)) FAIL("corrupt variable table (row %d)", k);
+    }
+    if (3 * H[H_NINPUT] > ntd) FAIL("corrupt input count");
+    for (int k = 0; k < H[H_NOUT]; k++)
+        if (!in(m->out[3 * k], 0, nb) || m->out[3 * k + 1] < -1 || !in(m->out[3 * k + 2], 0, 4)) FAIL("corrupt output table");
+    int nnames = 0;
+    const char *names = section(b, len, tab, nsec, S_NAMES, 2, -1, &nnames);
+    m->coord_name = calloc((size_t)np + nb + 1, sizeof(char *));
+    if (!m->coord_name) FAIL("out of memory");
+    m->body_name = m->coord_name + np;
+    for (int k = 0, pos = 0; k < np + nb; k++) {
+        const char *end = names ? memchr(names + pos, 0, (size_t)(nnames - pos)) : NULL;
+        if (!end) FAIL("corrupt name table");
+        m->coord_name[k] = names + pos;
+        pos = (int)(end - names) + 1;
+    }
+    if (mbs_validate_code(m, err, errlen)) goto fail;
+#ifdef MBS_WITH_ELASTIC
+    if ((H[H_FEATURES] & F_ELASTIC) && mbs_elastic_validate(m, err, errlen)) goto fail;
+#endif
+    return m;
+fail:
+    free(m->coord_name);
+    free(b);
+    free(m);
+    return NULL;
+}
+
+MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) { snprintf(err, errlen, "cannot open compiled scene '%s'", path); return NULL; }
+    MbsModel *m = NULL;
+    long len = -1;
+    if (fseek(f, 0, SEEK_END) == 0) len = ftell(f);
+    if (len <= 0 || len > (1L << 30) || fseek(f, 0, SEEK_SET)) {
+        snprintf(err, errlen, "cannot read compiled scene '%s'", path);
+    } else {
+        void *buf = malloc((size_t)len);
+        if (buf && fread(buf, 1, (size_t)len, f) == (size_t)len) m = mbs_model_load(buf, (size_t)len, err, errlen);
+        else snprintf(err, errlen, "cannot read compiled scene '%s'", path);
+        free(buf);
+    }
+    fclose(f);
+    return m;
+}
+
+void mbs_model_free(MbsModel *m)
+{
+    if (!m) return;
+    free(m->coord_name);
+    free(m->blob);
+    free(m);
+}
+
+const char *mbs_model_guid(const MbsModel *m) { return m->guid; }
+int mbs_model_nvars(const MbsModel *m) { return m->hdr[H_NVARS]; }
+int mbs_model_var_kind(const MbsModel *m, int vr) { return vr >= 0 && vr < m->hdr[H_NVARS] ? m->vars[2 * vr] : -1; }
+int mbs_model_npos(const MbsModel *m) { return NPOS(m); }
+int mbs_model_nvel(const MbsModel *m) { return NVEL(m); }

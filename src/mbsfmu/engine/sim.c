@@ -1,0 +1,588 @@
+/* An instance: the bound numbers, inputs, state and integrator of one running scene, and the variables the
+ * FMU exposes. Everything is allocated in mbs_instance_new (the integrator at initialization); nothing per
+ * step. Failures return MBS_DISCARD/MBS_ERROR with a message (mbs_message, and the logger if any). */
+#include <math.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mbs_integrator.h"
+#include "mbs_model.h"
+
+struct MbsInstance {
+    const MbsModel *m;
+    mbs_logger log;
+    void *log_env;
+    int n, nu, ntd;
+    double *D;            /* bound numbers: the model's D with this instance's parameters */
+    double *td;           /* time-dependent numbers (drives, force values; input forces held over a step) */
+    double *u;            /* inputs as set: q_in (nvel), then force inputs (3 per input) */
+    double *u_applied;    /* inputs held over the current step */
+    double *x, *x_before; /* state [y; ẏ] (before initialization: the initial state) */
+    double *work, *M, *k, *q, *xdot, *out;
+    void *elastic_work;
+    int method;
+    double rtol, atol, max_step, step;
+    int initialized, params_dirty, inputs_dirty, initial_valid, q_in_active;
+    double time;
+    MbsIntegrator *integ;
+    char msg[1024];
+};
+
+/* ------------------------------------------------------------------------------------------ messages */
+static int report(MbsInstance *s, int status, const char *fmt, ...)
+{
+    char buf[sizeof s->msg];  /* the arguments may point into s->msg */
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    memcpy(s->msg, buf, sizeof buf);
+    if (s->log) s->log(s->log_env, status, s->msg);
+    return status;
+}
+
+const char *mbs_message(const MbsInstance *s) { return s->msg; }
+
+/* Gimbal lock of Cardan joints: |cos b| < 1e-3 at x, or b crossed ±90° since x_before (evaluator.py:
+ * singularity_message). Writes the message into buf; 1 if locked. */
+static int gimbal(const MbsInstance *s, const double *x, const double *x_before, char *buf, size_t len)
+{
+    const MbsModel *m = s->m;
+    if (!m->hdr[H_NCARDAN]) return 0;
+    for (int i = 0; i < NB(m); i++) {
+        const int *ib = m->ib + i * IB;
+        int k = ib[IB_JTYPE] == J_SPH_CARDAN ? 1 : ib[IB_JTYPE] == J_FREE_CARDAN ? 4 : -1;
+        if (k < 0 || ib[IB_POS + k] < 0) continue;
+        int idx = ib[IB_POS + k];
+        double c = cos(x[idx]);
+        if (fabs(c) < 1e-3 || (x_before && cos(x_before[idx]) * c < 0)) {
+            snprintf(buf, len, "gimbal lock: Cardan angle %s = %.6g rad reached ±90°, where the x-y-z angles of body "
+                     "'%s' are singular; use parameterization: quaternion", m->coord_name[idx], x[idx], m->body_name[i]);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* ------------------------------------------------------------------------------------------ the ODE */
+static MbsEval evaluation(MbsInstance *s, const double *x, double *xdot)
+{
+    MbsEval e = {s->m, s->D, s->td, x, s->q_in_active ? s->u_applied : NULL, s->work, s->M, s->k, s->q, xdot,
+                 s->elastic_work};
+    return e;
+}
+
+static void time_numbers(MbsInstance *s, double t)
+{
+#ifdef MBS_WITH_EXPR
+    if (s->m->hdr[H_FEATURES] & F_EXPR) mbs_run_programs(s->m, 1, s->D, s->td, t);
+#else
+    (void)s; (void)t;
+#endif
+}
+
+static int ode_f(void *ctx, double t, const double *x, double *xdot)
+{
+    MbsInstance *s = ctx;
+    if (gimbal(s, x, NULL, s->msg, sizeof s->msg)) return MBS_F_GIMBAL;
+    time_numbers(s, t);
+    MbsEval e = evaluation(s, x, xdot);
+    if (mbs_eval_rhs(&e)) {
+        snprintf(s->msg, sizeof s->msg, "the mass matrix is singular (a chain of bodies without mass or inertia?)");
+        return MBS_F_SINGULAR;
+    }
+    return MBS_F_OK;
+}
+
+static const char *ode_message(void *ctx) { return ((MbsInstance *)ctx)->msg; }
+
+/* unit quaternions after each accepted step */
+static void ode_normalize(void *ctx, double *x)
+{
+    const MbsModel *m = ((MbsInstance *)ctx)->m;
+    for (int j = 0; j < m->hdr[H_NQUAT]; j++) {
+        const int *qi = m->quat + 7 * j;
+        double n = sqrt(x[qi[0]] * x[qi[0]] + x[qi[1]] * x[qi[1]] + x[qi[2]] * x[qi[2]] + x[qi[3]] * x[qi[3]]);
+        for (int k = 0; k < 4; k++) x[qi[k]] /= n;
+    }
+}
+
+/* y ⊕ dy: plain coordinates add, quaternions turn by the body-frame rotation vector (rotations.quat_exp_step) */
+static void ode_retract(void *ctx, const double *y, const double *dy, double *out)
+{
+    const MbsModel *m = ((MbsInstance *)ctx)->m;
+    const int nplain = m->hdr[H_NPLAIN];
+    for (int i = 0; i < nplain; i++) out[m->plain[i]] = y[m->plain[i]] + dy[m->plain[nplain + i]];
+    for (int j = 0; j < m->hdr[H_NQUAT]; j++) {
+        const int *qi = m->quat + 7 * j;
+        const double *w = dy;
+        double a = sqrt(w[qi[4]] * w[qi[4]] + w[qi[5]] * w[qi[5]] + w[qi[6]] * w[qi[6]]), d[4];
+        if (a < 1e-12) { d[0] = 1.0; for (int k = 0; k < 3; k++) d[k + 1] = 0.5 * w[qi[4 + k]]; }
+        else { double sn = sin(0.5 * a) / a; d[0] = cos(0.5 * a); for (int k = 0; k < 3; k++) d[k + 1] = sn * w[qi[4 + k]]; }
+        double p0 = y[qi[0]], p1 = y[qi[1]], p2 = y[qi[2]], p3 = y[qi[3]];
+        double o[4] = {p0 * d[0] - p1 * d[1] - p2 * d[2] - p3 * d[3], p0 * d[1] + p1 * d[0] + p2 * d[3] - p3 * d[2],
+                       p0 * d[2] - p1 * d[3] + p2 * d[0] + p3 * d[1], p0 * d[3] + p1 * d[2] - p2 * d[1] + p3 * d[0]};
+        double n = sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + o[3] * o[3]);
+        for (int k = 0; k < 4; k++) out[qi[k]] = o[k] / n;
+    }
+}
+
+/* ------------------------------------------------------------------------------------------ lifetime */
+MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
+{
+    MbsInstance *s = calloc(1, sizeof *s);
+    if (!s) return NULL;
+    const int f = NVEL(m), nd = m->hdr[H_ND];
+    s->m = m;
+    s->log = log;
+    s->log_env = log_env;
+    s->n = NPOS(m) + f;
+    s->nu = f + 3 * m->hdr[H_NINPUT];
+    s->ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
+    size_t nwork = (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f;
+    size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 2 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + s->n
+                   + 6 * (size_t)m->hdr[H_NOUT] + 1;
+    double *buf = calloc(total, sizeof(double));
+    if (!buf) { free(s); return NULL; }
+    s->D = buf;                buf += nd;
+    s->td = buf;               buf += s->ntd;
+    s->u = buf;                buf += s->nu;
+    s->u_applied = buf;        buf += s->nu;
+    s->x = buf;                buf += s->n;
+    s->x_before = buf;         buf += s->n;
+    s->work = buf;             buf += nwork;
+    s->M = buf;                buf += (size_t)f * f;
+    s->k = buf;                buf += f;
+    s->q = buf;                buf += f;
+    s->xdot = buf;             buf += s->n;
+    s->out = buf;
+#ifdef MBS_WITH_ELASTIC
+    if (m->hdr[H_FEATURES] & F_ELASTIC) {
+        s->elastic_work = calloc(1, mbs_elastic_work_size(m) + 1);
+        if (!s->elastic_work) { free(s->D); free(s); return NULL; }
+    }
+#endif
+    mbs_reset(s);
+    return s;
+}
+
+void mbs_instance_free(MbsInstance *s)
+{
+    if (!s) return;
+    mbs_integ_free(s->integ);
+    free(s->elastic_work);
+    free(s->D);
+    free(s);
+}
+
+int mbs_reset(MbsInstance *s)
+{
+    const MbsModel *m = s->m;
+    const double *di = m->D + m->hdr[H_D_INTEG];
+    memcpy(s->D, m->D, (size_t)m->hdr[H_ND] * sizeof(double));
+    memset(s->td, 0, (size_t)s->ntd * sizeof(double));
+    memset(s->u, 0, (size_t)s->nu * sizeof(double));
+    memset(s->u_applied, 0, (size_t)s->nu * sizeof(double));
+    s->method = m->hdr[H_METHOD];
+    s->rtol = di[DI_RTOL];
+    s->atol = di[DI_ATOL];
+    s->max_step = di[DI_MAX_STEP];
+    s->step = di[DI_STEP];
+    s->initialized = s->params_dirty = s->inputs_dirty = s->initial_valid = s->q_in_active = 0;
+    s->time = 0.0;
+    s->msg[0] = 0;
+    mbs_integ_free(s->integ);
+    s->integ = NULL;
+    return MBS_OK;
+}
+
+/* ------------------------------------------------------------------------------------------ binding */
+/* Parameters → numbers (bind programs, derived axes and rotations); MBS_ERROR when one is not finite. */
+static int bind(MbsInstance *s)
+{
+    const MbsModel *m = s->m;
+    for (int p = 0; p < m->hdr[H_NPARAM]; p++)
+        if (!isfinite(s->D[p])) return report(s, MBS_ERROR, "parameter %d is not finite (%g)", p, s->D[p]);
+#ifdef MBS_WITH_EXPR
+    mbs_run_programs(m, 0, s->D, NULL, 0.0);
+#endif
+    mbs_derive(m, s->D);
+    for (int k = m->hdr[H_D_BODY]; k < m->hdr[H_ND]; k++)
+        if (!isfinite(s->D[k]))
+            return report(s, MBS_ERROR, "the parameters give a non-finite number in the scene (entry %d of the "
+                          "compiled data): check expressions such as sqrt, log or division by a parameter", k);
+    return MBS_OK;
+}
+
+static int initial_state(MbsInstance *s)
+{
+    int rc = bind(s);
+    if (rc) return rc;
+    mbs_initial_state(s->m, s->D, s->x);
+    for (int i = 0; i < s->n; i++)
+        if (!isfinite(s->x[i])) return report(s, MBS_ERROR, "initial value of %s is not finite", i < NPOS(s->m) ? s->m->coord_name[i] : "a velocity");
+    s->initial_valid = 1;
+    return MBS_OK;
+}
+
+/* Inputs held over the next step: refuse NaN/Inf; restart the integrator only on a real change. */
+static int apply_inputs(MbsInstance *s)
+{
+    const MbsModel *m = s->m;
+    const int f = NVEL(m);
+    for (int i = 0; i < s->nu; i++)
+        if (!isfinite(s->u[i])) return report(s, MBS_DISCARD, "input %d is not finite (%g); step refused", i, s->u[i]);
+    s->inputs_dirty = 0;
+    if (!memcmp(s->u, s->u_applied, (size_t)s->nu * sizeof(double))) return MBS_OK;
+    memcpy(s->u_applied, s->u, (size_t)s->nu * sizeof(double));
+    s->q_in_active = 0;
+    for (int i = 0; i < f; i++) if (s->u[i] != 0.0) s->q_in_active = 1;
+    memcpy(s->td + 3 * m->hdr[H_NDRV], s->u + f, 3 * (size_t)m->hdr[H_NINPUT] * sizeof(double));
+    if (s->integ) mbs_integ_inputs_changed(s->integ);
+    return MBS_OK;
+}
+
+/* ------------------------------------------------------------------------------------------ variables */
+static int var(const MbsInstance *s, int vr, int *idx)
+{
+    int kind = mbs_model_var_kind(s->m, vr);
+    if (kind >= 0) *idx = s->m->vars[2 * vr + 1];
+    return kind;
+}
+
+int mbs_set_real(MbsInstance *s, int vr, double value)
+{
+    int idx, kind = var(s, vr, &idx);
+    switch (kind) {
+    case MBS_V_PARAM:
+        s->D[idx] = value;
+        s->initial_valid = 0;
+        if (s->initialized) s->params_dirty = 1;
+        return MBS_OK;
+    case MBS_V_RTOL: case MBS_V_ATOL: case MBS_V_MAX_STEP: case MBS_V_STEP:
+        if (s->initialized) return report(s, MBS_ERROR, "integrator settings are fixed parameters: set them before initialization");
+        *(kind == MBS_V_RTOL ? &s->rtol : kind == MBS_V_ATOL ? &s->atol : kind == MBS_V_MAX_STEP ? &s->max_step : &s->step) = value;
+        return MBS_OK;
+    case MBS_V_QIN: case MBS_V_FIN:
+        s->u[kind == MBS_V_QIN ? idx : NVEL(s->m) + idx] = value;
+        s->inputs_dirty = 1;
+        return MBS_OK;
+    case -1:
+        return report(s, MBS_ERROR, "unknown value reference %d", vr);
+    default:
+        return report(s, MBS_ERROR, "value reference %d is %s, not a Real input or parameter", vr,
+                      kind == MBS_V_METHOD ? "a String" : "an output");
+    }
+}
+
+static int output_point(MbsInstance *s, int o, const double *x, double t, double *r)
+{
+    const MbsModel *m = s->m;
+    const int *oi = m->out + 3 * o;
+    time_numbers(s, t);
+    MbsEval e = evaluation(s, x, s->xdot);
+    mbs_kinematics(&e);
+#ifdef MBS_WITH_ELASTIC
+    if (oi[1] >= 0) { mbs_elastic_node_point(&e, oi[0], oi[1], r, r + 3, NULL); return MBS_OK; }
+#endif
+    mbs_point(&e, oi[0], s->D + m->hdr[H_D_OUT] + 3 * o, r, r + 3, NULL);
+    return MBS_OK;
+}
+
+int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double out[6])
+{
+    if (o < 0 || o >= s->m->hdr[H_NOUT]) return report(s, MBS_ERROR, "no output point %d", o);
+    return output_point(s, o, x, t, out);
+}
+
+int mbs_get_real(MbsInstance *s, int vr, double *value)
+{
+    int idx, kind = var(s, vr, &idx), rc;
+    if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT) && !s->initialized && !s->initial_valid &&
+        (rc = initial_state(s)))
+        return rc;
+    switch (kind) {
+    case MBS_V_PARAM: *value = s->D[idx]; return MBS_OK;
+    case MBS_V_RTOL: *value = s->rtol; return MBS_OK;
+    case MBS_V_ATOL: *value = s->atol; return MBS_OK;
+    case MBS_V_MAX_STEP: *value = s->max_step; return MBS_OK;
+    case MBS_V_STEP: *value = s->step; return MBS_OK;
+    case MBS_V_QIN: *value = s->u[idx]; return MBS_OK;
+    case MBS_V_FIN: *value = s->u[NVEL(s->m) + idx]; return MBS_OK;
+    case MBS_V_Y: *value = s->x[idx]; return MBS_OK;
+    case MBS_V_YD: *value = s->x[NPOS(s->m) + idx]; return MBS_OK;
+    case MBS_V_OUT: {
+        double r[6];
+        output_point(s, idx / 6, s->x, s->time, r);
+        *value = r[idx % 6];
+        return MBS_OK;
+    }
+    case -1: return report(s, MBS_ERROR, "unknown value reference %d", vr);
+    default: return report(s, MBS_ERROR, "value reference %d is a String", vr);
+    }
+}
+
+int mbs_set_string(MbsInstance *s, int vr, const char *value)
+{
+    if (mbs_model_var_kind(s->m, vr) != MBS_V_METHOD) return report(s, MBS_ERROR, "value reference %d is not a String parameter", vr);
+    if (s->initialized) return report(s, MBS_ERROR, "integrator.method is a fixed parameter: set it before initialization");
+    int k = value ? mbs_method_index(value) : -1;
+    if (k < 0) {
+        char valid[128] = "";
+        for (int i = 0; i < MBS_NMETHODS; i++) { strcat(valid, i ? ", " : ""); strcat(valid, mbs_method_names[i]); }
+        return report(s, MBS_ERROR, "unknown integrator method '%.60s'; valid: %s", value ? value : "(null)", valid);
+    }
+    s->method = k;
+    return MBS_OK;
+}
+
+int mbs_get_string(MbsInstance *s, int vr, const char **value)
+{
+    if (mbs_model_var_kind(s->m, vr) != MBS_V_METHOD) return report(s, MBS_ERROR, "value reference %d is not a String", vr);
+    *value = mbs_method_names[s->method];
+    return MBS_OK;
+}
+
+/* ------------------------------------------------------------------------------------------ running */
+static MbsIntegrator *new_integrator(MbsInstance *s, int method, char *err, size_t len)
+{
+    const MbsModel *m = s->m;
+    MbsOde ode = {s->n, NPOS(m), NVEL(m), s, ode_f, ode_message, m->hdr[H_NQUAT] ? ode_normalize : NULL,
+                  m->hdr[H_NQUAT] ? ode_retract : NULL};
+    MbsIntegOptions opt = {s->rtol, s->atol, s->max_step > 0 ? s->max_step : INFINITY, s->step,
+                           m->D[m->hdr[H_D_INTEG] + DI_RHO_INF], 0, -1};
+    return mbs_integ_new(method, &ode, &opt, err, len);
+}
+
+int mbs_initialize(MbsInstance *s, double t0)
+{
+    char err[512];
+    if (s->initialized) return report(s, MBS_ERROR, "already initialized");
+    if (!isfinite(t0)) return report(s, MBS_ERROR, "start time is not finite");
+    int rc = initial_state(s);
+    if (rc) return rc;
+    mbs_integ_free(s->integ);
+    s->integ = new_integrator(s, s->method, err, sizeof err);
+    if (!s->integ) return report(s, MBS_ERROR, "integrator %s: %s", mbs_method_names[s->method], err);
+    if (mbs_integ_reset(s->integ, t0, s->x)) return report(s, MBS_ERROR, "%s", mbs_integ_message(s->integ));
+    s->time = t0;
+    s->initialized = 1;
+    s->params_dirty = 0;
+    memset(s->u_applied, 0, (size_t)s->nu * sizeof(double));  /* apply_inputs compares against this */
+    s->inputs_dirty = 1;
+    return MBS_OK;
+}
+
+/* Before a step at t: bind changed parameters and inputs, check that t is the current time. */
+static int prepare(MbsInstance *s, double t)
+{
+    if (!s->initialized) return report(s, MBS_ERROR, "the instance is not initialized");
+    if (s->params_dirty) {
+        int rc = bind(s);
+        if (rc) return report(s, MBS_DISCARD, "%s; step refused", s->msg);
+        s->params_dirty = 0;
+        mbs_integ_inputs_changed(s->integ);
+    }
+    if (s->inputs_dirty) {
+        int rc = apply_inputs(s);
+        if (rc) return rc;
+    }
+    if (!isfinite(t) || fabs(t - s->time) > 1e-9 * fmax(1.0, fabs(t)))
+        return report(s, MBS_ERROR, "do_step called at t=%.17g but the simulation is at t=%.17g", t, s->time);
+    return MBS_OK;
+}
+
+/* The integrator stopped at its last good point: move there and say why. */
+static int failed(MbsInstance *s)
+{
+    char extra[512] = "";
+    const char *why = mbs_integ_message(s->integ);
+    s->time = mbs_integ_t(s->integ);
+    memcpy(s->x, mbs_integ_x(s->integ), (size_t)s->n * sizeof(double));
+    if (gimbal(s, s->x, NULL, extra, sizeof extra) && strstr(why, "gimbal")) extra[0] = 0;
+    return report(s, MBS_DISCARD, "t = %.9g: %s%s%s", s->time, why, extra[0] ? "; " : "", extra);
+}
+
+int mbs_do_step(MbsInstance *s, double t, double h)
+{
+    int rc = prepare(s, t);
+    if (rc) return rc;
+    if (!(h >= 0) || !isfinite(h)) return report(s, MBS_ERROR, "communication step size %g is not a non-negative number", h);
+    memcpy(s->x_before, s->x, (size_t)s->n * sizeof(double));
+    if (mbs_integ_advance(s->integ, t + h)) return failed(s);
+    s->time = mbs_integ_t(s->integ);
+    memcpy(s->x, mbs_integ_x(s->integ), (size_t)s->n * sizeof(double));
+    /* a coarse step may jump across b = ±90° without landing near it */
+    if (gimbal(s, s->x, s->x_before, s->msg, sizeof s->msg)) return report(s, MBS_DISCARD, "t = %.9g: %s", s->time, s->msg);
+    return MBS_OK;
+}
+
+int mbs_run(MbsInstance *s, const double *ts, int n, double *X)
+{
+    if (n < 1) return report(s, MBS_ERROR, "no time points");
+    int rc = prepare(s, ts[0]);
+    if (rc) return rc;
+    for (int k = 1; k < n; k++)
+        if (!(ts[k] > ts[k - 1])) return report(s, MBS_ERROR, "time points must increase (%g after %g)", ts[k], ts[k - 1]);
+    memcpy(X, s->x, (size_t)s->n * sizeof(double));
+    if (s->m->hdr[H_NCARDAN]) {  /* the gimbal check looks at every consecutive pair of points */
+        for (int k = 1; k < n; k++) {
+            if ((rc = mbs_do_step(s, ts[k - 1], ts[k] - ts[k - 1]))) return rc;
+            memcpy(X + (size_t)k * s->n, s->x, (size_t)s->n * sizeof(double));
+        }
+        return MBS_OK;
+    }
+    if (n > 1 && mbs_integ_advance_many(s->integ, ts + 1, n - 1, X + s->n)) return failed(s);
+    s->time = mbs_integ_t(s->integ);
+    memcpy(s->x, mbs_integ_x(s->integ), (size_t)s->n * sizeof(double));
+    return MBS_OK;
+}
+
+double mbs_time(const MbsInstance *s) { return s->time; }
+const double *mbs_state(const MbsInstance *s) { return s->x; }
+
+void mbs_stats(const MbsInstance *s, long out[6], double *switched_at)
+{
+    MbsStats st;
+    memset(&st, 0, sizeof st);
+    st.switched_at = NAN;
+    if (s->integ) mbs_integ_stats(s->integ, &st);
+    out[0] = st.steps; out[1] = st.rejected; out[2] = st.rhs_evaluations; out[3] = st.jac_evaluations;
+    out[4] = st.lu_decompositions; out[5] = st.switched;
+    if (switched_at) *switched_at = st.switched_at;
+}
+
+/* ------------------------------------------------------------------------------------------ evaluation */
+int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *k, double *q)
+{
+    if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;
+    if (s->inputs_dirty && apply_inputs(s)) return MBS_ERROR;
+    time_numbers(s, t);
+    MbsEval e = evaluation(s, x, s->xdot);
+    e.M = M; e.k = k; e.q = q;
+    mbs_kinematics(&e);
+    mbs_mass_matrix_and_bias(&e);
+    mbs_applied_forces(&e);
+    return MBS_OK;
+}
+
+int mbs_rhs(MbsInstance *s, double t, const double *x, double *xdot)
+{
+    if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;
+    if (s->inputs_dirty && apply_inputs(s)) return MBS_ERROR;
+    int rc = ode_f(s, t, x, xdot);
+    return rc ? report(s, MBS_ERROR, "%s", s->msg) : MBS_OK;
+}
+
+/* ------------------------------------------------------------------------------------------ state bytes
+ * header: "MBSS", uint32 version, char guid[64], uint64 payload length, uint64 FNV-1a checksum of the payload;
+ * payload: Head, parameters (nparam), u, u_applied, x (n), then the integrator snapshot (initialized only). */
+#define STATE_VERSION 1u
+#define HEADER_SIZE (4 + 4 + 64 + 8 + 8)
+typedef struct {
+    double time, rtol, atol, max_step, step;
+    int32_t initialized, method, q_in_active, params_dirty;
+} Head;
+
+static uint64_t fnv1a(const unsigned char *p, size_t n)
+{
+    uint64_t h = 1469598103934665603ull;
+    for (size_t i = 0; i < n; i++) { h ^= p[i]; h *= 1099511628211ull; }
+    return h;
+}
+
+static size_t payload_size(const MbsInstance *s, size_t integ_size)
+{
+    return sizeof(Head) + sizeof(double) * ((size_t)s->m->hdr[H_NPARAM] + 2 * (size_t)s->nu + s->n) + integ_size;
+}
+
+size_t mbs_state_size(const MbsInstance *s)
+{
+    return HEADER_SIZE + payload_size(s, s->initialized ? mbs_integ_snapshot_size(s->integ) : 0);
+}
+
+int mbs_state_save(const MbsInstance *s, void *buf, size_t len)
+{
+    size_t need = mbs_state_size(s), isz = s->initialized ? mbs_integ_snapshot_size(s->integ) : 0;
+    if (!buf || len < need) return MBS_ERROR;
+    unsigned char *p = buf, *pay = p + HEADER_SIZE;
+    Head h = {s->time, s->rtol, s->atol, s->max_step, s->step, s->initialized, s->method, s->q_in_active, s->params_dirty};
+    unsigned char *w = pay;
+    memcpy(w, &h, sizeof h);                                               w += sizeof h;
+    memcpy(w, s->D, sizeof(double) * s->m->hdr[H_NPARAM]);                 w += sizeof(double) * s->m->hdr[H_NPARAM];
+    memcpy(w, s->u, sizeof(double) * s->nu);                               w += sizeof(double) * s->nu;
+    memcpy(w, s->u_applied, sizeof(double) * s->nu);                       w += sizeof(double) * s->nu;
+    memcpy(w, s->x, sizeof(double) * s->n);                                w += sizeof(double) * s->n;
+    if (isz) mbs_integ_snapshot_save(s->integ, w);
+    uint32_t version = STATE_VERSION;
+    uint64_t plen = payload_size(s, isz), sum = fnv1a(pay, plen);
+    memcpy(p, "MBSS", 4);
+    memcpy(p + 4, &version, 4);
+    memset(p + 8, 0, 64);
+    strncpy((char *)p + 8, s->m->guid, 63);
+    memcpy(p + 72, &plen, 8);
+    memcpy(p + 80, &sum, 8);
+    return MBS_OK;
+}
+
+int mbs_state_load(MbsInstance *s, const void *buf, size_t len)
+{
+    const unsigned char *p = buf;
+    uint32_t version;
+    uint64_t plen, sum;
+    Head h;
+    if (!p || len < HEADER_SIZE + sizeof h || memcmp(p, "MBSS", 4))
+        return report(s, MBS_ERROR, "not an mbsfmu FMU state (%zu bytes, bad header); state unchanged", len);
+    memcpy(&version, p + 4, 4);
+    memcpy(&plen, p + 72, 8);
+    memcpy(&sum, p + 80, 8);
+    if (version != STATE_VERSION) return report(s, MBS_ERROR, "FMU state has format version %u, expected %u; state unchanged", version, STATE_VERSION);
+    if (memchr(p + 8, 0, 64) == NULL || strcmp((const char *)p + 8, s->m->guid))
+        return report(s, MBS_ERROR, "FMU state belongs to another model (GUID %.40s); state unchanged", (const char *)p + 8);
+    if (plen != len - HEADER_SIZE) return report(s, MBS_ERROR, "FMU state is truncated or has trailing bytes; state unchanged");
+    if (fnv1a(p + HEADER_SIZE, (size_t)plen) != sum) return report(s, MBS_ERROR, "FMU state checksum mismatch (corrupt bytes); state unchanged");
+    const unsigned char *r = p + HEADER_SIZE;
+    memcpy(&h, r, sizeof h);
+    if ((h.initialized != 0 && h.initialized != 1) || h.method < 0 || h.method >= MBS_NMETHODS ||
+        (h.q_in_active != 0 && h.q_in_active != 1) || (h.params_dirty != 0 && h.params_dirty != 1))
+        return report(s, MBS_ERROR, "FMU state has invalid fields; state unchanged");
+    MbsIntegrator *it = NULL;
+    size_t isz = 0;
+    if (h.initialized) {
+        char err[256];
+        double save[4] = {s->rtol, s->atol, s->max_step, s->step};
+        s->rtol = h.rtol; s->atol = h.atol; s->max_step = h.max_step; s->step = h.step;
+        it = new_integrator(s, h.method, err, sizeof err);
+        s->rtol = save[0]; s->atol = save[1]; s->max_step = save[2]; s->step = save[3];
+        if (!it) return report(s, MBS_ERROR, "FMU state: %s; state unchanged", err);
+        isz = mbs_integ_snapshot_size(it);
+    }
+    if (plen != payload_size(s, isz)) { mbs_integ_free(it); return report(s, MBS_ERROR, "FMU state has the wrong size for this model; state unchanged"); }
+    const unsigned char *ip = r + payload_size(s, 0);
+    if (it && mbs_integ_snapshot_load(it, ip, isz)) { mbs_integ_free(it); return report(s, MBS_ERROR, "FMU state: corrupt integrator data; state unchanged"); }
+    /* all checks passed: commit */
+    const int np = s->m->hdr[H_NPARAM];
+    r += sizeof h;
+    memcpy(s->D, r, sizeof(double) * np);                r += sizeof(double) * np;
+    memcpy(s->u, r, sizeof(double) * s->nu);             r += sizeof(double) * s->nu;
+    memcpy(s->u_applied, r, sizeof(double) * s->nu);     r += sizeof(double) * s->nu;
+    memcpy(s->x, r, sizeof(double) * s->n);
+    s->time = h.time; s->rtol = h.rtol; s->atol = h.atol; s->max_step = h.max_step; s->step = h.step;
+    s->method = h.method;
+    s->q_in_active = h.q_in_active;
+    s->initialized = h.initialized;
+    mbs_integ_free(s->integ);
+    s->integ = it;
+    memcpy(s->td + 3 * s->m->hdr[H_NDRV], s->u_applied + NVEL(s->m), 3 * (size_t)s->m->hdr[H_NINPUT] * sizeof(double));
+    /* numbers from the restored parameters; a failure shows at the next step */
+    s->params_dirty = h.params_dirty;
+    s->initial_valid = 0;
+    if (bind(s)) s->params_dirty = 1;
+    s->inputs_dirty = memcmp(s->u, s->u_applied, sizeof(double) * s->nu) != 0;
+    if (!s->initialized) s->initial_valid = 0;
+    s->msg[0] = 0;
+    return MBS_OK;
+}

@@ -1,0 +1,555 @@
+/* Rigid-tree equations (seed 000), the engine's per-step core: the same recursion as equations/tree.py.
+ *
+ *   kinematics:  S_i, o_i, ω_i, v_i, ā_i, ᾱ_i, J_Ri, J_Ti of every body origin, parents first
+ *   M = Σ m J_Tcᵀ J_Tc + J_Rᵀ I_w J_R,   k = Σ m J_Tcᵀ ā_c + J_Rᵀ (I_w ᾱ + ω × I_w ω),   q = Σ J_Tᵀ f + J_Rᵀ l
+ *   ÿ = M⁻¹ (q − k) by Cholesky, ẏ_pos = Z(y)·ẏ (quaternions: ṗ = G(p) ω)
+ *
+ * Reads the model's tables and the instance's bound numbers (MbsEval), writes only the workspace.
+ */
+#include <math.h>
+#include <string.h>
+
+#include "mbs_integrator.h"
+#include "mbs_model.h"
+
+/* ---- small 3-vector / 3×3 helpers (row-major) ---- */
+static void cross(const double *a, const double *b, double *c)
+{
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+static void mv(const double *A, const double *x, double *y)
+{
+    for (int r = 0; r < 3; r++) y[r] = A[3 * r] * x[0] + A[3 * r + 1] * x[1] + A[3 * r + 2] * x[2];
+}
+static void mm(const double *A, const double *B, double *C)
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            C[3 * r + c] = A[3 * r] * B[c] + A[3 * r + 1] * B[3 + c] + A[3 * r + 2] * B[6 + c];
+}
+static void axis_angle(const double *a, double ang, double *R)
+{
+    double x = a[0], y = a[1], z = a[2], c = cos(ang), s = sin(ang), C = 1.0 - c;
+    R[0] = c + x * x * C;     R[1] = x * y * C - z * s; R[2] = x * z * C + y * s;
+    R[3] = y * x * C + z * s; R[4] = c + y * y * C;     R[5] = y * z * C - x * s;
+    R[6] = z * x * C - y * s; R[7] = z * y * C + x * s; R[8] = c + z * z * C;
+}
+static void quat_to_matrix(const double *p, double *S)
+{
+    double p0 = p[0], p1 = p[1], p2 = p[2], p3 = p[3];
+    S[0] = 1 - 2 * (p2 * p2 + p3 * p3); S[1] = 2 * (p1 * p2 - p0 * p3);     S[2] = 2 * (p1 * p3 + p0 * p2);
+    S[3] = 2 * (p1 * p2 + p0 * p3);     S[4] = 1 - 2 * (p1 * p1 + p3 * p3); S[5] = 2 * (p2 * p3 - p0 * p1);
+    S[6] = 2 * (p1 * p3 - p0 * p2);     S[7] = 2 * (p2 * p3 + p0 * p1);     S[8] = 1 - 2 * (p1 * p1 + p2 * p2);
+}
+
+/* Joint motion in the joint frame (joints.py): R_rel, d_rel, H_R, H_T (3 × nv, column-major per joint
+ * velocity: H[3*j + r]), b_R, b_T. Zero parts are written as zeros. */
+static void cardan(const double *p, const double *v, double *R, double *H, double *b_R)
+{
+    double ca = cos(p[0]), sa = sin(p[0]), cb = cos(p[1]), sb = sin(p[1]), cc = cos(p[2]), sc = sin(p[2]);
+    double Sx[9] = {1, 0, 0, 0, ca, -sa, 0, sa, ca}, Sy[9] = {cb, 0, sb, 0, 1, 0, -sb, 0, cb};
+    double Sz[9] = {cc, -sc, 0, sc, cc, 0, 0, 0, 1}, Sxy[9];
+    mm(Sx, Sy, Sxy);
+    mm(Sxy, Sz, R);
+    double h1[3] = {1, 0, 0}, h2[3] = {Sx[1], Sx[4], Sx[7]}, h3[3] = {Sxy[2], Sxy[5], Sxy[8]};
+    double w1[3], w2[3], c1[3], c2[3];
+    for (int r = 0; r < 3; r++) {
+        w1[r] = h1[r] * v[0];
+        w2[r] = w1[r] + h2[r] * v[1];
+        H[r] = h1[r]; H[3 + r] = h2[r]; H[6 + r] = h3[r];
+    }
+    cross(w1, h2, c1);
+    cross(w2, h3, c2);
+    for (int r = 0; r < 3; r++) b_R[r] = c1[r] * v[1] + c2[r] * v[2];
+}
+
+static void joint_motion(int type, const double *db, const double *p, const double *v,
+                         double *R, double *d, double *H_R, double *H_T, double *b_R, double *b_T)
+{
+    static const double E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    const double *a = db + DB_A1, *a2 = db + DB_A2;
+    memcpy(R, E, sizeof E);
+    memset(d, 0, 3 * sizeof(double));
+    memset(H_R, 0, 18 * sizeof(double));
+    memset(H_T, 0, 18 * sizeof(double));
+    memset(b_R, 0, 3 * sizeof(double));
+    memset(b_T, 0, 3 * sizeof(double));
+    switch (type) {
+    case J_REVOLUTE:
+        axis_angle(a, p[0], R);
+        memcpy(H_R, a, 3 * sizeof(double));
+        break;
+    case J_PRISMATIC:
+        for (int r = 0; r < 3; r++) d[r] = a[r] * p[0];
+        memcpy(H_T, a, 3 * sizeof(double));
+        break;
+    case J_CYLINDRICAL:
+        axis_angle(a, p[1], R);
+        for (int r = 0; r < 3; r++) { d[r] = a[r] * p[0]; H_T[r] = a[r]; H_R[3 + r] = a[r]; }
+        break;
+    case J_UNIVERSAL: {
+        double S1[9], S2[9], h2[3], c[3];
+        axis_angle(a, p[0], S1);
+        axis_angle(a2, p[1], S2);
+        mm(S1, S2, R);
+        mv(S1, a2, h2);
+        cross(a, h2, c);
+        for (int r = 0; r < 3; r++) { H_R[r] = a[r]; H_R[3 + r] = h2[r]; b_R[r] = c[r] * (v[0] * v[1]); }
+        break;
+    }
+    case J_PLANAR: {
+        double n[3];
+        cross(a, a2, n);
+        axis_angle(n, p[2], R);
+        for (int r = 0; r < 3; r++) {
+            d[r] = a[r] * p[0] + a2[r] * p[1];
+            H_T[r] = a[r]; H_T[3 + r] = a2[r]; H_R[6 + r] = n[r];
+        }
+        break;
+    }
+    case J_SPH_QUAT:
+        quat_to_matrix(p, R);
+        for (int j = 0; j < 3; j++)
+            for (int r = 0; r < 3; r++) H_R[3 * j + r] = R[3 * r + j];
+        break;
+    case J_SPH_CARDAN:
+        cardan(p, v, R, H_R, b_R);
+        break;
+    case J_FREE_QUAT:
+        quat_to_matrix(p + 3, R);
+        for (int r = 0; r < 3; r++) d[r] = p[r];
+        for (int j = 0; j < 3; j++)
+            for (int r = 0; r < 3; r++) {
+                H_R[3 * (3 + j) + r] = R[3 * r + j];
+                H_T[3 * j + r] = (r == j);
+            }
+        break;
+    case J_FREE_CARDAN:
+        cardan(p + 3, v + 3, R, H_R + 9, b_R);
+        for (int r = 0; r < 3; r++) d[r] = p[r];
+        for (int j = 0; j < 3; j++)
+            for (int r = 0; r < 3; r++) H_T[3 * j + r] = (r == j);
+        break;
+    default:
+        break;
+    }
+}
+
+
+static double *body_work(const MbsEval *e, int i) { return e->work + (size_t)i * W_SIZE(NVEL(e->m)); }
+static int col_lo(const double *wk) { return (int)wk[W_LO]; }
+static int col_hi(const double *wk) { return (int)wk[W_HI]; }
+
+/* Recursive kinematics of all body origins (tree.py: kinematics). */
+
+const double *mbs_body_d(const MbsEval *e, int i) { return e->D + e->m->hdr[H_D_BODY] + (size_t)i * DB; }
+
+/* Joint frame of body i's parent side: S_p, o_p, ω_p, v_p, ā_p, ᾱ_p, J_Rp, J_Tp, the offset ρ and S_J
+ * (tree.py: attachment). J_R, J_T of the body start as the parent's; [lo, hi) their nonzero columns. */
+static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const double **o_p, const double **w_p,
+                       const double **v_p, const double **a_p, const double **al_p, double *J_R, int *lo, int *hi,
+                       double *node_buf)
+{
+    static const double Z[3] = {0, 0, 0};
+    const MbsModel *m = e->m;
+    const int f = NVEL(m), *ib = m->ib + i * IB, par = ib[IB_PARENT];
+    const double *db = mbs_body_d(e, i);
+    if (par < 0) {
+        *o_p = *w_p = *v_p = *a_p = *al_p = Z;
+        memset(J_R, 0, 6 * (size_t)f * sizeof(double));
+        memcpy(S_J, db + DB_R0, 9 * sizeof(double));
+        memcpy(rho, db + DB_AT, 3 * sizeof(double));
+        *lo = f;
+        *hi = 0;
+        return;
+    }
+    const double *pw = body_work(e, par);
+    *lo = col_lo(pw);
+    *hi = col_hi(pw);
+#ifdef MBS_WITH_ELASTIC
+    if (ib[IB_NODE] >= 0) {  /* at a node of an elastic parent: it moves with r_IP, S_IP (seed 004) */
+        double S_P[9], *nb_ = node_buf;
+        mbs_elastic_node_frame(e, i, S_P, nb_, nb_ + 3, nb_ + 6, nb_ + 9, nb_ + 12, J_R, J_R + 3 * f);
+        *o_p = nb_; *w_p = nb_ + 3; *v_p = nb_ + 6; *a_p = nb_ + 9; *al_p = nb_ + 12;
+        mm(S_P, db + DB_R0, S_J);
+        memset(rho, 0, 3 * sizeof(double));
+        *lo = 0;   /* the node's columns include the parent's elastic coordinates */
+        *hi = f;
+        return;
+    }
+#else
+    (void)node_buf;
+#endif
+    const double *S_p = pw + W_S;
+    *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
+    memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
+    mm(S_p, db + DB_R0, S_J);
+    mv(S_p, db + DB_AT, rho);
+}
+
+/* Recursive kinematics of all body origins (tree.py: kinematics). */
+void mbs_kinematics(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m);
+    const double *y = e->x, *yd = e->x + NPOS(m);
+    for (int i = 0; i < NB(m); i++) {
+        const int *ib = m->ib + i * IB;
+        const double *db = mbs_body_d(e, i);
+        double *wk = body_work(e, i);
+        double *J_R = wk + W_J, *J_T = J_R + 3 * f;
+        const int nv = ib[IB_NVEL], np = ib[IB_NPOS];
+        const double *o_p, *w_p, *v_p, *a_p, *al_p;
+        double S_J[9], rho[3], node_buf[15];
+        int lo, hi;
+        attachment(e, i, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
+        double p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
+        for (int k = 0; k < np; k++) {
+            int pi = ib[IB_POS + k], s = ib[IB_DRV + k];
+            p[k] = pi >= 0 ? y[pi] : e->td[3 * s];
+        }
+        for (int k = 0; k < nv; k++) {
+            int vi = ib[IB_VEL + k], s = ib[IB_DRV + k];
+            if (vi >= 0) v[k] = yd[vi];
+            else { v[k] = e->td[3 * s + 1]; acc[k] = e->td[3 * s + 2]; }
+        }
+        joint_motion(ib[IB_JTYPE], db, p, v, R, d, H_R, H_T, b_R, b_T);
+        double w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0};
+        for (int k = 0; k < nv; k++)
+            for (int r = 0; r < 3; r++) {
+                w_rel_j[r] += H_R[3 * k + r] * v[k];
+                v_rel_j[r] += H_T[3 * k + r] * v[k];
+                /* prescribed accelerations of driven coordinates join the bias terms */
+                b_R[r] += H_R[3 * k + r] * acc[k];
+                b_T[r] += H_T[3 * k + r] * acc[k];
+            }
+        double dd[3], w_rel[3], v_rel[3], SbR[3], SbT[3], t1[3], t2[3];
+        mv(S_J, d, dd);
+        mv(S_J, w_rel_j, w_rel);
+        mv(S_J, v_rel_j, v_rel);
+        mv(S_J, b_R, SbR);
+        mv(S_J, b_T, SbT);
+        for (int r = 0; r < 3; r++) rho[r] += dd[r];
+        double *w = wk + W_W, *al = wk + W_AL, *o = wk + W_O, *vv = wk + W_V, *a = wk + W_A;
+        /* ω = ω_p + ω_rel;  ᾱ = ᾱ_p + ω_p × ω_rel + S_J b_R */
+        cross(w_p, w_rel, t1);
+        for (int r = 0; r < 3; r++) { w[r] = w_p[r] + w_rel[r]; al[r] = al_p[r] + t1[r] + SbR[r]; }
+        /* v = v_p + ω_p × ρ + v_rel;  ā = ā_p + ᾱ_p × ρ + ω_p × (ω_p × ρ) + 2 ω_p × v_rel + S_J b_T */
+        double wxr[3], axr[3], wwxr[3];
+        cross(w_p, rho, wxr);
+        cross(al_p, rho, axr);
+        cross(w_p, wxr, wwxr);
+        cross(w_p, v_rel, t2);
+        for (int r = 0; r < 3; r++) {
+            o[r] = o_p[r] + rho[r];
+            vv[r] = v_p[r] + wxr[r] + v_rel[r];
+            a[r] = a_p[r] + axr[r] + wwxr[r] + 2.0 * t2[r] + SbT[r];
+        }
+        /* J_T = J_Tp − ρ̃ J_Rp, then the joint's own columns */
+        for (int c = lo; c < hi; c++) {
+            double jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, x[3];
+            cross(rho, jr, x);
+            for (int r = 0; r < 3; r++) J_T[r * f + c] -= x[r];
+        }
+        for (int k = 0; k < nv; k++) {
+            int col = ib[IB_VEL + k];
+            if (col < 0) continue;
+            if (col < lo) lo = col;
+            if (col + 1 > hi) hi = col + 1;
+            double hr[3], ht[3];
+            mv(S_J, H_R + 3 * k, hr);
+            mv(S_J, H_T + 3 * k, ht);
+            for (int r = 0; r < 3; r++) { J_R[r * f + col] += hr[r]; J_T[r * f + col] += ht[r]; }
+        }
+        mm(S_J, R, wk + W_S);
+        wk[W_LO] = lo;
+        wk[W_HI] = hi;
+#ifdef MBS_WITH_ELASTIC
+        if (ib[IB_ELASTIC] >= 0) mbs_elastic_kinematics(e, i);  /* may widen [lo, hi) to its q columns */
+#endif
+    }
+}
+
+/* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only) of a point fixed on body i
+ * (r_b in the body frame); i < 0: a point of the world. */
+void mbs_point(const MbsEval *e, int i, const double *r_b, double *x, double *v, double *J)
+{
+    const int f = NVEL(e->m);
+    if (i < 0) {
+        memcpy(x, r_b, 3 * sizeof(double));
+        memset(v, 0, 3 * sizeof(double));
+        return;
+    }
+    const double *wk = body_work(e, i), *J_R = wk + W_J, *J_T = J_R + 3 * f;
+    double r[3], wxr[3];
+    mv(wk + W_S, r_b, r);
+    cross(wk + W_W, r, wxr);
+    for (int k = 0; k < 3; k++) { x[k] = wk[W_O + k] + r[k]; v[k] = wk[W_V + k] + wxr[k]; }
+    if (!J) return;
+    for (int c = col_lo(wk); c < col_hi(wk); c++) {
+        double jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, s[3];
+        cross(r, jr, s);
+        for (int k = 0; k < 3; k++) J[k * f + c] = J_T[k * f + c] - s[k];
+    }
+}
+
+/* q += sign Jᵀ F for a 3 × f Jacobian of body i (its columns [lo, hi)) */
+void mbs_add_JtF(const MbsEval *e, int i, const double *J, const double *F, double sign, double *q)
+{
+    const int f = NVEL(e->m);
+    const double *wk = body_work(e, i);
+    for (int c = col_lo(wk); c < col_hi(wk); c++) q[c] += sign * (J[c] * F[0] + J[f + c] * F[1] + J[2 * f + c] * F[2]);
+}
+
+/* M, k and the gravity part of q (tree.py: mass_matrix_and_bias); scratch: 3 × f after the bodies. */
+void mbs_mass_matrix_and_bias(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m);
+    const double *g = e->D + m->hdr[H_D_G];
+    double *M = e->M, *k = e->k, *q = e->q, *J = e->work + (size_t)NB(m) * W_SIZE(f);
+    memset(M, 0, (size_t)f * f * sizeof(double));
+    memset(k, 0, f * sizeof(double));
+    memset(q, 0, f * sizeof(double));
+    for (int i = 0; i < NB(m); i++) {
+        const int *ib = m->ib + i * IB;
+        if (!ib[IB_MASSIVE]) continue;
+        const double *db = mbs_body_d(e, i), *wk = body_work(e, i), *J_R = wk + W_J, *S = wk + W_S;
+        const double *w = wk + W_W, *al = wk + W_AL, mass = db[DB_M];
+        double xc[3], vc[3], c[3], wxc[3], axc[3], wwxc[3], a_c[3];
+        mbs_point(e, i, db + DB_C, xc, vc, J);  /* J_T of the centre of mass */
+        mv(S, db + DB_C, c);
+        cross(w, c, wxc);
+        cross(al, c, axc);
+        cross(w, wxc, wwxc);
+        for (int r = 0; r < 3; r++) a_c[r] = wk[W_A + r] + axc[r] + wwxc[r];
+        /* I_w = S I Sᵀ: world-frame inertia about the centre of mass */
+        double SI[9], I_w[9], Iw_w[3], Iw_al[3], gyr[3];
+        mm(S, db + DB_I, SI);
+        for (int r = 0; r < 3; r++)
+            for (int cc = 0; cc < 3; cc++) I_w[3 * r + cc] = SI[3 * r] * S[3 * cc] + SI[3 * r + 1] * S[3 * cc + 1] + SI[3 * r + 2] * S[3 * cc + 2];
+        mv(I_w, w, Iw_w);
+        mv(I_w, al, Iw_al);
+        cross(w, Iw_w, gyr);
+        double mg[3] = {0, 0, 0}, mac[3], rot[3];
+        if (m->hdr[H_HAS_GRAVITY]) for (int r = 0; r < 3; r++) mg[r] = mass * g[r];
+        for (int r = 0; r < 3; r++) { mac[r] = mass * a_c[r]; rot[r] = Iw_al[r] + gyr[r]; }
+        mbs_add_JtF(e, i, J, mac, 1.0, k);
+        mbs_add_JtF(e, i, J_R, rot, 1.0, k);
+        mbs_add_JtF(e, i, J, mg, 1.0, q);
+        const int lo = col_lo(wk), hi = col_hi(wk);
+        for (int cj = lo; cj < hi; cj++) {
+            /* columns of I_w J_R and m J_T */
+            double IJ[3], jr[3] = {J_R[cj], J_R[f + cj], J_R[2 * f + cj]};
+            mv(I_w, jr, IJ);
+            for (int ci = lo; ci <= cj; ci++) {
+                double s = mass * (J[ci] * J[cj] + J[f + ci] * J[f + cj] + J[2 * f + ci] * J[2 * f + cj])
+                         + J_R[ci] * IJ[0] + J_R[f + ci] * IJ[1] + J_R[2 * f + ci] * IJ[2];
+                M[ci * f + cj] += s;
+            }
+        }
+    }
+    for (int i = 0; i < f; i++)
+        for (int j = 0; j < i; j++) M[i * f + j] = M[j * f + i];
+#ifdef MBS_WITH_ELASTIC
+    if (m->hdr[H_FEATURES] & F_ELASTIC) mbs_elastic_equations(e);
+#endif
+}
+
+/* World position, velocity and J_T of an attachment: a point on body i, or node P of an elastic body. */
+static void force_point(const MbsEval *e, int i, int node, const double *at, double *x, double *v, double *J)
+{
+#ifdef MBS_WITH_ELASTIC
+    if (node >= 0 && i >= 0) { mbs_elastic_node_point(e, i, node, x, v, J); return; }
+#else
+    (void)node;
+#endif
+    mbs_point(e, i, at, x, v, J);
+}
+
+/* q from the force elements and the generalized-force inputs (tree.py: applied_forces). */
+void mbs_applied_forces(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m);
+    const double *y = e->x, *yd = e->x + NPOS(m), *dforce = e->D + m->hdr[H_D_FORCE];
+    double *q = e->q, *Ja = e->work + (size_t)NB(m) * W_SIZE(f), *Jb = Ja + 3 * f;
+    if (e->q_in) for (int c = 0; c < f; c++) q[c] += e->q_in[c];
+    for (int n = 0; n < m->hdr[H_NFORCE]; n++) {
+        const int *fi = m->iforce + n * IF;
+        const double *fd = dforce + n * DF;
+        switch (fi[IF_TYPE]) {
+        case FE_JOINT_SPRING: {
+            int pi = fi[IF_A], vi = fi[IF_B];
+            q[vi] -= fd[DF_K] * (y[pi] - fd[DF_L]) + fd[DF_D] * yd[vi];
+            break;
+        }
+        case FE_SPRING: {
+            double xa[3], va[3], xb[3], vb[3], dx[3], dv[3];
+            force_point(e, fi[IF_A], fi[IF_NODE_A], fd + DF_AT_A, xa, va, Ja);
+            force_point(e, fi[IF_B], fi[IF_NODE_B], fd + DF_AT_B, xb, vb, Jb);
+            for (int r = 0; r < 3; r++) { dx[r] = xb[r] - xa[r]; dv[r] = vb[r] - va[r]; }
+            double l = sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
+            if (l < 1e-12) break; /* direction undefined at zero length: no force rather than NaN */
+            double e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
+            double mag = fd[DF_K] * (l - fd[DF_L]) + fd[DF_D] * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
+            double F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
+            if (fi[IF_A] >= 0) mbs_add_JtF(e, fi[IF_A], Ja, F, 1.0, q);
+            if (fi[IF_B] >= 0) mbs_add_JtF(e, fi[IF_B], Jb, F, -1.0, q);
+            break;
+        }
+        case FE_FORCE:
+        case FE_TORQUE: {
+            int i = fi[IF_A];
+            const double *wk = body_work(e, i), *src = fi[IF_SRC] >= 0 ? e->td + fi[IF_SRC] : fd + DF_VEC;
+            double vec[3], xp[3], vp[3];
+            if (src[0] == 0.0 && src[1] == 0.0 && src[2] == 0.0) break;
+            if (fi[IF_FRAME]) mv(wk + W_S, src, vec);
+            else memcpy(vec, src, sizeof vec);
+            if (fi[IF_TYPE] == FE_TORQUE) {
+#ifdef MBS_WITH_ELASTIC
+                if (fi[IF_NODE_A] >= 0) { mbs_elastic_node_J_R(e, i, fi[IF_NODE_A], Ja); mbs_add_JtF(e, i, Ja, vec, 1.0, q); break; }
+#endif
+                mbs_add_JtF(e, i, wk + W_J, vec, 1.0, q);
+            } else {
+                force_point(e, i, fi[IF_NODE_A], fd + DF_AT_A, xp, vp, Ja);
+                mbs_add_JtF(e, i, Ja, vec, 1.0, q);
+            }
+            break;
+        }
+        }
+    }
+}
+
+/* Solve M a = r in place (M overwritten by its Cholesky factor). 0 on success, 1 if M is not positive definite. */
+int mbs_cholesky_solve(int n, double *M, double *r)
+{
+    for (int j = 0; j < n; j++) {
+        double s = M[j * n + j];
+        for (int k = 0; k < j; k++) s -= M[j * n + k] * M[j * n + k];
+        if (s <= 0.0) return 1; /* NaN passes on as NaN: the integrator shrinks h */
+        double d = sqrt(s);
+        M[j * n + j] = d;
+        for (int i = j + 1; i < n; i++) {
+            double t = M[i * n + j];
+            for (int k = 0; k < j; k++) t -= M[i * n + k] * M[j * n + k];
+            M[i * n + j] = t / d;
+        }
+    }
+    for (int i = 0; i < n; i++) {
+        double s = r[i];
+        for (int k = 0; k < i; k++) s -= M[i * n + k] * r[k];
+        r[i] = s / M[i * n + i];
+    }
+    for (int i = n - 1; i >= 0; i--) {
+        double s = r[i];
+        for (int k = i + 1; k < n; k++) s -= M[k * n + i] * r[k];
+        r[i] = s / M[i * n + i];
+    }
+    return 0;
+}
+
+/* ẋ = [Z(y) ẏ; M⁻¹(q − k)] into e->xdot. Returns 0, or MBS_F_SINGULAR when M is not positive definite. */
+int mbs_eval_rhs(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m), np = NPOS(m);
+    const double *y = e->x, *yd = e->x + np;
+    double *xd = e->xdot;
+    mbs_kinematics(e);
+    mbs_mass_matrix_and_bias(e);
+    mbs_applied_forces(e);
+    for (int c = 0; c < f; c++) xd[np + c] = e->q[c] - e->k[c];
+    if (mbs_cholesky_solve(f, e->M, xd + np)) return MBS_F_SINGULAR;
+    const int nplain = m->hdr[H_NPLAIN];
+    for (int i = 0; i < nplain; i++) xd[m->plain[i]] = yd[m->plain[nplain + i]];
+    for (int j = 0; j < m->hdr[H_NQUAT]; j++) {
+        const int *qi = m->quat + 7 * j;
+        double p0 = y[qi[0]], p1 = y[qi[1]], p2 = y[qi[2]], p3 = y[qi[3]];
+        double w0 = yd[qi[4]], w1 = yd[qi[5]], w2 = yd[qi[6]];
+        /* ṗ = ½ p ⊗ (0, ω), body-frame ω */
+        xd[qi[0]] = 0.5 * (-p1 * w0 - p2 * w1 - p3 * w2);
+        xd[qi[1]] = 0.5 * (p0 * w0 - p3 * w1 + p2 * w2);
+        xd[qi[2]] = 0.5 * (p3 * w0 + p0 * w1 - p1 * w2);
+        xd[qi[3]] = 0.5 * (-p2 * w0 + p1 * w1 + p0 * w2);
+    }
+    return 0;
+}
+
+/* ---- bind time: derived numbers from the raw ones (after the bind programs ran) ---- */
+static void unit(const double *a, double *u)
+{
+    double n = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    for (int r = 0; r < 3; r++) u[r] = a[r] / n;
+}
+
+/* rotation from a raw spec: 1 axis-angle (axis 3, angle), 2 matrix (9, row-major); else identity */
+static void rotation(int code, const double *raw, double *R)
+{
+    static const double E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    if (code == 1) {
+        double a[3];
+        unit(raw, a);
+        axis_angle(a, raw[3], R);
+    } else if (code == 2) {
+        memcpy(R, raw, 9 * sizeof(double));
+    } else {
+        memcpy(R, E, sizeof E);
+    }
+}
+
+void mbs_derive(const MbsModel *m, double *D)
+{
+    for (int i = 0; i < NB(m); i++) {
+        const int *ib = m->ib + i * IB;
+        double *db = D + m->hdr[H_D_BODY] + (size_t)i * DB;
+        int t = ib[IB_JTYPE];
+        if (t == J_REVOLUTE || t == J_PRISMATIC || t == J_CYLINDRICAL || t == J_UNIVERSAL || t == J_PLANAR)
+            unit(db + DB_A1_RAW, db + DB_A1);
+        if (t == J_UNIVERSAL || t == J_PLANAR)
+            unit(db + DB_A2_RAW, db + DB_A2);
+        rotation(ib[IB_ROT], db + DB_ROT_RAW, db + DB_R0);
+    }
+}
+
+/* Unit quaternion (scalar first, p0 >= 0) of a rotation matrix (Shepperd), as rotations.matrix_to_quat. */
+static void matrix_to_quat(const double *S, double *p)
+{
+    double t = S[0] + S[4] + S[8], c[4] = {t, S[0], S[4], S[8]}, r;
+    int i = 0;
+    for (int k = 1; k < 4; k++) if (c[k] > c[i]) i = k;
+    if (i == 0) { r = sqrt(1 + t) * 2; p[0] = 0.25 * r; p[1] = (S[7] - S[5]) / r; p[2] = (S[2] - S[6]) / r; p[3] = (S[3] - S[1]) / r; }
+    else if (i == 1) { r = sqrt(1 + 2 * S[0] - t) * 2; p[0] = (S[7] - S[5]) / r; p[1] = 0.25 * r; p[2] = (S[1] + S[3]) / r; p[3] = (S[2] + S[6]) / r; }
+    else if (i == 2) { r = sqrt(1 + 2 * S[4] - t) * 2; p[0] = (S[2] - S[6]) / r; p[1] = (S[1] + S[3]) / r; p[2] = 0.25 * r; p[3] = (S[5] + S[7]) / r; }
+    else { r = sqrt(1 + 2 * S[8] - t) * 2; p[0] = (S[3] - S[1]) / r; p[1] = (S[2] + S[6]) / r; p[2] = (S[5] + S[7]) / r; p[3] = 0.25 * r; }
+    if (p[0] < 0) for (int k = 0; k < 4; k++) p[k] = -p[k];
+}
+
+/* y(0), ẏ(0): the bound raw values (D's x0 block, written by programs), with the initial rotations of
+ * spherical/free joints turned into their quaternion or Cardan angles (evaluator.initial_state). */
+void mbs_initial_state(const MbsModel *m, const double *D, double *x0)
+{
+    const int n = NPOS(m) + NVEL(m);
+    memcpy(x0, D + m->hdr[H_D_X0], (size_t)n * sizeof(double));
+    for (int i = 0; i < NB(m); i++) {
+        const int *ib = m->ib + i * IB;
+        const double *db = D + m->hdr[H_D_BODY] + (size_t)i * DB;
+        int t = ib[IB_JTYPE], off = (t == J_FREE_QUAT || t == J_FREE_CARDAN) ? 3 : 0;
+        double S[9], p[4];
+        if (t == J_SPH_QUAT || t == J_FREE_QUAT) {
+            rotation(ib[IB_IROT], db + DB_IROT_RAW, S);
+            matrix_to_quat(S, p);
+            for (int k = 0; k < 4; k++) if (ib[IB_POS + off + k] >= 0) x0[ib[IB_POS + off + k]] = p[k];
+        } else if ((t == J_SPH_CARDAN || t == J_FREE_CARDAN) && ib[IB_IROT]) {
+            rotation(ib[IB_IROT], db + DB_IROT_RAW, S);
+            double s02 = S[2] < -1.0 ? -1.0 : S[2] > 1.0 ? 1.0 : S[2];
+            double ang[3] = {atan2(-S[5], S[8]), asin(s02), atan2(-S[1], S[0])};
+            for (int k = 0; k < 3; k++) {
+                int idx = ib[IB_POS + off + k];
+                if (idx >= 0 && (ib[IB_IROT_MASK] >> k & 1)) x0[idx] = ang[k];
+            }
+        }
+    }
+}
