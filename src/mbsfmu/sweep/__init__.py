@@ -1,0 +1,170 @@
+"""Parameter sweeps and ensembles: many runs of one model (scene or FMU), one table back (issue 14).
+
+`mbsfmu.sweep(...)` is this package's `sweep`; pandas and dask are imported only when a sweep runs.
+"""
+
+import hashlib
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .cases import make_cases
+from .runner import ModelData, Setup
+
+RESERVED = ("case", "status", "wall_time")  # result columns besides the varied names and the outputs
+MAX_POINTS = 10_000_000                     # communication points per case: bounded work and memory
+
+
+def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outputs=None, inputs=None,
+          scheduler=None, workers=None, series=False, progress=None):
+    """Run `model` (scene file, loaded scene, or built .fmu) once per case; returns a pandas DataFrame with a
+    row per case: `case`, the varied names, each output at the stop time (named as the FMU variable),
+    `status` ("ok" or the case's failure message) and `wall_time` [s]. With `series=True` returns
+    (table, series): the outputs at every communication point, a row per case and time.
+
+    vary: {name: spec}; spec "start:stop:count", "a,b,c" or a sequence of values (a grid over all names), or
+      with `samples=N` a range "lo:hi" / (lo, hi) (N Latin-hypercube samples, reproducible with `seed`); or a
+      DataFrame with a row per case. Names: tunable parameters, inputs (held), `integrator.*`,
+      initial values `y0.<coordinate>` / `yd0.<coordinate>`.
+    scheduler: None (embedded LocalCluster, `workers` processes, default one per core), "tcp://host:port" of a
+      running Dask scheduler (waits for `workers` workers, default 1), a dask.distributed.Client, or
+      "inprocess" (no Dask). progress: a bar with the time left on stderr (default: when stderr is a terminal).
+    """
+    pd = _require(scheduler)
+    columns = make_cases(vary, samples, seed)
+    names, n = list(columns), len(next(iter(columns.values())))
+    clash = [c for c in names if c in RESERVED]
+    if clash:
+        raise ValueError(f"cannot vary {clash[0]!r}: the name is a result column ({', '.join(RESERVED)})")
+    data, info = _model(model)
+    inputs = {str(k): v for k, v in (inputs or {}).items()}
+    info.check({**inputs, **{k: columns[k][0] for k in names}})
+    outputs = info.outputs if outputs is None else _chosen_outputs(info, outputs)
+    setup = Setup(_times(info, stop, step), tuple(outputs), inputs, bool(series))
+    cases = [(i, {k: columns[k][i] for k in names}) for i in range(n)]
+
+    from .dispatch import run_cases
+    rows = sorted(run_cases(data, cases, setup, scheduler, workers, progress), key=lambda r: r[0])
+    final = np.array([r[3] for r in rows]).reshape(n, len(outputs))
+    table = pd.DataFrame({"case": np.arange(n), **columns, **{o: final[:, k] for k, o in enumerate(outputs)},
+                          "status": [r[1] for r in rows], "wall_time": [r[2] for r in rows]})
+    if not series:
+        return table
+    ok = [r for r in rows if r[4] is not None]
+    ts = setup.ts
+    S = np.vstack([r[4] for r in ok]) if ok else np.empty((0, len(outputs)))
+    long = pd.DataFrame({"case": np.repeat([r[0] for r in ok], len(ts)).astype(int), "time": np.tile(ts, len(ok)),
+                         **{o: S[:, k] for k, o in enumerate(outputs)}})
+    return table, long
+
+
+def _require(scheduler):
+    try:
+        import pandas
+        if scheduler != "inprocess":
+            import dask.distributed  # noqa: F401
+    except ImportError as e:
+        raise ImportError(f"mbsfmu sweep needs pandas and dask[distributed] ({e.name} is missing): "
+                          "pip install 'mbsfmu[sweep]'") from None
+    return pandas
+
+
+class _Info:
+    """What the client knows about the model: settable names, outputs, default experiment, a name check."""
+
+    def __init__(self, name, outputs, experiment, check):
+        self.name, self.outputs, self.experiment, self.check = name, outputs, experiment, check
+
+
+def _model(model):
+    """→ (ModelData for the workers, _Info) from a path (.fmu or scene), a loaded scene or a spec dict."""
+    if isinstance(model, (str, Path)) and str(model).lower().endswith(".fmu"):
+        return _fmu(Path(model))
+    if isinstance(model, (str, Path)):
+        from .. import load
+        model = load(model)
+    spec = model if isinstance(model, dict) else model.spec
+    return _scene(spec)
+
+
+def _scene(spec):
+    from ..simulation import Simulation
+    text = json.dumps(spec, sort_keys=True)
+    probe = Simulation(json.loads(text))  # what the workers will build; compiles the kernel once, here
+    outs = [v.name for v in probe.variables if v.causality == "output"]
+    settable = [v.name for v in probe.variables if v.causality in ("parameter", "input")]
+
+    def check(values):
+        for name, v in values.items():
+            try:
+                probe.set(name, v)
+            except KeyError:
+                coord = name.split(".", 1)[1] if name.startswith(("y0.", "yd0.")) else None
+                if coord is not None and f"{'y' if name.startswith('y0.') else 'yd'}.{coord}" in outs:
+                    raise ValueError(f"cannot vary {name!r}: initial values need Simulation.set('y0.…'/'yd0.…'), "
+                                     "which this version of mbsfmu lacks (issue 10)") from None
+                raise ValueError(f"cannot vary {name!r} in {spec['name']}: not a parameter, input, integrator "
+                                 f"setting or initial value; choose from {', '.join(settable)}, "
+                                 "y0.<coordinate>, yd0.<coordinate>") from None
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"{name}={v!r}: {e}") from None
+
+    e = spec["experiment"]
+    data = ModelData("scene", _digest(text.encode()), text, spec["name"])
+    return data, _Info(spec["name"], outs, (e["start"], e["stop"], e["step"]), check)
+
+
+def _fmu(path):
+    from fmpy import read_model_description
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    blob = path.read_bytes()
+    md = read_model_description(str(path))
+    outs = [v.name for v in md.modelVariables if v.causality == "output"]
+    settable = [v.name for v in md.modelVariables if v.causality in ("parameter", "input")]
+
+    def check(values):
+        bad = [k for k in values if k not in settable]
+        if bad:
+            raise ValueError(f"cannot vary {bad[0]!r} in {md.modelName}: not a parameter or input of the FMU; "
+                             f"choose from {', '.join(settable)}")
+
+    d = md.defaultExperiment
+    t0 = d.startTime if d and d.startTime is not None else 0.0
+    t1 = d.stopTime if d and d.stopTime is not None else None
+    h = d.stepSize if d and d.stepSize is not None else None
+    exp = tuple(None if x is None else float(x) for x in (t0, t1, h))
+    return ModelData("fmu", _digest(blob), blob, md.modelName), _Info(md.modelName, outs, exp, check)
+
+
+def _digest(b):
+    return hashlib.sha256(b).hexdigest()[:20]
+
+
+def _chosen_outputs(info, outputs):
+    chosen = [o.strip() for o in (outputs.split(",") if isinstance(outputs, str) else outputs) if o.strip()]
+    bad = [o for o in chosen if o not in info.outputs]
+    if bad or not chosen:
+        raise ValueError(f"{bad[0] if bad else 'no output'!r} is not an output of {info.name}; "
+                         f"outputs: {', '.join(info.outputs)}")
+    return chosen
+
+
+def _times(info, stop, step):
+    """Communication points from the start time to `stop` (exactly) in steps of at most `step`."""
+    t0, default_stop, default_step = info.experiment
+    stop = default_stop if stop is None else float(stop)
+    if stop is None:
+        raise ValueError(f"{info.name} has no default stop time: give stop")
+    step = default_step if step is None else float(step)
+    step = (stop - t0) / 100 if step is None else step
+    if not (math.isfinite(stop) and stop > t0):
+        raise ValueError(f"stop must be a finite time after the start {t0}, got {stop}")
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f"step must be positive, got {step}")
+    n = math.ceil((stop - t0) / step - 1e-9)
+    if n > MAX_POINTS:
+        raise ValueError(f"{n} communication points per case (stop {stop}, step {step}); at most {MAX_POINTS}")
+    return np.linspace(t0, stop, n + 1)

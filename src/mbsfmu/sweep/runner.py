@@ -1,0 +1,186 @@
+"""Worker side of a sweep: each process builds a model once and runs many cases on it (reset between cases).
+
+A case's failure (IntegrationError, an FMU's Discard, non-finite results, a value the model refuses) becomes
+its status message; the batch goes on.
+"""
+
+import json
+import math
+import threading
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+_MODELS = {}          # (model key, thread) → runner: a worker process builds each model once
+_MAX_MODELS = 8       # long-lived cluster workers see many sweeps: keep only the latest models
+
+
+class ModelData(NamedTuple):
+    """What travels to the workers: a scene as normalized JSON ("scene") or the bytes of an FMU ("fmu")."""
+    kind: str
+    key: str    # content hash: the per-process cache key
+    data: object
+    name: str
+
+
+class Setup(NamedTuple):
+    """What every case shares: communication points, outputs read, inputs held, whether to keep series."""
+    ts: np.ndarray
+    outputs: tuple
+    inputs: dict
+    series: bool
+
+
+def run_batch(model, cases, setup):
+    """cases: [(case number, {name: value})] → [(case number, status, wall time, outputs, series or None)]."""
+    runner = _runner(model)
+    rows = []
+    for i, values in cases:
+        t0 = time.perf_counter()
+        try:
+            final, series = runner.run(values, setup)
+            bad = [n for n, v in zip(setup.outputs, final) if not math.isfinite(v)]
+            status = f"non-finite output {', '.join(bad)} at t={setup.ts[-1]:g}" if bad else "ok"
+        except Exception as e:  # one case's failure never stops the sweep
+            final, series, status = np.full(len(setup.outputs), np.nan), None, runner.failed(e)
+        rows.append((i, status, time.perf_counter() - t0, np.asarray(final, dtype=float), series))
+    return rows
+
+
+def _runner(model):
+    key = (model.key, threading.get_ident())  # an instance is not shared between a worker's threads
+    r = _MODELS.get(key)
+    if r is None:
+        while len(_MODELS) >= _MAX_MODELS:
+            _MODELS.pop(next(iter(_MODELS))).close()
+        r = _MODELS[key] = (SceneRunner if model.kind == "scene" else FmuRunner)(model.data)
+    return r
+
+
+def _message(e):
+    from ..errors import IntegrationError, ModelError
+    if isinstance(e, (IntegrationError, ModelError)):
+        return str(e)
+    if isinstance(e, KeyError) and e.args:
+        return str(e.args[0])
+    return f"{type(e).__name__}: {e}"
+
+
+class SceneRunner:
+    """A scene run in this process through mbsfmu.simulation.Simulation."""
+
+    def __init__(self, spec_json):
+        from ..simulation import Simulation
+        self.sim = Simulation(json.loads(spec_json))
+        outs = [v.name for v in self.sim.variables if v.causality == "output"]
+        ys = [n for n in outs if n.startswith("y.")]
+        # rows of run() are [y; ẏ] in the order of the y.* and yd.* outputs
+        self.column = {n: k for k, n in enumerate(ys)}
+        self.column.update({n: len(ys) + k for k, n in enumerate(n for n in outs if n.startswith("yd."))})
+
+    def run(self, values, setup):
+        sim, ts = self.sim, setup.ts
+        sim.reset()
+        for name, v in {**setup.inputs, **values}.items():
+            sim.set(name, v)
+        sim.initialize(ts[0])
+        if not setup.series:
+            sim.run(ts)
+            return [sim.get(n) for n in setup.outputs], None
+        if all(n in self.column for n in setup.outputs):  # states only: one run, columns of X
+            X = sim.run(ts)
+            S = X[:, [self.column[n] for n in setup.outputs]]
+            return S[-1], S
+        S = np.empty((len(ts), len(setup.outputs)))  # point outputs: read at each communication point
+        S[0] = [sim.get(n) for n in setup.outputs]
+        for k in range(len(ts) - 1):
+            sim.run(ts[k:k + 2])
+            S[k + 1] = [sim.get(n) for n in setup.outputs]
+        return S[-1], S
+
+    def failed(self, e):
+        return _message(e)
+
+    def close(self):
+        pass
+
+
+class FmuRunner:
+    """A built FMU run through fmpy: extracted and instantiated once, fmi2Reset between cases."""
+
+    def __init__(self, fmu_bytes):
+        import tempfile
+        from pathlib import Path
+        from fmpy import extract, read_model_description
+        self.dir = tempfile.mkdtemp(prefix="mbsfmu_sweep_")
+        path = Path(self.dir, "model.fmu")
+        path.write_bytes(fmu_bytes)
+        self.unzipdir = extract(str(path), unzipdir=str(Path(self.dir, "x")))
+        self.md = read_model_description(self.unzipdir)
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.fmu, self.fresh, self.log = None, True, []
+
+    def _logger(self, component, instance, status, category, message):
+        if status >= 2:  # Discard, Error, Fatal: the reason a call failed
+            self.log.append(message.decode("utf-8", "replace"))
+
+    def _instance(self):
+        from fmpy import instantiate_fmu
+        if self.fmu is None:
+            self.fmu = instantiate_fmu(self.unzipdir, self.md, "CoSimulation", logger=self._logger)
+            self.fresh = True
+        elif not self.fresh:
+            self.fmu.reset()
+        self.fresh = False
+        return self.fmu
+
+    def run(self, values, setup):
+        ts = setup.ts
+        self.log.clear()
+        fmu = self._instance()
+        for name, v in {**setup.inputs, **values}.items():
+            var = self.vars.get(name)
+            if var is None or var.causality not in ("parameter", "input"):
+                raise KeyError(f"'{name}' is not an input or parameter of {self.md.modelName}")
+            if var.type == "String":
+                fmu.setString([var.valueReference], [str(v)])
+            elif var.type in ("Integer", "Enumeration"):
+                fmu.setInteger([var.valueReference], [int(v)])
+            elif var.type == "Boolean":
+                fmu.setBoolean([var.valueReference], [bool(v)])
+            else:
+                fmu.setReal([var.valueReference], [float(v)])
+        fmu.setupExperiment(startTime=ts[0], stopTime=ts[-1])
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        vrs = [self.vars[n].valueReference for n in setup.outputs]
+        S = np.empty((len(ts), len(vrs))) if setup.series else None
+        if S is not None:
+            S[0] = fmu.getReal(vrs)
+        for k in range(len(ts) - 1):
+            fmu.doStep(currentCommunicationPoint=ts[k], communicationStepSize=ts[k + 1] - ts[k])
+            if S is not None:
+                S[k + 1] = fmu.getReal(vrs)
+        final = fmu.getReal(vrs)
+        fmu.terminate()
+        return final, S
+
+    def failed(self, e):
+        """After an error the instance may be unusable: free it, the next case instantiates afresh."""
+        msg = "; ".join(dict.fromkeys(self.log)) or _message(e)
+        self._free()
+        return msg
+
+    def _free(self):
+        if self.fmu is not None:
+            try:
+                self.fmu.freeInstance()
+            except Exception:
+                pass
+            self.fmu = None
+
+    def close(self):
+        import shutil
+        self._free()
+        shutil.rmtree(self.dir, ignore_errors=True)
