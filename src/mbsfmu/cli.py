@@ -1,4 +1,4 @@
-"""Command line: `mbsfmu build|check|simulate|crosscheck|info|validate|bench|stress`.
+"""Command line: `mbsfmu build|check|simulate|crosscheck|info|validate|sweep|bench|stress`.
 
 Every failure prints one line on stderr and exits non-zero (1; 2 for a bad command line) — never a
 traceback. A closed pipe (`mbsfmu simulate … | head`) ends the command quietly with 141, as other Unix
@@ -21,6 +21,7 @@ EPILOG = """examples:
   mbsfmu crosscheck models/double_pendulum.yaml --out xc/double_pendulum      # FMI cross-check files
   mbsfmu info out/double_pendulum.fmu
   mbsfmu validate out/double_pendulum.fmu
+  mbsfmu sweep models/pendulum.yaml --vary L=0.5:1.5:11 --vary m_bob=0.5,1,2 --out grid.csv
   mbsfmu bench models/pendulum.yaml --quick                # writes a fresh bench-pendulum-<time>/ folder
   mbsfmu stress --quick                                    # writes a fresh stress-<time>/ folder
 
@@ -77,7 +78,7 @@ def _build(args):
         t0 = time.perf_counter()
         if n > 1:
             print(f"[{i}/{n}] {scene} ...", end=" ", flush=True)
-        path = build_fmu(scene, args.output)
+        path = build_fmu(scene, args.output, kind=args.kind)
         print(f"{path}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
 
 
@@ -86,7 +87,8 @@ def _check(args):
     _need_scene(args.scene)
     scene = load(args.scene)
     ev = compile(scene)
-    print(f"{scene.name}: {len(scene.spec['bodies'])} bodies, {len(ev.velocity_coordinates)} degrees of freedom")
+    nb, nf = len(scene.spec["bodies"]), len(ev.velocity_coordinates)
+    print(f"{scene.name}: {nb} bod{'y' if nb == 1 else 'ies'}, {nf} degree{'' if nf == 1 else 's'} of freedom")
     print("  y  = " + ", ".join(ev.coordinates))
     print("  ẏ  = " + ", ".join(ev.velocity_coordinates))
     print("  inputs: " + ", ".join(ev.inputs))
@@ -287,6 +289,9 @@ def parser():
     p = sub.add_parser("build", help="build FMUs from scene files")
     p.add_argument("scene", nargs="+", help="scene files (.yaml)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
+    p.add_argument("--kind", choices=("pythonfmu", "native"), default="pythonfmu",
+                   help="pythonfmu (default; runs the engine through Python) or native (C only, no Python "
+                        "needed where the FMU runs; needs a C compiler here)")
     p.set_defaults(run=_build)
     p = sub.add_parser("check", help="validate a scene and list its coordinates and inputs")
     p.add_argument("scene", help="scene file (.yaml)")
@@ -318,6 +323,9 @@ def parser():
     p = sub.add_parser("validate", help="validate an FMU with fmpy")
     p.add_argument("fmu", help="FMU file (.fmu)")
     p.set_defaults(run=_validate)
+    from .sweep.cli import HELP as SWEEP_HELP, configure as configure_sweep
+    configure_sweep(sub.add_parser("sweep", help="parameter sweep or ensemble on Dask (docs/sweeps.md)",
+                                   epilog=SWEEP_HELP, formatter_class=argparse.RawDescriptionHelpFormatter))
     for name, text in (("bench", "work-precision benchmark of a scene (options: mbsfmu bench --help)"),
                        ("stress", "numerical stability suite (options: mbsfmu stress --help)")):
         p = sub.add_parser(name, help=text, add_help=False)

@@ -25,8 +25,8 @@ def plot_result(path, t, cols, names, units, title):
     from cycler import cycler
     styles = cycler(linestyle=LINESTYLES) * cycler(color=plt.get_cmap("tab10").colors)
     groups = panels(units)
-    fig, axes = plt.subplots(len(groups), 1, sharex=True, squeeze=False,
-                             figsize=(9, 1.2 + 2.3 * len(groups)))
+    height = 1.2 + 2.3 * len(groups)  # inches
+    fig, axes = plt.subplots(len(groups), 1, sharex=True, squeeze=False, figsize=(9, height))
     for ax, (unit, idx) in zip(axes[:, 0], groups.items()):
         ax.set_prop_cycle(styles)
         for k in idx:
@@ -38,6 +38,6 @@ def plot_result(path, t, cols, names, units, title):
                   ncol=1 + (len(idx) - 1) // 10)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(title)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / height))  # 0.35 in for the title
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
