@@ -7,7 +7,7 @@ imports only numpy/scipy.
 from .errors import IntegrationError, ModelError
 
 __version__ = "0.1.0"
-__all__ = ["load", "loads", "compile", "simulate", "build_fmu", "ModelError", "IntegrationError", "__version__"]
+__all__ = ["load", "loads", "compile", "simulate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
 
 
 def load(path):
@@ -46,3 +46,8 @@ def build_fmu(scene, outdir=".", **options):
     """Build `<outdir>/<name>.fmu` from a scene file or loaded scene; returns its path."""
     from .fmu.build import build_fmu as _build
     return _build(scene, outdir, **options)
+
+
+# Imported here, not wrapped lazily: importing the submodule on first call would rebind `mbsfmu.sweep` from
+# the function to the package. mbsfmu/sweep/__init__.py imports nothing heavy at the top.
+from .sweep import sweep  # noqa: E402

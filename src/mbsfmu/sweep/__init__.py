@@ -1,17 +1,13 @@
 """Parameter sweeps and ensembles: many runs of one model (scene or FMU), one table back (issue 14).
 
-`mbsfmu.sweep(...)` is this package's `sweep`; pandas and dask are imported only when a sweep runs.
+`mbsfmu.sweep(...)` is this package's `sweep` (imported by `import mbsfmu`, so this module imports nothing
+heavy at the top); numpy, pandas and dask are imported when a sweep runs.
 """
 
 import hashlib
 import json
 import math
 from pathlib import Path
-
-import numpy as np
-
-from .cases import make_cases
-from .runner import ModelData, Setup
 
 RESERVED = ("case", "status", "wall_time")  # result columns besides the varied names and the outputs
 MAX_POINTS = 10_000_000                     # communication points per case: bounded work and memory
@@ -32,7 +28,10 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
       running Dask scheduler (waits for `workers` workers, default 1), a dask.distributed.Client, or
       "inprocess" (no Dask). progress: a bar with the time left on stderr (default: when stderr is a terminal).
     """
-    pd = _require(scheduler)
+    from .cases import make_cases
+    from .dispatch import run_cases
+    from .runner import Setup
+    np, pd = _require(scheduler)
     columns = make_cases(vary, samples, seed)
     names, n = list(columns), len(next(iter(columns.values())))
     clash = [c for c in names if c in RESERVED]
@@ -44,8 +43,6 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
     outputs = info.outputs if outputs is None else _chosen_outputs(info, outputs)
     setup = Setup(_times(info, stop, step), tuple(outputs), inputs, bool(series))
     cases = [(i, {k: columns[k][i] for k in names}) for i in range(n)]
-
-    from .dispatch import run_cases
     rows = sorted(run_cases(data, cases, setup, scheduler, workers, progress), key=lambda r: r[0])
     final = np.array([r[3] for r in rows]).reshape(n, len(outputs))
     table = pd.DataFrame({"case": np.arange(n), **columns, **{o: final[:, k] for k, o in enumerate(outputs)},
@@ -62,13 +59,14 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
 
 def _require(scheduler):
     try:
+        import numpy
         import pandas
         if scheduler != "inprocess":
             import dask.distributed  # noqa: F401
     except ImportError as e:
         raise ImportError(f"mbsfmu sweep needs pandas and dask[distributed] ({e.name} is missing): "
                           "pip install 'mbsfmu[sweep]'") from None
-    return pandas
+    return numpy, pandas
 
 
 class _Info:
@@ -91,6 +89,7 @@ def _model(model):
 
 def _scene(spec):
     from ..simulation import Simulation
+    from .runner import ModelData
     text = json.dumps(spec, sort_keys=True)
     probe = Simulation(json.loads(text))  # what the workers will build; compiles the kernel once, here
     outs = [v.name for v in probe.variables if v.causality == "output"]
@@ -118,6 +117,7 @@ def _scene(spec):
 
 def _fmu(path):
     from fmpy import read_model_description
+    from .runner import ModelData
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     blob = path.read_bytes()
@@ -164,6 +164,7 @@ def _times(info, stop, step):
         raise ValueError(f"stop must be a finite time after the start {t0}, got {stop}")
     if not (math.isfinite(step) and step > 0):
         raise ValueError(f"step must be positive, got {step}")
+    import numpy as np
     n = math.ceil((stop - t0) / step - 1e-9)
     if n > MAX_POINTS:
         raise ValueError(f"{n} communication points per case (stop {stop}, step {step}); at most {MAX_POINTS}")

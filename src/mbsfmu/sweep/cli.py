@@ -1,0 +1,93 @@
+"""`mbsfmu sweep`: the command-line face of mbsfmu.sweep (table to .parquet/.csv, optional series and plot)."""
+
+from pathlib import Path
+
+HELP = """examples:
+  mbsfmu sweep models/pendulum.yaml --vary L=0.5:1.5:11 --vary m_bob=0.5,1,2 --stop 5 --out grid.csv
+  mbsfmu sweep models/double_pendulum.yaml --vary L=0.5:1.5 --vary m=0.5:2 --samples 200 --seed 1 \\
+      --stop 2 --out lhs.parquet --plot lhs.png
+  mbsfmu sweep out/double_pendulum.fmu --vary L=0.8,1,1.2 --scheduler tcp://10.0.0.5:8786 --out r.csv
+
+SPEC is start:stop:count (evenly spaced) or a comma list; several --vary form a grid. With --samples N,
+each SPEC is a range lo:hi and N Latin-hypercube samples are drawn (reproducible with --seed).
+NAME: a tunable parameter, an input (held), integrator.method/rtol/atol/max_step/step, y0.<coordinate>,
+yd0.<coordinate>."""
+
+
+def configure(p):
+    p.add_argument("model", help="scene .yaml or built .fmu")
+    p.add_argument("--vary", action="append", default=[], metavar="NAME=SPEC", help="a varied name (repeatable)")
+    p.add_argument("--samples", type=int, help="N Latin-hypercube samples within the --vary ranges")
+    p.add_argument("--seed", type=int, help="seed of the sampling")
+    p.add_argument("--stop", type=float, help="stop time (default: the model's experiment)")
+    p.add_argument("--step", type=float, help="communication step (default: the model's experiment)")
+    p.add_argument("--outputs", help="comma list of outputs (default: every output)")
+    p.add_argument("--input", action="append", default=[], metavar="NAME=VALUE", help="an input held constant")
+    p.add_argument("--out", help="results table: .parquet or .csv (default: print it)")
+    p.add_argument("--series", metavar="FILE", help="also write every output at every communication point "
+                                                   "(.parquet or .csv, a row per case and time)")
+    p.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://host:port), or 'inprocess'; "
+                                       "default: an embedded local cluster")
+    p.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per core); "
+                                               "existing cluster: workers to wait for")
+    p.add_argument("--plot", metavar="FILE.png", help="plot the outputs against the varied name(s)")
+    p.add_argument("--plot-vs", metavar="NAME[,NAME]", help="varied name(s) for the plot's axes (default: the first two)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=run)
+
+
+def run(args):
+    from . import sweep
+    vary = dict(_pair(v, "--vary") for v in args.vary)
+    inputs = {k: float(v) for k, v in (_pair(i, "--input") for i in args.input)}
+    for path in (args.out, args.series):
+        if path:
+            _format(path)
+    res = sweep(args.model, vary=vary, samples=args.samples, seed=args.seed, stop=args.stop, step=args.step,
+                outputs=args.outputs, inputs=inputs, scheduler=args.scheduler, workers=args.workers,
+                series=bool(args.series), progress=not args.quiet)
+    table, series = res if args.series else (res, None)
+    failed = int((table["status"] != "ok").sum())
+    print(f"{len(table)} cases, {failed} failed, {table['wall_time'].sum():.3g} s of run time")
+    if args.out:
+        _write(table, args.out)
+    else:
+        print(table.to_string(index=False))
+    if series is not None:
+        _write(series, args.series)
+    if args.plot:
+        from .plot import plot
+        varied = [c for c in table.columns if c in vary] if not args.plot_vs else args.plot_vs.split(",")
+        unknown = [v for v in varied if v not in vary]
+        if unknown:
+            raise ValueError(f"--plot-vs {unknown[0]} is not a varied name ({', '.join(vary)})")
+        outputs = [c for c in table.columns if c not in vary and c not in ("case", "status", "wall_time")]
+        plot(table, varied[:2], outputs, args.plot)
+        print(f"wrote {args.plot}")
+
+
+def _pair(text, option):
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip() or not value.strip():
+        raise ValueError(f"{option} {text}: expected NAME=VALUE")
+    return name.strip(), value.strip()
+
+
+def _format(path):
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".parquet", ".csv"):
+        raise ValueError(f"{path}: write .parquet or .csv")
+    if suffix == ".parquet":
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise ImportError("writing .parquet needs pyarrow: pip install 'mbsfmu[sweep]' (or use .csv)") from None
+    return suffix
+
+
+def _write(df, path):
+    if _format(path) == ".parquet":
+        df.to_parquet(path, index=False)
+    else:
+        df.to_csv(path, index=False)
+    print(f"wrote {path}")
