@@ -22,7 +22,6 @@ EPILOG = """examples:
   mbsfmu info out/double_pendulum.fmu
   mbsfmu validate out/double_pendulum.fmu
   mbsfmu sweep models/pendulum.yaml --vary L=0.5:1.5:11 --vary m_bob=0.5,1,2 --out grid.csv
-  mbsfmu sweep models/pendulum.yaml --vary L=0.5:1.5:11 --vary m_bob=0.5,1,2 --out grid.csv
   mbsfmu bench models/pendulum.yaml --quick                # writes a fresh bench-pendulum-<time>/ folder
   mbsfmu stress --quick                                    # writes a fresh stress-<time>/ folder
 
@@ -324,9 +323,6 @@ def parser():
     p = sub.add_parser("validate", help="validate an FMU with fmpy")
     p.add_argument("fmu", help="FMU file (.fmu)")
     p.set_defaults(run=_validate)
-    from .sweep.cli import HELP as SWEEP_HELP, configure as configure_sweep
-    configure_sweep(sub.add_parser("sweep", help="parameter sweep or ensemble on Dask (docs/sweeps.md)",
-                                   epilog=SWEEP_HELP, formatter_class=argparse.RawDescriptionHelpFormatter))
     from .sweep.cli import HELP as SWEEP_HELP, configure as configure_sweep
     configure_sweep(sub.add_parser("sweep", help="parameter sweep or ensemble on Dask (docs/sweeps.md)",
                                    epilog=SWEEP_HELP, formatter_class=argparse.RawDescriptionHelpFormatter))
