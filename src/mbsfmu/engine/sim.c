@@ -255,7 +255,7 @@ static int var(const MbsInstance *s, int vr, int *idx)
 
 int mbs_set_real(MbsInstance *s, int vr, double value)
 {
-    int idx, kind = var(s, vr, &idx);
+    int idx = 0, kind = var(s, vr, &idx);
     switch (kind) {
     case MBS_V_PARAM:
         s->D[idx] = value;
@@ -300,7 +300,7 @@ int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double ou
 
 int mbs_get_real(MbsInstance *s, int vr, double *value)
 {
-    int idx, kind = var(s, vr, &idx), rc;
+    int idx = 0, kind = var(s, vr, &idx), rc;
     if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT) && !s->initialized && !s->initial_valid &&
         (rc = initial_state(s)))
         return rc;
@@ -522,7 +522,7 @@ int mbs_state_save(const MbsInstance *s, void *buf, size_t len)
     memcpy(p, "MBSS", 4);
     memcpy(p + 4, &version, 4);
     memset(p + 8, 0, 64);
-    strncpy((char *)p + 8, s->m->guid, 63);
+    memcpy((char *)p + 8, s->m->guid, strlen(s->m->guid));
     memcpy(p + 72, &plen, 8);
     memcpy(p + 80, &sum, 8);
     return MBS_OK;

@@ -1,0 +1,152 @@
+"""The engine seam: one compiled scene and its running instances, through ctypes (mbs_engine.h).
+
+Python compiles (compile.py: scene → compiled scene bytes), C runs (everything per step). This module is
+the only place where Python talks to the engine; it imports no numpy, so that an FMU's run time stays lean.
+"""
+
+import ctypes
+
+from ..errors import IntegrationError
+from .build import EngineUnavailable, library
+
+__all__ = ["Instance", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD", "ERROR"]
+OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
+
+
+class EngineError(ValueError):
+    """A call the engine refused (wrong variable, bad setting, corrupt state bytes)."""
+
+
+class _Model:
+    """A loaded compiled scene (immutable, shared by instances)."""
+
+    def __init__(self, blob):
+        self.lib = lib = library()
+        err = ctypes.create_string_buffer(512)
+        self.ptr = lib.mbs_model_load(blob, len(blob), err, len(err))
+        if not self.ptr:
+            raise EngineError(err.value.decode(errors="replace"))
+        self.guid = lib.mbs_model_guid(self.ptr).decode()
+
+    def __del__(self):
+        if getattr(self, "ptr", None):
+            self.lib.mbs_model_free(self.ptr)
+            self.ptr = None
+
+
+class Instance:
+    """One running instance: variables by value reference, initialize, steps, state bytes, evaluation."""
+
+    def __init__(self, blob, npos, nvel, logger=None):
+        self.model = blob if isinstance(blob, _Model) else _Model(blob)
+        self.lib = lib = self.model.lib
+        self.npos, self.nvel, self.n = npos, nvel, npos + nvel
+        # keep the callback object alive as long as the instance
+        self._logger = ctypes.cast(None, type(lib.mbs_instance_new.argtypes[1])) if logger is None else \
+            lib.mbs_instance_new.argtypes[1](lambda env, status, msg: logger(status, msg.decode(errors="replace")))
+        self.ptr = lib.mbs_instance_new(self.model.ptr, self._logger, None)
+        if not self.ptr:
+            raise MemoryError("engine instance")
+        self._value = ctypes.c_double()
+        self._str = ctypes.c_char_p()
+
+    def __del__(self):
+        if getattr(self, "ptr", None):
+            self.lib.mbs_instance_free(self.ptr)
+            self.ptr = None
+
+    # -- status → exceptions
+    @property
+    def message(self):
+        return self.lib.mbs_message(self.ptr).decode(errors="replace")
+
+    @property
+    def time(self):
+        return self.lib.mbs_time(self.ptr)
+
+    def _check(self, status):
+        if status >= ERROR:
+            raise EngineError(self.message)
+        if status == DISCARD:
+            raise IntegrationError(self.message.split(": ", 1)[-1] if self.message.startswith("t = ") else self.message, self.time)
+        return status
+
+    # -- variables
+    def set_real(self, vr, value):
+        self._check(self.lib.mbs_set_real(self.ptr, vr, value))
+
+    def get_real(self, vr):
+        self._check(self.lib.mbs_get_real(self.ptr, vr, ctypes.byref(self._value)))
+        return self._value.value
+
+    def set_string(self, vr, value):
+        self._check(self.lib.mbs_set_string(self.ptr, vr, str(value).encode()))
+
+    def get_string(self, vr):
+        self._check(self.lib.mbs_get_string(self.ptr, vr, ctypes.byref(self._str)))
+        return self._str.value.decode()
+
+    # -- running
+    def reset(self):
+        self._check(self.lib.mbs_reset(self.ptr))
+
+    def initialize(self, t0):
+        self._check(self.lib.mbs_initialize(self.ptr, t0))
+
+    def do_step(self, t, h):
+        self._check(self.lib.mbs_do_step(self.ptr, t, h))
+
+    def state(self):
+        """Current [y; ẏ] as a list (copy)."""
+        p = self.lib.mbs_state(self.ptr)
+        return p[:self.n]
+
+    def run(self, ts):
+        """numpy array of rows [y; ẏ] at the times ts (ts[0] = now)."""
+        import numpy as np
+        ts = np.ascontiguousarray(ts, dtype=float)
+        X = np.empty((len(ts), self.n))
+        self._check(self.lib.mbs_run(self.ptr, ts.ctypes.data, len(ts), X.ctypes.data))
+        return X
+
+    def stats(self):
+        out, sw = (ctypes.c_long * 6)(), ctypes.c_double()
+        self.lib.mbs_stats(self.ptr, out, ctypes.byref(sw))
+        keys = ("steps", "rejected", "rhs_evaluations", "jac_evaluations", "lu_decompositions")
+        s = dict(zip(keys, out[:5]))
+        if out[5] or sw.value == sw.value:
+            s.update(switched=bool(out[5]), switched_at=sw.value if out[5] else None)
+        return s
+
+    # -- state bytes (fixed layout: version, GUID, length, checksum)
+    def save_state(self):
+        n = self.lib.mbs_state_size(self.ptr)
+        buf = ctypes.create_string_buffer(n)
+        self._check(self.lib.mbs_state_save(self.ptr, buf, n))
+        return buf.raw
+
+    def load_state(self, data):
+        data = bytes(data)
+        self._check(self.lib.mbs_state_load(self.ptr, data, len(data)))
+
+    # -- evaluation (numpy; tests and benchmarks)
+    def equations(self, t, x):
+        import numpy as np
+        x = np.ascontiguousarray(x, dtype=float)
+        M, k, q = np.empty((self.nvel, self.nvel)), np.empty(self.nvel), np.empty(self.nvel)
+        self._check(self.lib.mbs_equations(self.ptr, t, x.ctypes.data, M.ctypes.data, k.ctypes.data, q.ctypes.data))
+        return M, k, q
+
+    def rhs(self, t, x, out=None):
+        import numpy as np
+        x = np.ascontiguousarray(x, dtype=float)
+        out = np.empty(self.n) if out is None else out
+        self._check(self.lib.mbs_rhs(self.ptr, t, x.ctypes.data, out.ctypes.data))
+        return out
+
+    def output_point(self, o, t, x):
+        import numpy as np
+        x = np.ascontiguousarray(x, dtype=float)
+        out = np.empty(6)
+        self._check(self.lib.mbs_output_point(self.ptr, o, x.ctypes.data, t, out.ctypes.data))
+        return out

@@ -1,0 +1,119 @@
+"""Compiling the engine: which C sources a scene needs, and the in-process shared library.
+
+The in-process library has every part (any scene can be loaded); a native FMU carries only the parts its scene
+uses (`sources(features)`): no elastic-body code for a rigid scene, no expression machine where no number
+depends on parameters or time. The integrators always stay, since `integrator.method` is a parameter.
+
+The library is compiled once per source version with the system C compiler (`$CC` or `cc`) into
+`$MBSFMU_CACHE` or `~/.cache/mbsfmu` (at install by `python -m mbsfmu.engine.build`, else on first use).
+Without a C compiler nothing can run in-process: `library()` raises EngineUnavailable saying so.
+"""
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+from pathlib import Path
+
+HERE = Path(__file__).parent
+CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "integ_base.c", "integ_erk.c", "integ_radau5.c",
+        "integ_gen_alpha.c", "integ_auto.c")
+HEADERS = ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "integ_internal.h", "linalg.h")
+OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
+CFLAGS = ("-O2", "-std=c99", "-fPIC")
+
+
+class EngineUnavailable(RuntimeError):
+    """No compiled engine: no C compiler, or it failed."""
+
+
+def features(blob):
+    """Optional parts a compiled scene needs (from its header's feature bits)."""
+    from .compile import F_ELASTIC, F_EXPR, H_FIELDS
+    import struct
+    nsec = struct.unpack_from("<i", blob, 72)[0]
+    for s in range(nsec):
+        sid, _, off, _ = struct.unpack_from("<iiqq", blob, 76 + 24 * s)
+        if sid == 0:
+            bits = struct.unpack_from("<i", blob, off + 4 * H_FIELDS.index("FEATURES"))[0]
+            return {name for name, bit in (("expr", F_EXPR), ("elastic", F_ELASTIC)) if bits & bit}
+    raise ValueError("compiled scene without header")
+
+
+def sources(feats=("expr", "elastic")):
+    """(C sources, headers, -D flags) of an engine with the given optional parts."""
+    feats = [f for f in OPTIONAL if f in feats and (HERE / OPTIONAL[f][0]).exists()]
+    srcs = [HERE / s for s in CORE if (HERE / s).exists()] + [HERE / OPTIONAL[f][0] for f in feats]
+    return srcs, [HERE / h for h in HEADERS if (HERE / h).exists()], [OPTIONAL[f][1] for f in feats]
+
+
+def compiler():
+    cc = os.environ.get("CC") or "cc"
+    if shutil.which(cc) is None:
+        raise EngineUnavailable(f"no C compiler ('{cc}'): mbsfmu's engine is C and compiles on first use; install "
+                                "gcc (Debian: apt-get install gcc) or set $CC")
+    return cc
+
+
+def compile_shared(out, feats=("expr", "elastic"), extra=(), cc=None):
+    """Compile the engine (and extra sources, e.g. the FMI layer) into the shared library `out`."""
+    srcs, _, defs = sources(feats)
+    cmd = [cc or compiler(), *CFLAGS, "-shared", *defs, f"-I{HERE}", "-o", str(out), *map(str, srcs), *map(str, extra), "-lm"]
+    res = subprocess.run(cmd, capture_output=True, text=True)
+    if res.returncode:
+        raise EngineUnavailable(f"compiling the engine failed: {res.stderr.strip()[:2000]}")
+    return out
+
+
+def _tag():
+    srcs, hdrs, defs = sources()
+    h = hashlib.sha256(" ".join(CFLAGS + tuple(defs)).encode() + sys.platform.encode())
+    for p in sorted(srcs + hdrs):
+        h.update(p.name.encode() + p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def library_path():
+    """The in-process engine library (compiled into the cache on first use; atomic for concurrent processes)."""
+    name = f"libmbsfmu_engine_{_tag()}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}.1"
+    shipped = HERE / name   # a pythonfmu FMU carries its own copy
+    if shipped.exists():
+        return shipped
+    for cache in (Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu"),
+                  Path(tempfile.gettempdir()) / f"mbsfmu-{os.getuid() if hasattr(os, 'getuid') else 0}"):
+        try:
+            cache.mkdir(parents=True, exist_ok=True)
+            out = cache / name
+            if not out.exists():
+                fd, tmp = tempfile.mkstemp(suffix=".so", dir=cache)
+                os.close(fd)
+                try:
+                    compile_shared(tmp)
+                    os.replace(tmp, out)
+                finally:
+                    if os.path.exists(tmp):
+                        os.unlink(tmp)
+            return out
+        except PermissionError:
+            continue
+    raise EngineUnavailable("no writable cache directory for the compiled engine (set $MBSFMU_CACHE)")
+
+
+_lib = None
+
+
+def library():
+    """The loaded engine (ctypes.CDLL with argument types declared)."""
+    global _lib
+    if _lib is None:
+        from .api import declare
+        _lib = declare(ctypes.CDLL(str(library_path())))
+    return _lib
+
+
+if __name__ == "__main__":  # python -m mbsfmu.engine.build: compile into the cache now (at install)
+    print(library_path())
