@@ -183,6 +183,11 @@ void mbs_msg_long(MbsIntegrator *it, long long v);
 /* Python-style %g into buf (at least 32 bytes). */
 void mbs_fmt_g(char *buf, double v, int digits);
 
+/* Snapshot in two phases (auto loads both children atomically): check validates into it->hist_tmp (0 =
+ * valid, the integrator untouched), commit makes the checked candidate current. */
+int mbs_integ_snapshot_check(MbsIntegrator *it, const unsigned char *buf, size_t len);
+void mbs_integ_snapshot_commit(MbsIntegrator *it);
+
 /* ---- auto (integ_auto.c), dispatched from the public functions in integ_base.c ---- */
 int mbs_auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen);
 int mbs_auto_reset(MbsIntegrator *it, double t0, const double *x0);

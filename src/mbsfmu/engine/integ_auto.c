@@ -1,0 +1,158 @@
+/* 'auto': DOPRI5 until its stiffness test fires (Hairer's h·|λ| > 3.25, 15 times), then RADAU5 for good.
+ * Two child integrators; t, x, h come from the one in charge, stats are summed over both phases. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "integ_internal.h"
+
+#define AUTO_HEADER 32 /* "MBSA", method, n, dense, phase, 0 (int32 each), switched_at (8 bytes) */
+
+typedef struct {
+    double switched_at; /* NaN before the switch */
+    int phase;          /* 0: dopri5, 1: radau5 */
+} AutoState;
+
+static AutoState *state(const MbsIntegrator *it) { return (AutoState *)it->ms; }
+
+MbsIntegrator *mbs_auto_active(const MbsIntegrator *it) { return it->sub[state(it)->phase]; }
+
+int mbs_auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen)
+{
+    MbsIntegOptions o = *opt;
+    o.dense = it->dense;
+    o.h = 0.0; /* both children are adaptive */
+    it->sub[0] = mbs_integ_new(MBS_DOPRI5, &it->ode, &o, err, errlen);
+    if (!it->sub[0]) return 1;
+    it->sub[0]->detect_stiffness = it->sub[0]->stop_when_stiff = 1;
+    it->sub[1] = mbs_integ_new(MBS_RADAU5, &it->ode, &o, err, errlen);
+    if (!it->sub[1]) return 1;
+    it->hist_bytes = sizeof(AutoState);
+    it->hist = (unsigned char *)calloc(1, it->hist_bytes);
+    if (!it->hist) {
+        if (err && errlen) {
+            strncpy(err, "out of memory", errlen - 1);
+            err[errlen - 1] = '\0';
+        }
+        return 1;
+    }
+    it->ms = it->hist;
+    state(it)->phase = 0;
+    state(it)->switched_at = NAN;
+    return 0;
+}
+
+static int child_failed(MbsIntegrator *it, const MbsIntegrator *child)
+{
+    mbs_msg_set(it, mbs_integ_message(child));
+    return 1;
+}
+
+int mbs_auto_reset(MbsIntegrator *it, double t0, const double *x0)
+{
+    mbs_msg_set(it, "");
+    if (mbs_integ_reset(it->sub[0], t0, x0)) return child_failed(it, it->sub[0]);
+    state(it)->phase = 0;
+    state(it)->switched_at = NAN;
+    return 0;
+}
+
+void mbs_auto_inputs_changed(MbsIntegrator *it) { mbs_integ_inputs_changed(mbs_auto_active(it)); }
+
+/* Hand (t, x) and the current step size to RADAU5, which grows h as stability allows. */
+static int switch_to_radau5(MbsIntegrator *it)
+{
+    MbsIntegrator *ns = it->sub[0], *st = it->sub[1];
+    if (mbs_integ_reset(st, ns->c->t, ns->x)) return child_failed(it, st);
+    st->c->h = ns->c->h;
+    st->c->has_h = ns->c->has_h;
+    state(it)->phase = 1;
+    state(it)->switched_at = ns->c->t;
+    return 0;
+}
+
+int mbs_auto_advance(MbsIntegrator *it, double t_end)
+{
+    mbs_msg_set(it, "");
+    if (state(it)->phase == 0) {
+        MbsIntegrator *ns = it->sub[0];
+        if (mbs_integ_advance(ns, t_end)) return child_failed(it, ns);
+        /* stiffness may be found in a dense-output step past t_end: switch at the visible point */
+        if ((ns->c->t < t_end || mbs_dopri5_stiff(ns)) && switch_to_radau5(it)) return 1;
+    }
+    if (state(it)->phase == 1 && mbs_integ_advance(it->sub[1], t_end)) return child_failed(it, it->sub[1]);
+    return 0;
+}
+
+void mbs_auto_stats(const MbsIntegrator *it, MbsStats *out)
+{
+    MbsStats s;
+    mbs_integ_stats(it->sub[0], out);
+    if (state(it)->phase == 1) {
+        mbs_integ_stats(it->sub[1], &s);
+        out->steps += s.steps;
+        out->rejected += s.rejected;
+        out->rhs_evaluations += s.rhs_evaluations;
+        out->jac_evaluations += s.jac_evaluations;
+        out->lu_decompositions += s.lu_decompositions;
+    }
+    out->switched = state(it)->phase;
+    out->switched_at = state(it)->switched_at;
+}
+
+/* ---- snapshot: header, then both children's snapshots (fixed size) ---- */
+
+static void put_i32(unsigned char *p, int v)
+{
+    unsigned long u = (unsigned long)(long)v;
+    int k;
+    for (k = 0; k < 4; k++) p[k] = (unsigned char)((u >> (8 * k)) & 0xffu);
+}
+
+static int get_i32(const unsigned char *p)
+{
+    unsigned long u = 0;
+    int k;
+    for (k = 0; k < 4; k++) u |= (unsigned long)p[k] << (8 * k);
+    return (int)((long)(u & 0x7fffffffUL) - (long)(u & 0x80000000UL));
+}
+
+size_t mbs_auto_snapshot_size(const MbsIntegrator *it)
+{
+    return AUTO_HEADER + mbs_integ_snapshot_size(it->sub[0]) + mbs_integ_snapshot_size(it->sub[1]);
+}
+
+void mbs_auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
+{
+    size_t n0 = mbs_integ_snapshot_size(it->sub[0]);
+    memcpy(buf, "MBSA", 4);
+    put_i32(buf + 4, it->method);
+    put_i32(buf + 8, it->n);
+    put_i32(buf + 12, it->dense);
+    put_i32(buf + 16, state(it)->phase);
+    put_i32(buf + 20, 0);
+    memcpy(buf + 24, &state(it)->switched_at, sizeof(double));
+    mbs_integ_snapshot_save(it->sub[0], buf + AUTO_HEADER);
+    mbs_integ_snapshot_save(it->sub[1], buf + AUTO_HEADER + n0);
+}
+
+int mbs_auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
+{
+    size_t n0 = mbs_integ_snapshot_size(it->sub[0]), n1 = mbs_integ_snapshot_size(it->sub[1]);
+    int phase;
+    if (!buf || len != AUTO_HEADER + n0 + n1 || memcmp(buf, "MBSA", 4) != 0) return 1;
+    phase = get_i32(buf + 16);
+    if (get_i32(buf + 4) != it->method || get_i32(buf + 8) != it->n || get_i32(buf + 12) != it->dense ||
+        (phase != 0 && phase != 1) || get_i32(buf + 20) != 0)
+        return 1;
+    /* both children validated before either changes */
+    if (mbs_integ_snapshot_check(it->sub[0], buf + AUTO_HEADER, n0) ||
+        mbs_integ_snapshot_check(it->sub[1], buf + AUTO_HEADER + n0, n1))
+        return 1;
+    mbs_integ_snapshot_commit(it->sub[0]);
+    mbs_integ_snapshot_commit(it->sub[1]);
+    state(it)->phase = phase;
+    memcpy(&state(it)->switched_at, buf + 24, sizeof(double));
+    mbs_msg_set(it, "");
+    return 0;
+}

@@ -1,0 +1,777 @@
+/* The common integrator driver: options, reset, advance to exact communication points with the step size
+ * carried over, dense output (ahead point + segment), advance_many, stats, snapshots, messages.
+ * Methods plug in through MbsMethodClass (integ_internal.h); 'auto' composes two of them (integ_auto.c). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "integ_internal.h"
+
+const char *const mbs_method_names[MBS_NMETHODS] = {"rk4", "dopri5", "dop853", "radau5", "gen_alpha", "auto"};
+
+#ifdef MBS_NO_RADAU5
+#define RADAU5_CLASS NULL
+#else
+#define RADAU5_CLASS (&mbs_radau5_class)
+#endif
+#ifdef MBS_NO_GEN_ALPHA
+#define GEN_ALPHA_CLASS NULL
+#else
+#define GEN_ALPHA_CLASS (&mbs_gen_alpha_class)
+#endif
+
+static const MbsMethodClass *const method_classes[MBS_NMETHODS] = {
+    &mbs_rk4_class, &mbs_dopri5_class, &mbs_dop853_class, RADAU5_CLASS, GEN_ALPHA_CLASS, NULL};
+
+#define SNAP_HEADER 24 /* "MBSI", method, n, dense (int32 each), history bytes (uint64) */
+
+/* Python's min/max of two floats (first argument wins unless the second compares smaller/larger), so NaN
+ * propagates exactly as in the reference implementation. */
+static double pymin(double a, double b) { return b < a ? b : a; }
+static double pymax(double a, double b) { return b > a ? b : a; }
+
+/* ------------------------------------------------------------------------------------------- messages */
+
+static int fmt_int(char *buf, unsigned long long v)
+{
+    char tmp[24];
+    int k = 0, len = 0;
+    do {
+        tmp[k++] = (char)('0' + (int)(v % 10));
+        v /= 10;
+    } while (v);
+    while (k) buf[len++] = tmp[--k];
+    buf[len] = '\0';
+    return len;
+}
+
+/* Python's format(v, ".<digits>g"): shortest of fixed/scientific, trailing zeros stripped, exponent >= 2 digits. */
+void mbs_fmt_g(char *buf, double v, int digits)
+{
+    char d[24];
+    char *p = buf;
+    double a = fabs(v), scaled, p10;
+    unsigned long long r, lim;
+    int e, i, last;
+    if (digits < 1) digits = 1;
+    if (digits > 17) digits = 17;
+    if (v != v) { strcpy(buf, "nan"); return; }
+    if (signbit(v)) *p++ = '-';
+    if (isinf(v)) { strcpy(p, "inf"); return; }
+    if (a == 0.0) { strcpy(p, "0"); return; }
+    e = (int)floor(log10(a));
+    for (;;) { /* mantissa digits r (digits of them) and decimal exponent e, corrected for log10 rounding */
+        scaled = e > 300 || e < -300 ? a / pow(10.0, e / 2) / pow(10.0, e - e / 2) : a / pow(10.0, e);
+        if (scaled < 1.0) { e--; continue; }
+        if (scaled >= 10.0) { e++; continue; }
+        break;
+    }
+    p10 = pow(10.0, digits - 1);
+    lim = (unsigned long long)(p10 * 10.0 + 0.5);
+    r = (unsigned long long)floor(scaled * p10 + 0.5);
+    if (r >= lim) { r /= 10; e++; }
+    for (i = digits - 1; i >= 0; i--) { d[i] = (char)('0' + (int)(r % 10)); r /= 10; }
+    last = digits - 1;
+    while (last > 0 && d[last] == '0') last--; /* significant digits d[0..last] */
+    if (e >= -4 && e < digits) {
+        if (e < 0) {
+            *p++ = '0';
+            *p++ = '.';
+            for (i = 0; i < -e - 1; i++) *p++ = '0';
+            for (i = 0; i <= last; i++) *p++ = d[i];
+        } else {
+            for (i = 0; i <= e; i++) *p++ = i <= last ? d[i] : '0';
+            if (last > e) {
+                *p++ = '.';
+                for (i = e + 1; i <= last; i++) *p++ = d[i];
+            }
+        }
+        *p = '\0';
+        return;
+    }
+    *p++ = d[0];
+    if (last > 0) {
+        *p++ = '.';
+        for (i = 1; i <= last; i++) *p++ = d[i];
+    }
+    *p++ = 'e';
+    *p++ = e < 0 ? '-' : '+';
+    if (e < 0) e = -e;
+    if (e < 10) *p++ = '0';
+    fmt_int(p, (unsigned long long)e);
+}
+
+/* shortest %g that reads back as the same double (Python's repr, close enough for messages) */
+static void fmt_repr(char *buf, double v)
+{
+    int digits;
+    for (digits = 1; digits < 17; digits++) {
+        mbs_fmt_g(buf, v, digits);
+        if (strtod(buf, NULL) == v) return;
+    }
+    mbs_fmt_g(buf, v, 17);
+}
+
+void mbs_msg_set(MbsIntegrator *it, const char *s)
+{
+    it->msg[0] = '\0';
+    it->msg_len = 0;
+    mbs_msg_add(it, s);
+}
+
+void mbs_msg_add(MbsIntegrator *it, const char *s)
+{
+    size_t k = strlen(s);
+    if (k > MBS_MSG_LEN - 1 - it->msg_len) k = MBS_MSG_LEN - 1 - it->msg_len;
+    memcpy(it->msg + it->msg_len, s, k);
+    it->msg_len += k;
+    it->msg[it->msg_len] = '\0';
+}
+
+void mbs_msg_num(MbsIntegrator *it, double v, int digits)
+{
+    char b[40];
+    mbs_fmt_g(b, v, digits);
+    mbs_msg_add(it, b);
+}
+
+void mbs_msg_long(MbsIntegrator *it, long long v)
+{
+    char b[32];
+    if (v < 0) {
+        b[0] = '-';
+        fmt_int(b + 1, (unsigned long long)(-(v + 1)) + 1u);
+    } else {
+        fmt_int(b, (unsigned long long)v);
+    }
+    mbs_msg_add(it, b);
+}
+
+/* error text for mbs_integ_new: a + v (repr) + b, truncated to errlen */
+static void err_put(char *err, size_t errlen, const char *a, const double *v, const char *b)
+{
+    char num[40] = "";
+    size_t k = 0;
+    const char *parts[3];
+    int i;
+    if (!err || !errlen) return;
+    if (v) fmt_repr(num, *v);
+    parts[0] = a;
+    parts[1] = num;
+    parts[2] = b ? b : "";
+    for (i = 0; i < 3; i++) {
+        const char *s = parts[i];
+        while (*s && k + 1 < errlen) err[k++] = *s++;
+    }
+    err[k] = '\0';
+}
+
+/* ------------------------------------------------------------------------------------------- helpers */
+
+int mbs_all_finite(int n, const double *v)
+{
+    double s = 0.0;
+    int k;
+    for (k = 0; k < n; k++) s += v[k] * 0.0; /* 0 unless some entry is NaN or Inf */
+    return s == 0.0;
+}
+
+void mbs_integ_normalize(MbsIntegrator *it, double *x)
+{
+    if (it->ode.normalize) it->ode.normalize(it->ode.ctx, x);
+}
+
+int mbs_integ_f(MbsIntegrator *it, double t, const double *x, double *xdot)
+{
+    int r = it->ode.f(it->ode.ctx, t, x, xdot);
+    it->c->rhs_evaluations++;
+    if (r != MBS_F_OK) {
+        const char *m = it->ode.message ? it->ode.message(it->ode.ctx) : NULL;
+        mbs_msg_set(it, m && *m ? m : "right-hand side failed");
+    }
+    return r;
+}
+
+double mbs_err_norm(int n, const double *err, const double *x_old, const double *x_new, double atol, double rtol)
+{
+    double s = 0.0;
+    int k;
+    for (k = 0; k < n; k++) {
+        double e = err[k] / (atol + rtol * pymax(fabs(x_old[k]), fabs(x_new[k])));
+        s += e * e;
+    }
+    return sqrt(s / n);
+}
+
+int mbs_integ_check_start(MbsIntegrator *it, const double *f0)
+{
+    if (mbs_all_finite(it->n, f0)) return 0;
+    mbs_msg_set(it, "right-hand side returned non-finite values (NaN or Inf) at the current state");
+    return 1;
+}
+
+int mbs_integ_trial_nonfinite(MbsIntegrator *it, double h, const char *what)
+{
+    MbsCommon *c = it->c;
+    c->nonfinite++;
+    if (c->nonfinite > MBS_MAX_NONFINITE_TRIALS) {
+        mbs_msg_set(it, what);
+        mbs_msg_add(it, " returned non-finite values (NaN or Inf) even for step size ");
+        mbs_msg_num(it, h, 3);
+        return MBS_FAIL;
+    }
+    c->h = 0.25 * h;
+    return MBS_REJECT;
+}
+
+/* HINIT: h from ‖x‖/‖f‖ and a difference quotient of f for the second derivative (Hairer I, II.4). */
+int mbs_integ_initial_step(MbsIntegrator *it, const double *f0, int order, double t_end)
+{
+    MbsCommon *c = it->c;
+    const double *x = it->x;
+    double *x1 = it->tmp1, *f1 = it->tmp2;
+    double t = c->t, span = t_end - t, d0 = 0.0, d1 = 0.0, d2 = 0.0, h0, h1, dmax;
+    int n = it->n, k;
+    for (k = 0; k < n; k++) {
+        double sc = it->atol + it->rtol * fabs(x[k]);
+        d0 += (x[k] / sc) * (x[k] / sc);
+        d1 += (f0[k] / sc) * (f0[k] / sc);
+    }
+    d0 = sqrt(d0 / n);
+    d1 = sqrt(d1 / n);
+    h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
+    h0 = pymin(pymin(h0, it->max_step), span);
+    for (k = 0; k < n; k++) x1[k] = x[k] + h0 * f0[k]; /* explicit Euler trial step */
+    if (mbs_integ_f(it, t + h0, x1, f1)) return 1;
+    for (k = 0; k < n; k++) {
+        double sc = it->atol + it->rtol * fabs(x[k]);
+        double q = (f1[k] - f0[k]) / sc;
+        d2 += q * q;
+    }
+    d2 = sqrt(d2 / n) / h0;
+    c->has_h = 1;
+    if (!isfinite(d2)) { /* unusable trial point (NaN there): start very small, the controller grows h */
+        c->h = pymax(h0 * 1e-3, 1e-12 * pymax(fabs(t), 1.0));
+        return 0;
+    }
+    dmax = pymax(d1, d2);
+    h1 = dmax <= 1e-15 ? pymax(1e-6, h0 * 1e-3) : pow(0.01 / dmax, 1.0 / (order + 1));
+    c->h = pymin(pymin(100.0 * h0, h1), it->max_step);
+    return 0;
+}
+
+int mbs_integ_fixed_substeps(MbsIntegrator *it, double span, double h_max, long *nsub)
+{
+    /* the tiny relative slack avoids an extra step when span/h is an integer up to rounding */
+    double q = isfinite(h_max) ? ceil(span / h_max * (1.0 - 1e-12)) : 1.0;
+    if (!(q >= 1.0)) q = 1.0;
+    if (q > (double)it->max_steps) {
+        mbs_msg_set(it, "maximum number of steps (");
+        mbs_msg_long(it, it->max_steps);
+        mbs_msg_add(it, ") exceeded: fixed step ");
+        mbs_msg_num(it, h_max, 3);
+        mbs_msg_add(it, " over an interval of ");
+        mbs_msg_num(it, span, 3);
+        return 1;
+    }
+    *nsub = (long)q;
+    return 0;
+}
+
+/* ------------------------------------------------------------------------------------------- driver */
+
+/* Make t_end (inside the step ending at the ahead point) the visible point. */
+static void land(MbsIntegrator *it, double t_end)
+{
+    MbsCommon *c = it->c;
+    if (t_end == c->t_int) {
+        c->t = c->t_int;
+        memcpy(it->x, it->x_int, (size_t)it->n * sizeof(double));
+        c->has_ahead = c->has_seg = 0;
+        return;
+    }
+    it->cls->dense_eval(it, it->Q, (t_end - c->seg_t) / c->seg_h, it->x);
+    mbs_integ_normalize(it, it->x);
+    c->t = t_end;
+}
+
+static void failure_reason(MbsIntegrator *it)
+{
+    if (it->c->last_failure == MBS_LAST_NEWTON) {
+        mbs_msg_add(it, "Newton iteration does not converge even with a fresh Jacobian at the minimum step "
+                        "(singular or discontinuous right-hand side?)");
+        return;
+    }
+    mbs_msg_add(it, "the local error tolerance (rtol=");
+    mbs_msg_num(it, it->rtol, 6);
+    mbs_msg_add(it, ", atol=");
+    mbs_msg_num(it, it->atol, 6);
+    mbs_msg_add(it, ") cannot be met — singularity, discontinuity or too strict tolerances");
+}
+
+/* base.py's _advance: the proposed h is clipped to hit t_end exactly (or, with dense output, steps past it),
+ * and the unclipped h is carried over to the next call. */
+int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
+{
+    const MbsMethodClass *cls = it->cls;
+    MbsCommon *c = it->c;
+    size_t nb = (size_t)it->n * sizeof(double);
+    double min_step;
+    long attempts = 0;
+    if (cls->start(it, t_end)) return 1;
+    min_step = 10.0 * MBS_EPS * pymax(fabs(c->t), fabs(t_end));
+    while (c->t < t_end) {
+        double t = c->t, h_prop, remaining, t_new, h;
+        int clipped, r;
+        if (++attempts > it->max_steps) {
+            mbs_msg_set(it, "maximum number of steps (");
+            mbs_msg_long(it, it->max_steps);
+            mbs_msg_add(it, ") exceeded in one communication interval (step size ");
+            mbs_msg_num(it, c->h, 3);
+            mbs_msg_add(it, "); the problem may be stiff — try method radau5 or auto");
+            return 1;
+        }
+        h_prop = pymin(c->h, it->max_step);
+        remaining = t_end - t;
+        if (remaining < min_step) {
+            /* t_end within ~10 ulp of t: the same instant up to rounding, land without a step */
+            c->t = t_end;
+            break;
+        }
+        if (it->dense) { /* natural step, possibly past t_end: the continuous extension gives x(t_end) */
+            t_new = t + h_prop;
+            clipped = 0;
+        } else { /* stretch by up to 1 % rather than leave a tiny last step (as Hairer's DOPRI5) */
+            clipped = 1.01 * h_prop >= remaining && remaining <= it->max_step * (1.0 + 1e-9);
+            t_new = clipped ? t_end : t + h_prop;
+            if (t_new >= t_end) {
+                t_new = t_end;
+                clipped = 1;
+            }
+        }
+        h = t_new - t;
+        if (h < min_step) {
+            mbs_msg_set(it, "step size underflow (h=");
+            mbs_msg_num(it, h, 3);
+            mbs_msg_add(it, "): ");
+            failure_reason(it);
+            return 1;
+        }
+        r = cls->attempt(it, t_new, h, it->xnew);
+        if (r == MBS_FAIL) return 1;
+        if (r == MBS_REJECT) {
+            c->rejected++;
+            continue;
+        }
+        c->nonfinite = 0;
+        mbs_integ_normalize(it, it->xnew);
+        memcpy(it->xold, it->x, nb);
+        memcpy(it->x, it->xnew, nb);
+        c->t = t_new;
+        c->steps++;
+        if (cls->accepted && cls->accepted(it)) return 1;
+        if (it->dense && t_new > t_end) {
+            /* the stages of this step are still in scratch: build its continuous extension */
+            if (cls->dense_coeffs(it, t, it->xold, it->x, h, it->Q)) return 1;
+            c->seg_t = t;
+            c->seg_h = h;
+            c->has_seg = 1;
+            c->t_int = t_new;
+            memcpy(it->x_int, it->x, nb);
+            c->has_ahead = 1;
+            c->h = pymin(c->h, it->max_step);
+            land(it, t_end);
+            return 0;
+        }
+        /* a step shortened to land on the point says little about the next one: keep the larger proposal
+         * unless this step itself asked for a reduction */
+        if (clipped && h < h_prop && c->h >= h) c->h = pymax(c->h, h_prop);
+        c->h = pymin(c->h, it->max_step);
+        if (cls->stop_early && cls->stop_early(it)) return 0;
+    }
+    return 0;
+}
+
+static void drop_ahead(MbsIntegrator *it)
+{
+    if (it->c->has_ahead) {
+        it->c->has_ahead = 0;
+        it->cls->invalidate_derivative(it); /* the FSAL stage belongs to the ahead point */
+    }
+    it->c->has_seg = 0;
+}
+
+/* ------------------------------------------------------------------------------------------- public API */
+
+int mbs_method_index(const char *name)
+{
+    int i;
+    if (!name) return -1;
+    for (i = 0; i < MBS_NMETHODS; i++)
+        if (strcmp(name, mbs_method_names[i]) == 0) return i;
+    return -1;
+}
+
+static size_t align8(size_t k) { return (k + 7u) & ~(size_t)7u; }
+
+/* Common option checks and normalization (base.py's __init__). */
+static int take_options(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, int has_dense,
+                        const char *name, char *err, size_t errlen)
+{
+    double ms = opt->max_step;
+    if (!ode || !ode->f || ode->n < 1 || ode->npos < 0 || ode->nvel < 0) {
+        err_put(err, errlen, "the ODE needs n >= 1 and a right-hand side f", NULL, NULL);
+        return 1;
+    }
+    if (!(opt->rtol > 0)) {
+        err_put(err, errlen, "need rtol > 0 and atol >= 0 (got rtol=", &opt->rtol, ")");
+        return 1;
+    }
+    if (!(opt->atol >= 0)) {
+        err_put(err, errlen, "need rtol > 0 and atol >= 0 (got atol=", &opt->atol, ")");
+        return 1;
+    }
+    if (ms == 0.0) ms = INFINITY; /* 0 (zero-initialized options): no limit */
+    if (!(ms > 0)) {
+        err_put(err, errlen, "max_step must be > 0 (got ", &opt->max_step, ")");
+        return 1;
+    }
+    if (!(opt->h >= 0) || isinf(opt->h)) {
+        err_put(err, errlen, "fixed step h must be > 0 (got ", &opt->h, ")");
+        return 1;
+    }
+    if (opt->max_steps < 0) {
+        double v = (double)opt->max_steps;
+        err_put(err, errlen, "max_steps must be >= 0 (got ", &v, ")");
+        return 1;
+    }
+    if (opt->dense == 1 && !has_dense) {
+        err_put(err, errlen, "method '", NULL, NULL);
+        err_put(err + strlen(err), errlen - strlen(err), name, NULL, "' has no dense output");
+        return 1;
+    }
+    it->ode = *ode;
+    it->n = ode->n;
+    /* Hairer caps rtol from below so that the error test never asks for less than ~10 ulp */
+    it->rtol = pymax(opt->rtol, 10.0 * MBS_EPS);
+    it->atol = opt->atol;
+    it->max_step = ms;
+    it->h_fixed = opt->h;
+    it->rho_inf = opt->rho_inf;
+    it->max_steps = opt->max_steps ? opt->max_steps : 1000000L;
+    it->dense = opt->dense < 0 ? has_dense : opt->dense != 0;
+    return 0;
+}
+
+MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOptions *opt, char *err, size_t errlen)
+{
+    MbsIntegrator *it;
+    const MbsMethodClass *cls;
+    MbsSizes sz;
+    size_t n, m, off_x, nwork_d, work_bytes;
+    if (err && errlen) err[0] = '\0';
+    if (method < 0 || method >= MBS_NMETHODS) {
+        err_put(err, errlen, "unknown integrator method; valid: rk4, dopri5, dop853, radau5, gen_alpha, auto",
+                NULL, NULL);
+        return NULL;
+    }
+    if (!opt) {
+        err_put(err, errlen, "no integrator options given", NULL, NULL);
+        return NULL;
+    }
+    it = (MbsIntegrator *)calloc(1, sizeof(MbsIntegrator));
+    if (!it) {
+        err_put(err, errlen, "out of memory", NULL, NULL);
+        return NULL;
+    }
+    it->method = method;
+    if (method == MBS_AUTO) {
+        if (take_options(it, ode, opt, 1, "auto", err, errlen) || mbs_auto_init(it, opt, err, errlen)) {
+            mbs_integ_free(it);
+            return NULL;
+        }
+        return it;
+    }
+    cls = method_classes[method];
+    if (!cls) {
+        err_put(err, errlen, mbs_method_names[method], NULL, " is not available in this build");
+        free(it);
+        return NULL;
+    }
+    it->cls = cls;
+    if (take_options(it, ode, opt, cls->dense_rows > 0, cls->name, err, errlen)) {
+        free(it);
+        return NULL;
+    }
+    memset(&sz, 0, sizeof sz);
+    cls->sizes(it->n, opt, &sz);
+    n = (size_t)it->n;
+    m = (size_t)cls->dense_rows;
+    it->off_ms = align8(sizeof(MbsCommon));
+    off_x = align8(it->off_ms + sz.state);
+    it->off_ha = off_x + (2 * n + m * n) * sizeof(double);
+    it->off_hi = it->off_ha + sz.hist * sizeof(double);
+    it->hist_bytes = align8(it->off_hi + sz.hist_int * sizeof(int));
+    nwork_d = 4 * n + sz.work;
+    work_bytes = nwork_d * sizeof(double) + sz.work_int * sizeof(int);
+    it->hist = (unsigned char *)calloc(1, it->hist_bytes);
+    it->hist_tmp = (unsigned char *)calloc(1, it->hist_bytes);
+    it->work = (double *)calloc(1, work_bytes ? work_bytes : 1);
+    it->view = sz.view ? calloc(1, sz.view) : NULL;
+    if (!it->hist || !it->hist_tmp || !it->work || (sz.view && !it->view)) {
+        err_put(err, errlen, "out of memory", NULL, NULL);
+        mbs_integ_free(it);
+        return NULL;
+    }
+    it->c = (MbsCommon *)it->hist;
+    it->ms = it->hist + it->off_ms;
+    it->x = (double *)(it->hist + off_x);
+    it->x_int = it->x + n;
+    it->Q = it->x_int + n;
+    it->ha = (double *)(it->hist + it->off_ha);
+    it->hi = (int *)(it->hist + it->off_hi);
+    it->xnew = it->work;
+    it->xold = it->xnew + n;
+    it->tmp1 = it->xold + n;
+    it->tmp2 = it->tmp1 + n;
+    it->wa = it->tmp2 + n;
+    it->wi = (int *)(it->work + nwork_d);
+    it->c->t = NAN;
+    if (cls->init && cls->init(it, err, errlen)) {
+        mbs_integ_free(it);
+        return NULL;
+    }
+    cls->reset_history(it);
+    return it;
+}
+
+void mbs_integ_free(MbsIntegrator *it)
+{
+    if (!it) return;
+    mbs_integ_free(it->sub[0]);
+    mbs_integ_free(it->sub[1]);
+    free(it->hist);
+    free(it->hist_tmp);
+    free(it->work);
+    free(it->view);
+    free(it);
+}
+
+int mbs_integ_method(const MbsIntegrator *it) { return it->method; }
+
+int mbs_integ_reset(MbsIntegrator *it, double t0, const double *x0)
+{
+    MbsCommon *c = it->c;
+    if (it->method == MBS_AUTO) return mbs_auto_reset(it, t0, x0);
+    mbs_msg_set(it, "");
+    if (!isfinite(t0) || !x0 || !mbs_all_finite(it->n, x0)) {
+        mbs_msg_set(it, "initial state is not finite");
+        return 1;
+    }
+    c->t = t0;
+    memcpy(it->x, x0, (size_t)it->n * sizeof(double));
+    c->has_h = 0;
+    c->steps = c->rejected = c->rhs_evaluations = c->jac_evaluations = c->lu_decompositions = 0;
+    c->nonfinite = 0;
+    c->last_failure = MBS_LAST_NONE;
+    c->has_ahead = c->has_seg = 0;
+    c->started = 1;
+    it->cls->reset_history(it);
+    return 0;
+}
+
+void mbs_integ_inputs_changed(MbsIntegrator *it)
+{
+    if (it->method == MBS_AUTO) {
+        mbs_auto_inputs_changed(it);
+        return;
+    }
+    /* with dense output restart from the visible (interpolated) state, so the new inputs act from t on;
+     * cached derivatives (FSAL stage, f at the step start) are stale */
+    drop_ahead(it);
+    it->cls->invalidate_derivative(it);
+}
+
+int mbs_integ_advance(MbsIntegrator *it, double t_end)
+{
+    MbsCommon *c;
+    if (it->method == MBS_AUTO) return mbs_auto_advance(it, t_end);
+    c = it->c;
+    mbs_msg_set(it, "");
+    if (!c->started) {
+        mbs_msg_set(it, "mbs_integ_reset(t0, x0) must be called before mbs_integ_advance()");
+        return 1;
+    }
+    if (!(t_end >= c->t)) {
+        char b[40];
+        fmt_repr(b, t_end);
+        mbs_msg_set(it, "cannot integrate backwards (t_end=");
+        mbs_msg_add(it, b);
+        mbs_msg_add(it, " < t)");
+        return 1;
+    }
+    if (t_end == c->t) return 0;
+    if (c->has_ahead && t_end <= c->t_int) {
+        land(it, t_end);
+        return 0;
+    }
+    if (c->has_ahead) { /* continue stepping from the internal point (its FSAL stage is still valid) */
+        c->t = c->t_int;
+        memcpy(it->x, it->x_int, (size_t)it->n * sizeof(double));
+        c->has_ahead = c->has_seg = 0;
+    }
+    return it->cls->advance ? it->cls->advance(it, t_end) : mbs_integ_adaptive(it, t_end);
+}
+
+int mbs_integ_advance_many(MbsIntegrator *it, const double *ts, int m, double *X)
+{
+    int n = it->n, i = 0, j, k;
+    for (k = 0; k < m; k++) {
+        if (!(k == 0 || ts[k] >= ts[k - 1]) || !isfinite(ts[k])) {
+            mbs_msg_set(it, "advance_many: the times must be finite and increasing");
+            return 1;
+        }
+    }
+    while (i < m) {
+        MbsIntegrator *a;
+        MbsCommon *c;
+        if (mbs_integ_advance(it, ts[i])) return 1;
+        memcpy(X + (size_t)i * n, mbs_integ_x(it), (size_t)n * sizeof(double));
+        i++;
+        a = it->method == MBS_AUTO ? mbs_auto_active(it) : it;
+        c = a->c;
+        if (!c->has_ahead) continue;
+        /* points strictly inside the step come from its continuous extension (its end lands exactly) */
+        for (j = i; j < m && ts[j] < c->t_int; j++) {
+            double *row = X + (size_t)j * n;
+            a->cls->dense_eval(a, a->Q, (ts[j] - c->seg_t) / c->seg_h, row);
+            mbs_integ_normalize(a, row);
+        }
+        if (j > i) {
+            c->t = ts[j - 1];
+            memcpy(a->x, X + (size_t)(j - 1) * n, (size_t)n * sizeof(double));
+        }
+        i = j;
+    }
+    return 0;
+}
+
+double mbs_integ_t(const MbsIntegrator *it)
+{
+    return it->method == MBS_AUTO ? mbs_integ_t(mbs_auto_active(it)) : it->c->t;
+}
+
+const double *mbs_integ_x(const MbsIntegrator *it)
+{
+    return it->method == MBS_AUTO ? mbs_integ_x(mbs_auto_active(it)) : it->x;
+}
+
+double mbs_integ_h(const MbsIntegrator *it)
+{
+    if (it->method == MBS_AUTO) return mbs_integ_h(mbs_auto_active(it));
+    return it->c->has_h ? it->c->h : NAN;
+}
+
+void mbs_integ_stats(const MbsIntegrator *it, MbsStats *out)
+{
+    const MbsCommon *c;
+    if (it->method == MBS_AUTO) {
+        mbs_auto_stats(it, out);
+        return;
+    }
+    c = it->c;
+    out->steps = (long)c->steps;
+    out->rejected = (long)c->rejected;
+    out->rhs_evaluations = (long)c->rhs_evaluations;
+    out->jac_evaluations = (long)c->jac_evaluations;
+    out->lu_decompositions = (long)c->lu_decompositions;
+    out->switched = 0;
+    out->switched_at = NAN;
+}
+
+const char *mbs_integ_message(const MbsIntegrator *it) { return it->msg; }
+
+/* ------------------------------------------------------------------------------------------- snapshots */
+
+static void put_i32(unsigned char *p, long v)
+{
+    int k;
+    unsigned long u = (unsigned long)v;
+    for (k = 0; k < 4; k++) p[k] = (unsigned char)((u >> (8 * k)) & 0xffu);
+}
+
+static long get_i32(const unsigned char *p)
+{
+    unsigned long u = 0;
+    int k;
+    for (k = 0; k < 4; k++) u |= (unsigned long)p[k] << (8 * k);
+    return (long)(u & 0x7fffffffUL) - (long)(u & 0x80000000UL);
+}
+
+size_t mbs_integ_snapshot_size(const MbsIntegrator *it)
+{
+    return it->method == MBS_AUTO ? mbs_auto_snapshot_size(it) : SNAP_HEADER + it->hist_bytes;
+}
+
+void mbs_integ_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
+{
+    unsigned long long hb = it->hist_bytes;
+    int k;
+    if (it->method == MBS_AUTO) {
+        mbs_auto_snapshot_save(it, buf);
+        return;
+    }
+    memcpy(buf, "MBSI", 4);
+    put_i32(buf + 4, it->method);
+    put_i32(buf + 8, it->n);
+    put_i32(buf + 12, it->dense);
+    for (k = 0; k < 8; k++) buf[16 + k] = (unsigned char)((hb >> (8 * k)) & 0xffu);
+    memcpy(buf + SNAP_HEADER, it->hist, it->hist_bytes);
+}
+
+static int flag_ok(int v) { return v == 0 || v == 1; }
+
+/* 0 when the candidate history in it->hist_tmp is consistent with this integrator. */
+static int check_candidate(const MbsIntegrator *it)
+{
+    const MbsCommon *c = (const MbsCommon *)it->hist_tmp;
+    if (!flag_ok(c->started) || !flag_ok(c->has_h) || !flag_ok(c->has_ahead) || !flag_ok(c->has_seg))
+        return 1;
+    if (c->nonfinite < 0 || c->nonfinite > MBS_MAX_NONFINITE_TRIALS) return 1;
+    if (c->last_failure < MBS_LAST_NONE || c->last_failure > MBS_LAST_NEWTON) return 1;
+    if (c->steps < 0 || c->rejected < 0 || c->rhs_evaluations < 0 || c->jac_evaluations < 0 ||
+        c->lu_decompositions < 0)
+        return 1;
+    if (c->has_ahead != c->has_seg || (c->has_ahead && (!it->dense || !c->started))) return 1;
+    if (it->cls->check && it->cls->check(it, it->hist_tmp + it->off_ms, (const int *)(it->hist_tmp + it->off_hi)))
+        return 1;
+    return 0;
+}
+
+/* Validate a snapshot into it->hist_tmp (0 = valid); mbs_integ_snapshot_commit then makes it current. */
+int mbs_integ_snapshot_check(MbsIntegrator *it, const unsigned char *buf, size_t len)
+{
+    unsigned long long hb = 0;
+    int k;
+    if (!buf || len != SNAP_HEADER + it->hist_bytes || memcmp(buf, "MBSI", 4) != 0) return 1;
+    for (k = 0; k < 8; k++) hb |= (unsigned long long)buf[16 + k] << (8 * k);
+    if (get_i32(buf + 4) != it->method || get_i32(buf + 8) != it->n || get_i32(buf + 12) != it->dense ||
+        hb != (unsigned long long)it->hist_bytes)
+        return 1;
+    memcpy(it->hist_tmp, buf + SNAP_HEADER, it->hist_bytes);
+    return check_candidate(it);
+}
+
+void mbs_integ_snapshot_commit(MbsIntegrator *it)
+{
+    memcpy(it->hist, it->hist_tmp, it->hist_bytes);
+    mbs_msg_set(it, "");
+}
+
+int mbs_integ_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
+{
+    if (it->method == MBS_AUTO) return mbs_auto_snapshot_load(it, buf, len);
+    if (mbs_integ_snapshot_check(it, buf, len)) return 1;
+    mbs_integ_snapshot_commit(it);
+    return 0;
+}
