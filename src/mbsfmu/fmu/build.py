@@ -28,6 +28,7 @@ from pathlib import Path
 from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
+KINDS = ("pythonfmu", "native")
 SPEC_FILE = "mbsfmu_spec.json"
 PYTHON_FILE = "mbsfmu_python.json"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
@@ -177,14 +178,20 @@ def _load_scene(scene_or_path):
     return scene_or_path
 
 
-def build_fmu(scene_or_path, outdir=".", *, runtime_root=None, shim=True) -> Path:
+def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None, shim=True) -> Path:
     """Build ``<outdir>/<name>.fmu`` from a scene (a YAML path or a loaded scene with ``.spec``).
 
+    ``kind``: "pythonfmu" (default) or "native" (C engine + FMI layer, no Python at run time; native.py).
     ``runtime_root`` (for tests) replaces the directory the runtime sources are copied from.
     ``shim=False`` keeps pythonfmu's plain linux64 binary (needs libpython preloaded in C hosts).
     Returns the path of the written FMU.
     """
+    if kind not in KINDS:
+        raise ValueError(f"unknown FMU kind {kind!r}: {' or '.join(KINDS)}")
     scene = _load_scene(scene_or_path)
+    if kind == "native":
+        from .native import build_native
+        return build_native(scene, outdir)
     spec = scene.spec if hasattr(scene, "spec") else scene
     spec = json.loads(json.dumps(spec))  # plain JSON data, exactly what the FMU will read
     name = getattr(scene, "name", None) or spec["name"]
@@ -356,8 +363,12 @@ def _fmt(x) -> str:
     return repr(float(x))  # the shortest text that reads back to the same double (0.4, not 0.40000000000000002)
 
 
-def model_description(spec: dict, name: str, variables, version: str, guid: str | None = None) -> bytes:
-    """The complete FMI 2.0 modelDescription.xml for the given Simulation variables."""
+def model_description(spec: dict, name: str, variables, version: str, guid: str | None = None,
+                      cosimulation: dict | None = None, source_files=()) -> bytes:
+    """The complete FMI 2.0 modelDescription.xml for the given Simulation variables (value reference = index).
+
+    ``cosimulation`` overrides ``<CoSimulation>`` attributes, ``source_files`` fills its ``<SourceFiles>``
+    (native FMUs); everything else is the same for both kinds."""
     guid = guid or "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "mbsfmu:" + json.dumps(spec, sort_keys=True)
                                         + ":" + version)) + "}"
     attrib = {
@@ -384,7 +395,12 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         "canGetAndSetFMUstate": "true",
         "canSerializeFMUstate": "true",
         "providesDirectionalDerivative": "false",
+        **(cosimulation or {}),
     })
+    if source_files:
+        sf = SubElement(root.find("CoSimulation"), "SourceFiles")
+        for f in source_files:
+            SubElement(sf, "File", {"name": f})
 
     param_units = {p["name"]: p.get("unit") for p in spec.get("parameters") or () if isinstance(p, dict)}  # `unit:`
 

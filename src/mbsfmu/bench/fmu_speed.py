@@ -1,0 +1,174 @@
+"""Start-up and per-communication-point cost of FMUs, timed in a plain C host (tests/c/fmu_host.c).
+
+(a) start-up: from fmi2Instantiate to the end of the first fmi2DoStep, each run in a fresh host process (so
+    the pythonfmu FMU pays its interpreter and imports as a simulator would), the FMUs alternating run by run;
+    best and median. dlopen is reported beside it.
+(b) cost per communication point beyond the integration, at h = 1 ms: n steps of h with the outputs read after
+    each (fmi2DoStep + fmi2GetReal), minus one fmi2DoStep over n·h on a fresh instance, which makes the same
+    fixed rk4 steps of 1 ms (integrator.method = rk4, integrator.step = 1 ms); divided by n.
+
+Peers: the native FMU of the scene, its pythonfmu FMU (start-up only) and a trivial native FMU built here:
+engine/fmi2.c over bench/fmu_trivial.c (x' = -a x + u, rk4 at 1 ms), the same FMI layer with a one-state model.
+Targets (issue 10): native start-up <= 20 ms; native per-point overhead <= 1.5x the trivial FMU's.
+
+    python -m mbsfmu.bench.fmu_speed models/double_pendulum.yaml --out reports
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import tempfile
+import uuid
+import zipfile
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+HOST_SOURCE = HERE.parents[2] / "tests" / "c" / "fmu_host.c"  # benchmarks run from a source checkout
+TRIVIAL_SOURCE = HERE / "fmu_trivial.c"
+H = 1e-3
+
+
+def compile_host(dest: Path) -> Path:
+    from ..fmu.native import compiler
+    if not HOST_SOURCE.is_file():
+        raise FileNotFoundError(f"{HOST_SOURCE} not found: run the benchmark from an mbsfmu source checkout")
+    exe = Path(dest) / "fmu_host"
+    subprocess.run([compiler(), "-O2", "-o", str(exe), str(HOST_SOURCE), "-ldl"], check=True,
+                   capture_output=True, text=True)
+    return exe
+
+
+def build_trivial_fmu(outdir: Path) -> Path:
+    """A native FMU of x' = -a x + u: fmi2.c over fmu_trivial.c, packaged like a scene's native FMU."""
+    from ..fmu.build import _version, model_description
+    from ..fmu.native import FMI_LAYER, COSIMULATION, c_names, collect_sources, package
+    from ..simulation import Variable
+    sources = collect_sources([FMI_LAYER, TRIVIAL_SOURCE])
+    guid = "{" + str(uuid.uuid4()) + "}"
+    variables = [Variable("a", "parameter", "tunable", unit="1", description="decay rate", start=1.0),
+                 Variable("u", "input", "continuous", unit="1", description="input"),
+                 Variable("x", "output", "continuous", unit="1", description="state")]
+    spec = {"name": "trivial", "description": "x' = -a x + u (rk4, 1 ms)", "experiment": {"start": 0.0},
+            "integrator": {}, "parameters": []}
+    xml = model_description(spec, "trivial", variables, _version(), guid=guid, cosimulation=COSIMULATION,
+                            source_files=c_names(sources))
+    dest = Path(outdir) / "trivial.fmu"
+    package(dest, "trivial", sources, guid.encode(), xml)
+    return dest
+
+
+class Unpacked:
+    """An FMU extracted for the C host: library, resource URI, GUID, value references by name."""
+
+    def __init__(self, fmu: Path, where: Path):
+        from fmpy import extract, read_model_description
+        md = read_model_description(str(fmu))
+        root = Path(extract(str(fmu), str(where))).resolve()
+        self.name = md.modelName
+        self.lib = root / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+        self.uri = (root / "resources").as_uri()
+        self.guid = md.guid
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        self.outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+
+    def args(self, *options, settings=()):
+        out = ["-o", ",".join(map(str, self.outputs))]
+        for name, value in settings:
+            out += ["-S" if isinstance(value, str) else "-s", f"{self.vr[name]}={value}"]
+        return [str(self.lib), self.uri, self.guid, *out, *options]
+
+
+def run_host(host: Path, fmu: Unpacked, *options, settings=()) -> dict:
+    r = subprocess.run([str(host), *fmu.args(*options, settings=settings)], capture_output=True, text=True,
+                       timeout=300)
+    if r.returncode != 0:
+        raise RuntimeError(f"{fmu.name}: host exit {r.returncode}: {r.stdout[-2000:]} {r.stderr[-2000:]}")
+    return {ln.split()[0]: ln.split()[1:] for ln in r.stdout.splitlines() if ln[:4] in ("TIME", "LOOP")}
+
+
+def startup(host, fmus: dict, runs: int) -> list[dict]:
+    """Fresh process per run, FMUs alternating; milliseconds."""
+    samples = {k: ([], []) for k in fmus}
+    for _ in range(runs):
+        for kind, fmu in fmus.items():
+            load, first = run_host(host, fmu, "-T", "-n", "1", "-h", str(H))["TIME"]
+            samples[kind][0].append(float(load) / 1e6)
+            samples[kind][1].append(float(first) / 1e6)
+    return [{"kind": k, "runs": runs, "load_ms_median": statistics.median(lo), "first_step_ms_best": min(fs),
+             "first_step_ms_median": statistics.median(fs)} for k, (lo, fs) in samples.items()]
+
+
+def loop_cost(host, fmus: dict, settings: dict, n: int, runs: int) -> list[dict]:
+    """Per-point cost beyond the integration (µs), best and median over runs, FMUs alternating."""
+    samples = {k: [] for k in fmus}
+    for _ in range(runs):
+        for kind, fmu in fmus.items():
+            _, points, one = run_host(host, fmu, "-L", "-n", str(n), "-h", str(H),
+                                      settings=settings.get(kind, ()))["LOOP"]
+            samples[kind].append((float(points) / n / 1e3, float(one) / n / 1e3))
+    rows = []
+    for kind, s in samples.items():
+        over = [p - o for p, o in s]
+        rows.append({"kind": kind, "runs": runs, "points": n, "per_point_us_median": statistics.median(p for p, _ in s),
+                     "integration_us_median": statistics.median(o for _, o in s),
+                     "overhead_us_best": min(over), "overhead_us_median": statistics.median(over)})
+    return rows
+
+
+def report(scene_path, outdir: Path, runs: int, n: int) -> Path:
+    from .. import build_fmu
+    from .output import write_csv
+    outdir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="mbsfmu_fmu_speed_") as tmp:
+        tmp = Path(tmp)
+        host = compile_host(tmp)
+        built = {"native": build_fmu(scene_path, tmp / "native", kind="native"),
+                 "pythonfmu": build_fmu(scene_path, tmp / "pythonfmu"),
+                 "trivial": build_trivial_fmu(tmp / "trivial")}
+        fmus = {k: Unpacked(p, tmp / f"x_{k}") for k, p in built.items()}
+        name = fmus["native"].name
+        start_rows = startup(host, fmus, runs)
+        rk4 = (("integrator.method", "rk4"), ("integrator.step", H))
+        loop_rows = loop_cost(host, {k: fmus[k] for k in ("native", "trivial")}, {"native": rk4}, n, runs)
+    start = {r["kind"]: r for r in start_rows}
+    loop = {r["kind"]: r for r in loop_rows}
+    ratio = loop["native"]["overhead_us_median"] / loop["trivial"]["overhead_us_median"]
+    write_csv(start_rows, outdir / "fmu_speed_startup.csv", list(start_rows[0]), 4)
+    write_csv(loop_rows, outdir / "fmu_speed_loop.csv", list(loop_rows[0]), 4)
+    md = outdir / "fmu_speed.md"
+    lines = [f"# FMU start-up and per-point cost ({name})", "",
+             "Timed in the plain C host `tests/c/fmu_host.c`; reproduce with "
+             f"`python -m mbsfmu.bench.fmu_speed {scene_path} --out {outdir} --runs {runs} --points {n}`.", "",
+             f"## Start-up: fmi2Instantiate → end of the first fmi2DoStep (h = 1 ms), fresh process per run, "
+             f"{runs} runs alternating", "",
+             "| FMU | best [ms] | median [ms] | dlopen, median [ms] |", "|---|---|---|---|"]
+    lines += [f"| {k} | {r['first_step_ms_best']:.2f} | {r['first_step_ms_median']:.2f} | {r['load_ms_median']:.2f} |"
+              for k, r in start.items()]
+    lines += ["", f"Target: native ≤ 20 ms → median {start['native']['first_step_ms_median']:.2f} ms "
+              f"({'met' if start['native']['first_step_ms_median'] <= 20 else 'NOT met'}).", "",
+              f"## Per communication point beyond the integration, h = 1 ms, {n} points, {runs} runs", "",
+              "Per point: fmi2DoStep(h) + fmi2GetReal(all outputs). Integration: one fmi2DoStep(n·h) on a fresh "
+              "instance (the same rk4 steps of 1 ms). Overhead = difference / n.", "",
+              "| FMU | per point [µs] | integration [µs] | overhead best [µs] | overhead median [µs] |",
+              "|---|---|---|---|---|"]
+    lines += [f"| {k} | {r['per_point_us_median']:.3f} | {r['integration_us_median']:.3f} | {r['overhead_us_best']:.3f} "
+              f"| {r['overhead_us_median']:.3f} |" for k, r in loop.items()]
+    lines += ["", f"Target: native overhead ≤ 1.5 × trivial → {ratio:.2f} × ({'met' if ratio <= 1.5 else 'NOT met'}).",
+              ""]
+    md.write_text("\n".join(lines), encoding="utf-8")
+    return md
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(prog="mbsfmu.bench.fmu_speed", description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene", nargs="?", default="models/double_pendulum.yaml")
+    ap.add_argument("--out", default="reports", help="folder for fmu_speed.md and the CSV files")
+    ap.add_argument("--runs", type=int, default=15)
+    ap.add_argument("--points", type=int, default=2000)
+    a = ap.parse_args(argv)
+    print(report(a.scene, Path(a.out), a.runs, a.points))
+
+
+if __name__ == "__main__":
+    main()

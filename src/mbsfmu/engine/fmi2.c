@@ -1,0 +1,649 @@
+/* FMI 2.0 co-simulation layer over the mbsfmu engine (native FMUs, `mbsfmu build --kind native`).
+ *
+ * One fmi2Component = one engine instance plus the FMI bookkeeping: the host's callbacks (copied), the
+ * instance name, the phase of the FMI 2.0 state machine and the logging switches.  The compiled scene is
+ * read from <fmuResourceLocation>/scene.bin at instantiation; nothing here is global, so any number of
+ * instances (of one or several FMUs) can live in one process.
+ *
+ * Status mapping: the engine's codes are ordered like fmi2Status (OK, Warning, Discard, Error).  Calls in
+ * the wrong phase or with bad arguments are refused with fmi2Error and change nothing; an engine error in
+ * initialization, a step or a reset puts the instance into the error phase (only get, reset, free).
+ *
+ * Every message goes through the host's logger with the categories of the modelDescription
+ * (logStatusWarning, logStatusDiscard, logStatusError, logStatusFatal, logAll).  Messages of status
+ * warning and above are logged unless the host switched their category off (fmi2SetDebugLogging); logAll
+ * (status OK) only with loggingOn.
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+#include "mbs_engine.h"
+
+/* ---- phases of the FMI 2.0 co-simulation state machine (bit masks, for "allowed in") ---- */
+enum { P_INSTANTIATED = 1, P_INIT = 2, P_STEP = 4, P_TERMINATED = 8, P_ERROR = 16, P_FATAL = 32 };
+#define P_ANY (P_INSTANTIATED | P_INIT | P_STEP | P_TERMINATED | P_ERROR)
+static const char *phase_name(int p) {
+    switch (p) {
+    case P_INSTANTIATED: return "instantiated";
+    case P_INIT: return "initialization mode";
+    case P_STEP: return "step mode";
+    case P_TERMINATED: return "terminated";
+    case P_ERROR: return "error";
+    default: return "fatal";
+    }
+}
+
+/* log categories, indexed by fmi2Status (OK .. Fatal); the names are those of the modelDescription */
+#define NCAT 5
+static const char *const CATEGORY[NCAT] = {"logAll", "logStatusWarning", "logStatusDiscard",
+                                           "logStatusError", "logStatusFatal"};
+
+typedef struct {
+    MbsModel *model;
+    MbsInstance *sim;
+    fmi2CallbackFunctions cb;  /* a copy: the host need not keep its struct */
+    char *name;
+    int phase;
+    int logging_on;
+    int category_on[NCAT];
+    int logged;                /* the engine logged during the current call */
+    double t_start;
+} Fmu;
+
+#define STATE_MAGIC 0x4d425346u /* "MBSF": an fmi2FMUstate made by this file */
+typedef struct {
+    unsigned magic;
+    size_t len;
+    unsigned char bytes[];     /* mbs_state_save's layout (header with version, GUID, length, checksum) */
+} FmuState;
+
+/* ---- logging ---- */
+static void emit(const fmi2CallbackFunctions *cb, const char *name, fmi2Status st, const char *msg) {
+    if (cb && cb->logger)  /* the message is data, never a format string */
+        cb->logger(cb->componentEnvironment, name ? name : "", st, CATEGORY[st <= fmi2Fatal ? st : 0], "%s", msg);
+}
+
+static void logf_(Fmu *f, fmi2Status st, const char *fmt, ...) {
+    char buf[1024];
+    va_list ap;
+    int cat = st <= fmi2Fatal ? (int)st : 0;
+    if (st == fmi2Pending || !f->category_on[cat] || (st == fmi2OK && !f->logging_on))
+        return;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    emit(&f->cb, f->name, st, buf);
+}
+
+static void engine_log(void *env, int status, const char *message) {
+    Fmu *f = (Fmu *)env;
+    f->logged = 1;
+    logf_(f, (fmi2Status)(status >= MBS_OK && status <= MBS_ERROR ? status : MBS_ERROR), "%s", message);
+}
+
+/* An engine return code as fmi2Status; the engine's message is logged unless the engine already did. */
+static fmi2Status engine_status(Fmu *f, int rc, const char *what) {
+    if (rc < MBS_OK || rc > MBS_ERROR)
+        rc = MBS_ERROR;
+    if (rc != MBS_OK && !f->logged)
+        logf_(f, (fmi2Status)rc, "%s: %s", what, mbs_message(f->sim));
+    return (fmi2Status)rc;
+}
+
+/* The call `fn` is allowed in the phases `mask`: otherwise fmi2Error with a message, nothing changes. */
+static int allowed(Fmu *f, int mask, const char *fn) {
+    if (!f)
+        return 0;
+    f->logged = 0;
+    if (f->phase & mask)
+        return 1;
+    logf_(f, fmi2Error, "%s: not allowed in phase '%s'", fn, phase_name(f->phase));
+    return 0;
+}
+#define CHECK(mask, fn) Fmu *f = (Fmu *)c; if (!allowed(f, (mask), (fn))) return fmi2Error
+
+static int bad_array(Fmu *f, const void *a, const void *b, size_t n, const char *fn) {
+    if (n == 0 || (a && b))
+        return 0;
+    logf_(f, fmi2Error, "%s: NULL array for %lu values", fn, (unsigned long)n);
+    return 1;
+}
+
+/* ---- resources: file URI → path ---- */
+static int hexval(int ch) {
+    if (ch >= '0' && ch <= '9') return ch - '0';
+    if (ch >= 'a' && ch <= 'f') return ch - 'a' + 10;
+    if (ch >= 'A' && ch <= 'F') return ch - 'A' + 10;
+    return -1;
+}
+
+/* "file:///dir/x%20y/", "file:/dir", "file://localhost/dir" or a plain path → "dir/x y/<file>".
+ * 0, or 1 with a message in err. */
+static int resource_path(const char *uri, const char *file, char *out, size_t n, char *err, size_t errlen) {
+    const char *p = uri;
+    size_t k = 0;
+    if (!uri || !*uri) {
+        snprintf(err, errlen, "no fmuResourceLocation given");
+        return 1;
+    }
+    if (strncmp(p, "file:", 5) == 0) {
+        p += 5;
+        if (strncmp(p, "//", 2) == 0) {  /* authority: empty or localhost */
+            p += 2;
+            if (strncmp(p, "localhost/", 10) == 0)
+                p += 9;
+            else if (*p != '/') {
+                snprintf(err, errlen, "fmuResourceLocation %s: only local file URIs are supported", uri);
+                return 1;
+            }
+        }
+#ifdef _WIN32
+        if (p[0] == '/' && p[1] && p[2] == ':')  /* /C:/dir → C:/dir */
+            p++;
+#endif
+    } else if (strstr(p, "://")) {
+        snprintf(err, errlen, "fmuResourceLocation %s: not a file URI", uri);
+        return 1;
+    }
+    for (; *p; p++) {
+        int ch = (unsigned char)*p;
+        if (ch == '%') {
+            int hi = hexval(p[1]), lo = hi < 0 ? -1 : hexval(p[2]);
+            if (lo < 0 || (hi == 0 && lo == 0)) {
+                snprintf(err, errlen, "fmuResourceLocation %s: bad percent escape", uri);
+                return 1;
+            }
+            ch = hi * 16 + lo;
+            p += 2;
+        }
+        if (k + 1 >= n)
+            goto too_long;
+        out[k++] = (char)ch;
+    }
+    if (k == 0 || out[k - 1] != '/') {
+        if (k + 1 >= n)
+            goto too_long;
+        out[k++] = '/';
+    }
+    if (k + strlen(file) + 1 > n)
+        goto too_long;
+    strcpy(out + k, file);
+    return 0;
+too_long:
+    snprintf(err, errlen, "fmuResourceLocation %s: path too long", uri);
+    return 1;
+}
+
+/* ---- common functions ---- */
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
+                               const fmi2String categories[]) {
+    size_t i;
+    int j;
+    CHECK(P_ANY, "fmi2SetDebugLogging");
+    if (nCategories > 0 && !categories) {
+        logf_(f, fmi2Error, "fmi2SetDebugLogging: NULL category list");
+        return fmi2Error;
+    }
+    for (i = 0; i < nCategories; i++) {  /* check all before changing anything */
+        for (j = 0; j < NCAT && !(categories[i] && strcmp(categories[i], CATEGORY[j]) == 0); j++)
+            ;
+        if (j == NCAT) {
+            logf_(f, fmi2Error, "fmi2SetDebugLogging: unknown log category '%s'",
+                  categories[i] ? categories[i] : "(null)");
+            return fmi2Error;
+        }
+    }
+    f->logging_on = loggingOn != fmi2False;
+    for (j = 0; j < NCAT; j++)
+        if (nCategories == 0)
+            f->category_on[j] = f->logging_on;
+    for (i = 0; i < nCategories; i++)
+        for (j = 0; j < NCAT; j++)
+            if (strcmp(categories[i], CATEGORY[j]) == 0)
+                f->category_on[j] = f->logging_on;
+    return fmi2OK;
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                              fmi2Boolean visible, fmi2Boolean loggingOn) {
+    char path[4096], err[512], msg[1024];
+    const char *name = instanceName ? instanceName : "";
+    MbsModel *model;
+    Fmu *f;
+    int j;
+    (void)visible;
+    if (!functions)
+        return NULL;  /* no logger to tell */
+    if (fmuType != fmi2CoSimulation) {
+        emit(functions, name, fmi2Error, "fmi2Instantiate: this FMU supports co-simulation only");
+        return NULL;
+    }
+    if (!fmuGUID) {
+        emit(functions, name, fmi2Error, "fmi2Instantiate: no GUID given");
+        return NULL;
+    }
+    if (resource_path(fmuResourceLocation, "scene.bin", path, sizeof path, err, sizeof err)) {
+        snprintf(msg, sizeof msg, "fmi2Instantiate: %s", err);
+        emit(functions, name, fmi2Error, msg);
+        return NULL;
+    }
+    model = mbs_model_load_file(path, err, sizeof err);
+    if (!model) {
+        snprintf(msg, sizeof msg, "fmi2Instantiate: cannot load the compiled scene %s: %s", path, err);
+        emit(functions, name, fmi2Error, msg);
+        return NULL;
+    }
+    if (strcmp(mbs_model_guid(model), fmuGUID) != 0) {
+        snprintf(msg, sizeof msg, "fmi2Instantiate: GUID %s does not match this FMU's %s", fmuGUID,
+                 mbs_model_guid(model));
+        emit(functions, name, fmi2Error, msg);
+        mbs_model_free(model);
+        return NULL;
+    }
+    f = (Fmu *)calloc(1, sizeof *f);
+    if (f)
+        f->name = (char *)malloc(strlen(name) + 1);
+    if (!f || !f->name) {
+        emit(functions, name, fmi2Error, "fmi2Instantiate: out of memory");
+        free(f);
+        mbs_model_free(model);
+        return NULL;
+    }
+    strcpy(f->name, name);
+    f->cb = *functions;
+    f->model = model;
+    f->phase = P_INSTANTIATED;
+    f->logging_on = loggingOn != fmi2False;
+    for (j = 0; j < NCAT; j++)
+        f->category_on[j] = 1;
+    f->sim = mbs_instance_new(model, engine_log, f);
+    if (!f->sim) {
+        emit(functions, name, fmi2Error, "fmi2Instantiate: cannot create the engine instance (out of memory?)");
+        mbs_model_free(model);
+        free(f->name);
+        free(f);
+        return NULL;
+    }
+    return f;
+}
+
+void fmi2FreeInstance(fmi2Component c) {
+    Fmu *f = (Fmu *)c;
+    if (!f)
+        return;
+    mbs_instance_free(f->sim);
+    mbs_model_free(f->model);
+    free(f->name);
+    free(f);
+}
+
+/* ---- life cycle ---- */
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
+                               fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
+    CHECK(P_INSTANTIATED, "fmi2SetupExperiment");
+    /* The tolerance is the parameter integrator.rtol (as in the pythonfmu kind); the stop time is not
+     * needed: the integrator lands on every communication point. */
+    (void)toleranceDefined, (void)tolerance, (void)stopTimeDefined, (void)stopTime;
+    if (!isfinite(startTime)) {
+        logf_(f, fmi2Error, "fmi2SetupExperiment: start time %g is not finite", startTime);
+        return fmi2Error;
+    }
+    f->t_start = startTime;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+    CHECK(P_INSTANTIATED, "fmi2EnterInitializationMode");
+    f->phase = P_INIT;
+    return fmi2OK;
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
+    fmi2Status st;
+    CHECK(P_INIT, "fmi2ExitInitializationMode");
+    st = engine_status(f, mbs_initialize(f->sim, f->t_start), "fmi2ExitInitializationMode");
+    if (st >= fmi2Discard) {
+        f->phase = P_ERROR;
+        return fmi2Error;
+    }
+    f->phase = P_STEP;
+    return st;
+}
+
+fmi2Status fmi2Terminate(fmi2Component c) {
+    CHECK(P_STEP, "fmi2Terminate");
+    f->phase = P_TERMINATED;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Reset(fmi2Component c) {
+    fmi2Status st;
+    CHECK(P_ANY, "fmi2Reset");
+    st = engine_status(f, mbs_reset(f->sim), "fmi2Reset");
+    f->phase = st >= fmi2Discard ? P_ERROR : P_INSTANTIATED;
+    f->t_start = 0.0;
+    return st >= fmi2Discard ? fmi2Error : st;
+}
+
+/* ---- variables ---- */
+static int vr_int(Fmu *f, fmi2ValueReference vr, const char *fn) {
+    if (vr < (fmi2ValueReference)mbs_model_nvars(f->model))
+        return (int)vr;
+    logf_(f, fmi2Error, "%s: unknown value reference %u", fn, vr);
+    return -1;
+}
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
+    size_t i;
+    CHECK(P_ANY, "fmi2GetReal");
+    if (bad_array(f, vr, value, nvr, "fmi2GetReal"))
+        return fmi2Error;
+    for (i = 0; i < nvr; i++) {
+        int r = vr_int(f, vr[i], "fmi2GetReal");
+        if (r < 0)
+            return fmi2Error;
+        if (mbs_get_real(f->sim, r, &value[i]) != MBS_OK)
+            return engine_status(f, MBS_ERROR, "fmi2GetReal");
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
+    size_t i;
+    fmi2Status worst = fmi2OK;
+    CHECK(P_INSTANTIATED | P_INIT | P_STEP, "fmi2SetReal");
+    if (bad_array(f, vr, value, nvr, "fmi2SetReal"))
+        return fmi2Error;
+    for (i = 0; i < nvr; i++) {
+        int r = vr_int(f, vr[i], "fmi2SetReal");
+        fmi2Status st;
+        if (r < 0)
+            return fmi2Error;
+        st = engine_status(f, mbs_set_real(f->sim, r, value[i]), "fmi2SetReal");
+        if (st >= fmi2Error)
+            return fmi2Error;
+        if (st > worst)
+            worst = st;
+    }
+    return worst;
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
+    size_t i;
+    CHECK(P_ANY, "fmi2GetString");
+    if (bad_array(f, vr, value, nvr, "fmi2GetString"))
+        return fmi2Error;
+    for (i = 0; i < nvr; i++) {
+        int r = vr_int(f, vr[i], "fmi2GetString");
+        if (r < 0)
+            return fmi2Error;
+        if (mbs_get_string(f->sim, r, &value[i]) != MBS_OK)
+            return engine_status(f, MBS_ERROR, "fmi2GetString");
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
+    size_t i;
+    CHECK(P_INSTANTIATED | P_INIT | P_STEP, "fmi2SetString");
+    if (bad_array(f, vr, value, nvr, "fmi2SetString"))
+        return fmi2Error;
+    for (i = 0; i < nvr; i++) {
+        int r = vr_int(f, vr[i], "fmi2SetString");
+        if (r < 0)
+            return fmi2Error;
+        if (!value[i]) {
+            logf_(f, fmi2Error, "fmi2SetString: NULL string for value reference %u", vr[i]);
+            return fmi2Error;
+        }
+        if (engine_status(f, mbs_set_string(f->sim, r, value[i]), "fmi2SetString") >= fmi2Error)
+            return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+/* The model has no Integer or Boolean variables. */
+static fmi2Status no_such_type(fmi2Component c, size_t nvr, const char *fn) {
+    CHECK(P_ANY, fn);
+    if (nvr == 0)
+        return fmi2OK;
+    logf_(f, fmi2Error, "%s: this model has no variables of that type", fn);
+    return fmi2Error;
+}
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
+    (void)vr, (void)value;
+    return no_such_type(c, nvr, "fmi2GetInteger");
+}
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
+    (void)vr, (void)value;
+    return no_such_type(c, nvr, "fmi2SetInteger");
+}
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
+    (void)vr, (void)value;
+    return no_such_type(c, nvr, "fmi2GetBoolean");
+}
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) {
+    (void)vr, (void)value;
+    return no_such_type(c, nvr, "fmi2SetBoolean");
+}
+
+/* ---- FMU state: the engine's byte layout, in memory and serialized ---- */
+static FmuState *state_of(Fmu *f, fmi2FMUstate s, const char *fn) {
+    FmuState *st = (FmuState *)s;
+    if (st && st->magic == STATE_MAGIC)
+        return st;
+    logf_(f, fmi2Error, "%s: not an FMU state of this FMU", fn);
+    return NULL;
+}
+
+static FmuState *state_new(size_t len) {
+    FmuState *st = (FmuState *)malloc(sizeof *st + len);
+    if (st) {
+        st->magic = STATE_MAGIC;
+        st->len = len;
+    }
+    return st;
+}
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    size_t len;
+    FmuState *st;
+    CHECK(P_ANY, "fmi2GetFMUstate");
+    if (!FMUstate) {
+        logf_(f, fmi2Error, "fmi2GetFMUstate: NULL pointer");
+        return fmi2Error;
+    }
+    len = mbs_state_size(f->sim);
+    st = (FmuState *)*FMUstate;
+    if (st && !state_of(f, st, "fmi2GetFMUstate"))
+        return fmi2Error;
+    if (!st || st->len != len) {  /* new, or an old one of another size: replace */
+        FmuState *fresh = state_new(len);
+        if (!fresh) {
+            logf_(f, fmi2Error, "fmi2GetFMUstate: out of memory");
+            return fmi2Error;
+        }
+        if (st)
+            st->magic = 0, free(st);
+        st = fresh;
+        *FMUstate = st;
+    }
+    return engine_status(f, mbs_state_save(f->sim, st->bytes, st->len), "fmi2GetFMUstate");
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
+    FmuState *st;
+    CHECK(P_ANY, "fmi2SetFMUstate");
+    if (!(st = state_of(f, FMUstate, "fmi2SetFMUstate")))
+        return fmi2Error;
+    if (mbs_state_load(f->sim, st->bytes, st->len) != MBS_OK) {
+        engine_status(f, MBS_ERROR, "fmi2SetFMUstate (instance unchanged)");
+        return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    FmuState *st;
+    CHECK(P_ANY, "fmi2FreeFMUstate");
+    if (!FMUstate || !*FMUstate)
+        return fmi2OK;
+    if (!(st = state_of(f, *FMUstate, "fmi2FreeFMUstate")))
+        return fmi2Error;
+    st->magic = 0;
+    free(st);
+    *FMUstate = NULL;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
+    FmuState *st;
+    CHECK(P_ANY, "fmi2SerializedFMUstateSize");
+    if (!size || !(st = state_of(f, FMUstate, "fmi2SerializedFMUstateSize")))
+        return fmi2Error;
+    *size = st->len;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {
+    FmuState *st;
+    CHECK(P_ANY, "fmi2SerializeFMUstate");
+    if (!(st = state_of(f, FMUstate, "fmi2SerializeFMUstate")))
+        return fmi2Error;
+    if (!serializedState || size < st->len) {
+        logf_(f, fmi2Error, "fmi2SerializeFMUstate: buffer of %lu bytes for a state of %lu",
+              (unsigned long)size, (unsigned long)st->len);
+        return fmi2Error;
+    }
+    memcpy(serializedState, st->bytes, st->len);
+    return fmi2OK;
+}
+
+/* The bytes are checked by loading them into this instance and restoring its own state afterwards (the
+ * engine's load validates version, GUID, length, sizes and checksum, and changes nothing on failure). */
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
+                                   fmi2FMUstate *FMUstate) {
+    FmuState *mine, *st;
+    int rc;
+    CHECK(P_ANY, "fmi2DeSerializeFMUstate");
+    if (!FMUstate || !serializedState) {
+        logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: NULL pointer");
+        return fmi2Error;
+    }
+    mine = state_new(mbs_state_size(f->sim));
+    st = state_new(size);
+    if (!mine || !st) {
+        free(mine), free(st);
+        logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
+        return fmi2Error;
+    }
+    memcpy(st->bytes, serializedState, size);
+    rc = mbs_state_save(f->sim, mine->bytes, mine->len);
+    if (rc == MBS_OK && (rc = mbs_state_load(f->sim, st->bytes, st->len)) == MBS_OK &&
+        mbs_state_load(f->sim, mine->bytes, mine->len) != MBS_OK) {
+        free(mine), free(st);
+        f->phase = P_FATAL;
+        logf_(f, fmi2Fatal, "fmi2DeSerializeFMUstate: the instance's own state did not load back: %s",
+              mbs_message(f->sim));
+        return fmi2Fatal;
+    }
+    free(mine);
+    if (rc != MBS_OK) {
+        free(st);
+        engine_status(f, MBS_ERROR, "fmi2DeSerializeFMUstate");
+        return fmi2Error;
+    }
+    *FMUstate = st;  /* an output argument: whatever it held is not ours to free */
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
+                                        const fmi2ValueReference vKnown_ref[], size_t nKnown,
+                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
+    CHECK(P_ANY, "fmi2GetDirectionalDerivative");
+    (void)vUnknown_ref, (void)nUnknown, (void)vKnown_ref, (void)nKnown, (void)dvKnown, (void)dvUnknown;
+    logf_(f, fmi2Error, "fmi2GetDirectionalDerivative: not provided (providesDirectionalDerivative=false)");
+    return fmi2Error;
+}
+
+/* ---- co-simulation ---- */
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                       const fmi2Integer order[], const fmi2Real value[]) {
+    CHECK(P_ANY, "fmi2SetRealInputDerivatives");
+    (void)vr, (void)nvr, (void)order, (void)value;
+    logf_(f, fmi2Error, "fmi2SetRealInputDerivatives: inputs are held over a step (canInterpolateInputs=false)");
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                        const fmi2Integer order[], fmi2Real value[]) {
+    CHECK(P_ANY, "fmi2GetRealOutputDerivatives");
+    (void)vr, (void)nvr, (void)order, (void)value;
+    logf_(f, fmi2Error, "fmi2GetRealOutputDerivatives: not provided (maxOutputDerivativeOrder=0)");
+    return fmi2Error;
+}
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    fmi2Status st;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    CHECK(P_STEP, "fmi2DoStep");
+    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0) {
+        logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h > 0)",
+              currentCommunicationPoint, communicationStepSize);
+        return fmi2Error;
+    }
+    st = engine_status(f, mbs_do_step(f->sim, currentCommunicationPoint, communicationStepSize), "fmi2DoStep");
+    if (st >= fmi2Error)
+        f->phase = P_ERROR;
+    return st;
+}
+
+fmi2Status fmi2CancelStep(fmi2Component c) {
+    CHECK(P_ANY, "fmi2CancelStep");
+    logf_(f, fmi2Error, "fmi2CancelStep: fmi2DoStep is synchronous (canRunAsynchronuously=false)");
+    return fmi2Error;
+}
+
+/* Status queries: what is not available is fmi2Discard (FMI 2.0, 4.2.3). */
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
+    CHECK(P_ANY, "fmi2GetStatus");
+    (void)s, (void)value;
+    return fmi2Discard;  /* fmi2DoStepStatus: only after fmi2Pending, which this FMU never returns */
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
+    CHECK(P_ANY, "fmi2GetRealStatus");
+    if (s != fmi2LastSuccessfulTime || !value)
+        return fmi2Discard;
+    *value = mbs_time(f->sim);
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
+    CHECK(P_ANY, "fmi2GetIntegerStatus");
+    (void)s, (void)value;
+    return fmi2Discard;
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
+    CHECK(P_ANY, "fmi2GetBooleanStatus");
+    if (s != fmi2Terminated || !value)
+        return fmi2Discard;
+    *value = fmi2False;  /* the slave never asks to end the simulation */
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
+    CHECK(P_ANY, "fmi2GetStringStatus");
+    (void)s, (void)value;
+    return fmi2Discard;
+}

@@ -1,0 +1,177 @@
+"""Native FMUs (``kind="native"``): the engine's C sources and the FMI 2.0 layer (``engine/fmi2.c``) compiled
+into ``binaries/<platform>/<modelIdentifier>``; the scene is data (``resources/scene.bin``). No Python at run
+time: the binary needs only the C library and libm.
+
+An FMU holds
+
+* ``binaries/linux64/<id>.so`` (``cc``) and ``binaries/win64/<id>.dll`` when a MinGW-w64 cross compiler
+  (``x86_64-w64-mingw32-gcc``) is installed,
+* ``resources/scene.bin``: the compiled scene (``engine.compile.compile_scene``) with the FMU's GUID,
+* ``sources/``: exactly the C files compiled into the binaries (the engine parts the scene needs, fmi2.c,
+  the headers they include), listed in ``<SourceFiles>``, plus a CMakeLists.txt and a README,
+* ``modelDescription.xml`` from the same writer as the pythonfmu kind (``build.model_description``).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import uuid
+import warnings
+import zipfile
+from pathlib import Path
+
+ENGINE = Path(__file__).resolve().parent.parent / "engine"
+FMI_LAYER = ENGINE / "fmi2.c"
+CFLAGS = ("-O2", "-shared", "-fvisibility=hidden")
+MINGW = "x86_64-w64-mingw32-gcc"
+_INCLUDE = re.compile(rb'^\s*#\s*include\s+"([^"]+)"', re.M)
+
+# Co-simulation capabilities that differ from the pythonfmu kind.
+COSIMULATION = {"needsExecutionTool": "false", "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true",
+                "canHandleVariableCommunicationStepSize": "true"}
+
+
+def source_files(spec: dict) -> dict[str, bytes]:
+    """The engine C sources the scene needs and fmi2.c, with their headers (see collect_sources)."""
+    from ..engine import build as engine_build
+    return collect_sources([Path(p) for p in engine_build.sources(engine_build.features(spec))] + [FMI_LAYER])
+
+
+def collect_sources(c_files) -> dict[str, bytes]:
+    """{flat file name: content} of the C files and every header they include, followed transitively
+    (looked up next to the including file, then in engine/ and engine/fmi2/)."""
+    out: dict[str, bytes] = {}
+    todo = list(c_files)
+    while todo:
+        path = todo.pop()
+        if path.name in out:
+            continue
+        data = path.read_bytes()
+        out[path.name] = data
+        for inc in _INCLUDE.findall(data):
+            name = inc.decode()
+            found = next((d / name for d in (path.parent, ENGINE, ENGINE / "fmi2") if (d / name).is_file()), None)
+            if found is None:
+                raise FileNotFoundError(f"{path.name} includes \"{name}\", which is not in {ENGINE}")
+            todo.append(found)
+    return out
+
+
+def c_names(sources: dict) -> list[str]:
+    return sorted(n for n in sources if n.endswith(".c"))
+
+
+def compiler() -> str | None:
+    """The C compiler for this platform's binary ($CC, cc, gcc, clang), or None."""
+    for cand in (os.environ.get("CC", "").split() or [""])[:1] + ["cc", "gcc", "clang"]:
+        if cand and shutil.which(cand):
+            return shutil.which(cand)
+    return None
+
+
+def compile_library(src_dir: Path, out: Path, cc: str, windows: bool = False) -> Path:
+    """Compile every ``*.c`` of src_dir into the shared library ``out`` (the FMI functions are the only
+    exported symbols). Raises RuntimeError with the compiler's message."""
+    c_files = sorted(str(p) for p in Path(src_dir).glob("*.c"))
+    if windows:  # no MinGW runtime DLL needed on the target
+        cmd = [cc, *CFLAGS, "-static-libgcc", "-I", str(src_dir), "-o", str(out), *c_files]
+    else:  # -z defs: everything must resolve in libc/libm at link time, not at the user's dlopen
+        cmd = [cc, *CFLAGS, "-fPIC", "-I", str(src_dir), "-o", str(out), *c_files, "-lm", "-Wl,-z,defs"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"compiling the native FMU failed: {' '.join(cmd)}\n{r.stderr.strip()[:4000]}")
+    return out
+
+
+def cmake_lists(identifier: str, c_names: list[str]) -> str:
+    return f"""# Builds binaries/<platform>/{identifier} from these sources (the same files the shipped binaries come from):
+#   cmake -S sources -B build && cmake --build build --config Release
+cmake_minimum_required(VERSION 3.10)
+project({identifier} C)
+add_library({identifier} SHARED {' '.join(c_names)})
+set_target_properties({identifier} PROPERTIES PREFIX "" C_VISIBILITY_PRESET hidden)
+target_include_directories({identifier} PRIVATE ${{CMAKE_CURRENT_SOURCE_DIR}})
+if(NOT WIN32)
+  target_link_libraries({identifier} PRIVATE m)
+endif()
+"""
+
+
+def readme(identifier: str, c_names: list[str], notes: list[str]) -> str:
+    return (f"Sources of the native FMU '{identifier}' (mbsfmu engine + FMI 2.0 co-simulation layer).\n\n"
+            "Compiling all *.c files of this folder into a shared library gives a working FMU binary, e.g.\n\n"
+            f"  cc -O2 -shared -fPIC -fvisibility=hidden -I. -o {identifier}.so {' '.join(c_names)} -lm\n"
+            f"  x86_64-w64-mingw32-gcc -O2 -shared -static-libgcc -I. -o {identifier}.dll {' '.join(c_names)}\n\n"
+            "or use CMakeLists.txt. Put the library into binaries/<platform>/ of the FMU; it reads\n"
+            "resources/scene.bin at fmi2Instantiate. The FMI functions carry no prefix in a shared library;\n"
+            "define FMI2_FUNCTION_PREFIX to link the FMU statically under prefixed names.\n\n"
+            + "".join(f"Build note: {n}\n" for n in notes))
+
+
+def guid_for(spec: dict, sources: dict[str, bytes], version: str) -> str:
+    h = hashlib.sha256(json.dumps(spec, sort_keys=True).encode())
+    for name, data in sorted(sources.items()):
+        h.update(name.encode() + b"\0" + data)
+    h.update(version.encode())
+    return "{" + str(uuid.UUID(h.hexdigest()[:32])) + "}"
+
+
+def build_native(scene, outdir) -> Path:
+    """Write ``<outdir>/<name>.fmu`` (native kind) for a loaded scene; returns its path."""
+    from ..engine.compile import compile_scene
+    from ..simulation import Simulation
+    from .build import _version, model_description
+
+    spec = json.loads(json.dumps(scene.spec if hasattr(scene, "spec") else scene))
+    name = spec["name"]
+    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):  # the modelIdentifier names the binary: a C identifier
+        raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
+    version = _version()
+    sources = source_files(spec)
+    guid = guid_for(spec, sources, version)
+    variables = Simulation(spec).variables  # value reference = row of the engine's variable table
+    xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
+                            source_files=c_names(sources))
+    dest = Path(outdir) / f"{name}.fmu"
+    for n in package(dest, name, sources, compile_scene(spec, guid), xml):
+        warnings.warn(f"native FMU {name}: {n}", RuntimeWarning, stacklevel=3)
+    return dest
+
+
+def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: bytes, xml: bytes) -> list[str]:
+    """Compile the sources into binaries/linux64 (and win64 with MinGW-w64) and write the FMU ``dest``
+    with sources/, resources/scene.bin and the modelDescription. Returns build notes (what is missing)."""
+    cc = compiler()
+    if cc is None:
+        raise RuntimeError("a native FMU needs a C compiler (cc, gcc or clang, or $CC); none was found. "
+                           "Install one (Debian: apt-get install gcc) or build the default (pythonfmu) kind")
+    notes = []
+    mingw = shutil.which(MINGW)
+    if mingw is None:
+        notes.append(f"no binaries/win64: {MINGW} (Debian gcc-mingw-w64-x86-64) was not found on the build machine")
+    names = c_names(sources)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="mbsfmu_native_") as tmp:
+        src = Path(tmp) / "sources"  # compiled from the very files that ship
+        src.mkdir()
+        for fname, data in sources.items():
+            (src / fname).write_bytes(data)
+        members = {"modelDescription.xml": xml, "resources/scene.bin": scene_bin}
+        members[f"binaries/linux64/{identifier}.so"] = compile_library(src, Path(tmp) / "lib.so", cc).read_bytes()
+        if mingw:
+            members[f"binaries/win64/{identifier}.dll"] = compile_library(src, Path(tmp) / "lib.dll", mingw,
+                                                                         windows=True).read_bytes()
+        members.update({f"sources/{f}": d for f, d in sorted(sources.items())})
+        members["sources/CMakeLists.txt"] = cmake_lists(identifier, names).encode()
+        members["sources/README"] = readme(identifier, names, notes).encode()
+        tmp_fmu = Path(tmp) / "out.fmu"
+        with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
+            for member, data in members.items():
+                z.writestr(member, data)
+        shutil.move(str(tmp_fmu), dest)
+    return notes

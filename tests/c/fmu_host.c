@@ -1,0 +1,190 @@
+/* A plain FMI 2.0 co-simulation master in C: dlopen an FMU binary, run it, print outputs or timings.
+ *
+ *   fmu_host LIB RESOURCE_URI GUID [-n steps] [-h step] [-o vr,vr,...] [-s vr=value]... [-S vr=text]...
+ *            [-p] [-m] [-T] [-L]
+ *
+ * -p  print "OUT t v1 v2 ..." (%.17g) at t0 and after every step
+ * -m  print "LIBPYTHON yes|no": whether any libpython is mapped into this process (/proc/self/maps)
+ * -T  timing: "TIME load_ns first_step_ns" (dlopen; fmi2Instantiate .. end of the first fmi2DoStep)
+ * -L  loop cost: "LOOP n points_ns one_ns": n steps of h with the outputs read after each, then a second
+ *     instance doing one step of n*h (same internal steps for fixed-step integrators)
+ * Exit codes: 0 ok, 2 usage/dlopen, 3 instantiate, 4 a call failed (its status is printed).
+ * Needs only libc (and libdl on old glibc); built by tests/test_fmu_native.py and bench/fmu_speed.py.
+ */
+#define _POSIX_C_SOURCE 199309L
+#include <dlfcn.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+typedef unsigned int vr_t;
+typedef struct {
+    void (*logger)(void *, const char *, int, const char *, const char *, ...);
+    void *(*alloc)(size_t, size_t);
+    void (*free)(void *);
+    void *step_finished, *env;
+} Callbacks;
+typedef struct {
+    void *(*instantiate)(const char *, int, const char *, const char *, const Callbacks *, int, int);
+    int (*setup)(void *, int, double, double, int, double);
+    int (*enter)(void *), (*exit_init)(void *), (*terminate)(void *);
+    int (*do_step)(void *, double, double, int);
+    int (*get_real)(void *, const vr_t *, size_t, double *);
+    int (*set_real)(void *, const vr_t *, size_t, const double *);
+    int (*set_string)(void *, const vr_t *, size_t, const char *const *);
+    void (*free_instance)(void *);
+} Fmi;
+
+static void logger(void *env, const char *inst, int status, const char *cat, const char *msg, ...) {
+    va_list ap;
+    (void)env;
+    printf("LOG %d %s %s: ", status, cat ? cat : "", inst ? inst : "");
+    va_start(ap, msg);
+    vprintf(msg, ap);
+    va_end(ap);
+    printf("\n");
+    fflush(stdout);
+}
+
+static double now_ns(void) {
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec * 1e9 + ts.tv_nsec;
+}
+
+#define MAXV 256
+static struct { vr_t vr; double v; const char *s; } sets[MAXV];
+static int nsets;
+
+static int fail(const char *what, int status) {
+    printf("FAIL %s %d\n", what, status);
+    fflush(stdout);
+    return 4;
+}
+
+/* instantiate, apply the -s/-S settings, initialize at t = 0 */
+static void *start(const Fmi *f, const char *uri, const char *guid, const Callbacks *cb, int *rc) {
+    void *c = f->instantiate("host", 1, guid, uri, cb, 0, 0);
+    int i, st = 0;
+    *rc = 0;
+    if (!c) {
+        printf("FAIL fmi2Instantiate\n");
+        *rc = 3;
+        return NULL;
+    }
+    for (i = 0; i < nsets && !st; i++)
+        st = sets[i].s ? f->set_string(c, &sets[i].vr, 1, &sets[i].s) : f->set_real(c, &sets[i].vr, 1, &sets[i].v);
+    if (st || (st = f->setup(c, 0, 0.0, 0.0, 0, 0.0)) || (st = f->enter(c)) || (st = f->exit_init(c))) {
+        *rc = fail("setup/initialization", st);
+        return c;
+    }
+    return c;
+}
+
+int main(int argc, char **argv) {
+    const char *lib, *uri, *guid;
+    vr_t out[MAXV];
+    double y[MAXV], h = 0.01, t = 0, t0, t1, t2;
+    int nout = 0, n = 10, print = 0, maps = 0, timing = 0, loop = 0, i, k, st, rc;
+    Fmi f;
+    Callbacks cb = {logger, calloc, free, NULL, NULL};
+    void *so, *c;
+    if (argc < 4) {
+        fprintf(stderr, "usage: %s LIB RESOURCE_URI GUID [-n steps] [-h step] [-o vr,...] [-s vr=x] [-S vr=text]"
+                        " [-p] [-m] [-T] [-L]\n", argv[0]);
+        return 2;
+    }
+    lib = argv[1], uri = argv[2], guid = argv[3];
+    for (i = 4; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : "";
+        if (!strcmp(a, "-n")) n = atoi(v), i++;
+        else if (!strcmp(a, "-h")) h = atof(v), i++;
+        else if (!strcmp(a, "-o")) {
+            for (char *p = (char *)v; *p && nout < MAXV; p += strspn(p, ","))
+                out[nout++] = (vr_t)strtoul(p, &p, 10);
+            i++;
+        } else if ((!strcmp(a, "-s") || !strcmp(a, "-S")) && nsets < MAXV && strchr(v, '=')) {
+            sets[nsets].vr = (vr_t)strtoul(v, NULL, 10);
+            sets[nsets].s = a[1] == 'S' ? strchr(v, '=') + 1 : NULL;
+            sets[nsets++].v = atof(strchr(v, '=') + 1);
+            i++;
+        } else if (!strcmp(a, "-p")) print = 1;
+        else if (!strcmp(a, "-m")) maps = 1;
+        else if (!strcmp(a, "-T")) timing = 1;
+        else if (!strcmp(a, "-L")) loop = 1;
+        else { fprintf(stderr, "unknown option %s\n", a); return 2; }
+    }
+
+    t0 = now_ns();
+    so = dlopen(lib, RTLD_NOW | RTLD_LOCAL);
+    if (!so) { printf("DLOPEN %s\n", dlerror()); return 2; }
+    *(void **)&f.instantiate = dlsym(so, "fmi2Instantiate");
+    *(void **)&f.setup = dlsym(so, "fmi2SetupExperiment");
+    *(void **)&f.enter = dlsym(so, "fmi2EnterInitializationMode");
+    *(void **)&f.exit_init = dlsym(so, "fmi2ExitInitializationMode");
+    *(void **)&f.terminate = dlsym(so, "fmi2Terminate");
+    *(void **)&f.do_step = dlsym(so, "fmi2DoStep");
+    *(void **)&f.get_real = dlsym(so, "fmi2GetReal");
+    *(void **)&f.set_real = dlsym(so, "fmi2SetReal");
+    *(void **)&f.set_string = dlsym(so, "fmi2SetString");
+    *(void **)&f.free_instance = dlsym(so, "fmi2FreeInstance");
+    if (!f.instantiate || !f.do_step || !f.get_real || !f.free_instance) { printf("DLSYM missing\n"); return 2; }
+    t1 = now_ns();
+
+    c = start(&f, uri, guid, &cb, &rc);
+    if (rc) return rc;
+    if (print) {
+        if ((st = f.get_real(c, out, nout, y))) return fail("fmi2GetReal", st);
+        printf("OUT %.17g", t);
+        for (k = 0; k < nout; k++) printf(" %.17g", y[k]);
+        printf("\n");
+    }
+    for (i = 0; i < n; i++) {
+        if ((st = f.do_step(c, t, h, 1))) return fail("fmi2DoStep", st);
+        if (i == 0 && timing) {
+            t2 = now_ns();
+            printf("TIME %.0f %.0f\n", t1 - t0, t2 - t1);
+        }
+        t += h;  /* accumulated, like ecos's fixed-step master */
+        if ((st = f.get_real(c, out, nout, y))) return fail("fmi2GetReal", st);
+        if (print) {
+            printf("OUT %.17g", t);
+            for (k = 0; k < nout; k++) printf(" %.17g", y[k]);
+            printf("\n");
+        }
+    }
+    if (loop) {  /* n points of h against one step of n*h, each on a fresh instance */
+        void *a = start(&f, uri, guid, &cb, &rc), *b;
+        double ta, tb, ts = 0;
+        if (rc) return rc;
+        ta = now_ns();
+        for (i = 0; i < n; i++) {
+            if ((st = f.do_step(a, ts, h, 1)) || (st = f.get_real(a, out, nout, y))) return fail("loop", st);
+            ts += h;
+        }
+        ta = now_ns() - ta;
+        b = start(&f, uri, guid, &cb, &rc);
+        if (rc) return rc;
+        tb = now_ns();
+        if ((st = f.do_step(b, 0.0, n * h, 1)) || (st = f.get_real(b, out, nout, y))) return fail("one step", st);
+        tb = now_ns() - tb;
+        printf("LOOP %d %.0f %.0f\n", n, ta, tb);
+        f.free_instance(a);
+        f.free_instance(b);
+    }
+    if (maps) {
+        FILE *fp = fopen("/proc/self/maps", "r");
+        char line[4096];
+        int found = 0;
+        while (fp && fgets(line, sizeof line, fp))
+            found |= strstr(line, "libpython") != NULL;
+        if (fp) fclose(fp);
+        printf("LIBPYTHON %s\n", fp ? (found ? "yes" : "no") : "unknown");
+    }
+    if ((st = f.terminate(c))) return fail("fmi2Terminate", st);
+    f.free_instance(c);
+    printf("DONE\n");
+    return 0;
+}
