@@ -7,7 +7,7 @@ imports only numpy/scipy.
 from .errors import IntegrationError, ModelError
 
 __version__ = "0.1.0"
-__all__ = ["load", "loads", "compile", "simulate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
+__all__ = ["load", "loads", "compile", "simulate", "animate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
 
 
 def load(path):
@@ -40,6 +40,13 @@ def simulate(scene, stop=None, step=None, inputs=None, method=None, **integrator
     if not isinstance(scene, dict) and not hasattr(scene, "spec"):
         scene = load(scene)
     return _simulate(scene, stop=stop, step=step, inputs=inputs, method=method, **integrator_options)
+
+
+def animate(source, output="animation.html", **options):
+    """Write one self-contained HTML page that plays the motion of a scene or mbsfmu FMU in 3-D; returns its
+    path. options: stop, input_csv, result_csv, fps (see mbsfmu.animation.animate)."""
+    from .animation import animate as _animate
+    return _animate(source, output, **options)
 
 
 def build_fmu(scene, outdir=".", **options):

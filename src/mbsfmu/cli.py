@@ -18,6 +18,7 @@ EPILOG = """examples:
   mbsfmu simulate models/pendulum.yaml --stop 2 --plot pendulum.png
   mbsfmu simulate models/pendulum.yaml --signals 'y.*,bob.r.z' --csv result.csv
   mbsfmu simulate out/double_pendulum.fmu --input torque.csv --plot out.png   # CSV: time,<input names>
+  mbsfmu animate models/double_pendulum.yaml -o anim.html                # open anim.html#t=1.5 in a browser
   mbsfmu crosscheck models/double_pendulum.yaml --out xc/double_pendulum      # FMI cross-check files
   mbsfmu info out/double_pendulum.fmu
   mbsfmu validate out/double_pendulum.fmu
@@ -61,6 +62,12 @@ def _is_fmu(path):
 def _need_scene(path):
     if _is_fmu(path):
         raise ValueError(f"{path} is an FMU, not a scene file (for FMUs: mbsfmu info, validate, simulate)")
+
+
+def _animate(args):
+    from .animation import animate
+    out = animate(args.model, args.output, stop=args.stop, input_csv=args.input, result_csv=args.result, fps=args.fps)
+    print(f"wrote {out}")
 
 
 def _need_fmu(path):
@@ -313,6 +320,14 @@ def parser():
                         "into a temporary FMU first)")
     p.add_argument("--plot", metavar="FILE", help="write a PNG plot, one panel per unit")
     p.set_defaults(run=_simulate)
+    p = sub.add_parser("animate", help="write a self-contained HTML page that plays the motion in 3-D")
+    p.add_argument("model", help="scene .yaml or mbsfmu .fmu")
+    p.add_argument("-o", "--output", default="animation.html", help="HTML file to write (default: animation.html)")
+    p.add_argument("--stop", type=float, default=None, help="simulate until (default: the scene's experiment)")
+    p.add_argument("--input", help="input CSV: a 'time' column, then input names")
+    p.add_argument("--result", help="draw this result CSV (from 'mbsfmu simulate --csv') instead of simulating")
+    p.add_argument("--fps", type=float, default=60, help="frames kept per simulated second (default: 60)")
+    p.set_defaults(run=_animate)
     p = sub.add_parser("crosscheck", help="write the FMI cross-check files (<model>.fmu, _ref.csv, _ref.opt, _in.csv)")
     p.add_argument("scene", help="scene file (.yaml)")
     p.add_argument("--out", required=True, help="directory for the files")

@@ -1,0 +1,92 @@
+"""Where a motion comes from: an in-process run of a scene, an FMU run through fmpy, or a result CSV
+(`mbsfmu simulate --csv`). Each gives the scene spec, the folder shape files are read from, and t, Y, ẏ."""
+
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+SPEC_IN_FMU = "resources/mbsfmu_spec.json"
+
+
+def read_csv(path, what):
+    """A CSV with a header row whose first column is 'time' → (names, time, columns)."""
+    try:
+        data = np.genfromtxt(path, delimiter=",", names=True, deletechars="", dtype=float)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: cannot read the {what} CSV: {e}") from None
+    data = np.atleast_1d(data)
+    names = data.dtype.names or ()
+    if not names or names[0] != "time":
+        raise ValueError(f"{path}: the first column of the {what} CSV must be 'time' (got {names[:1]})")
+    t = data["time"]
+    if len(t) == 0 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise ValueError(f"{path}: the {what} CSV's times must be finite and non-decreasing")
+    return list(names[1:]), t, data
+
+
+def _check_inputs(path, names, valid, model_name):
+    unknown = [n for n in names if n not in valid]
+    if unknown:
+        raise ValueError(f"{path}: not inputs of {model_name}: {', '.join(unknown)} (inputs: {', '.join(sorted(valid)) or 'none'})")
+
+
+def from_scene(scene, stop=None, input_csv=None):
+    """Run a loaded scene in process; input CSV columns are interpolated linearly, held over each step."""
+    from .. import compile, simulate
+    inputs = None
+    if input_csv:
+        names, t_in, data = read_csv(input_csv, "input")
+        _check_inputs(input_csv, names, compile(scene).inputs, scene.name)
+        inputs = lambda t: {n: float(np.interp(t, t_in, data[n])) for n in names}  # noqa: E731
+    t, Y, YD = simulate(scene, stop=stop, inputs=inputs)
+    return t, Y, YD
+
+
+def fmu_spec(path):
+    """The normalized scene an mbsfmu FMU carries."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return json.loads(z.read(SPEC_IN_FMU))
+    except KeyError:
+        raise ValueError(f"{path} is not an mbsfmu FMU (no {SPEC_IN_FMU})") from None
+    except (zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: cannot read the FMU's scene: {e}") from None
+
+
+def from_fmu(path, coordinates, stop=None, input_csv=None):
+    """Run the FMU with fmpy and read its `y.*` outputs (the position coordinates)."""
+    from fmpy import read_model_description, simulate_fmu
+    md = read_model_description(path)
+    inp = None
+    if input_csv:
+        names, _, inp = read_csv(input_csv, "input")
+        _check_inputs(input_csv, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
+    outputs = [f"y.{c}" for c in coordinates]
+    res = simulate_fmu(str(path), stop_time=stop, input=inp, output=outputs)
+    return res["time"], np.column_stack([res[n] for n in outputs]), None
+
+
+def from_result(path, coordinates):
+    """t and Y from a result CSV: its `y.<coordinate>` columns (velocities are not needed for drawing)."""
+    names, t, data = read_csv(path, "result")
+    missing = [c for c in coordinates if f"y.{c}" not in names]
+    if missing:
+        raise ValueError(f"{path}: no column for coordinate(s) {', '.join('y.' + c for c in missing)} "
+                         "(write the result with 'mbsfmu simulate --csv' from the same scene)")
+    return t, np.column_stack([data[f"y.{c}"] for c in coordinates]), None
+
+
+def load_source(source):
+    """SCENE (.yaml or loaded Scene) or FMU → (spec, base folder for shape files, Scene or None)."""
+    from ..scene import load
+    if hasattr(source, "spec"):
+        return source.spec, Path(source.path).parent if source.path and Path(source.path).is_file() else Path.cwd(), source
+    path = Path(source)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    if zipfile.is_zipfile(path):
+        return fmu_spec(path), path.parent, None
+    scene = load(path)
+    return scene.spec, path.parent, scene
