@@ -1,4 +1,4 @@
-"""One simulated scene: evaluator + integrator + the FMU's variables (inputs held over a step).
+"""Transition only (elastic scenes until their terms are in the engine) — one simulated scene: evaluator + integrator + the FMU's variables (inputs held over a step).
 
 This is what the FMU wraps and what in-process runs use, so both give the same numbers.
 """
@@ -8,22 +8,10 @@ import math
 import numpy as np
 
 from .equations import Evaluator
+from .simulation import variables
 from .errors import IntegrationError
 from .integrators import advance_many, make_integrator
 from .kinematics.rotations import quat_exp_step
-
-
-class Variable:
-    """An FMU variable: name, causality, variability, type, unit, description, start."""
-
-    __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start")
-
-    def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0):
-        self.name, self.causality, self.variability, self.type = name, causality, variability, type
-        self.unit, self.description, self.start = unit, description, start
-
-    def __repr__(self):
-        return f"Variable({self.name!r}, {self.causality}, {self.unit})"
 
 
 class Problem:
@@ -124,7 +112,7 @@ class Simulation:
         self.spec = spec
         self.ev = Evaluator(spec)
         self.problem = Problem(self.ev)
-        self.variables = self._variables()
+        self.variables = variables(spec, self.ev.model)
         self._by_name = {v.name: v for v in self.variables}
         npos = self.problem.npos
         self._state_index = {f"y.{c}": i for i, c in enumerate(self.ev.coordinates)}
@@ -135,39 +123,6 @@ class Simulation:
         self.integrator = None
         self.time = spec["experiment"]["start"]
         self.x = None
-
-    # -- variables ----------------------------------------------------------------------------------
-    def _variables(self):
-        ev, spec = self.ev, self.spec
-        units_pos, units_vel = ev.model.coordinate_units()
-        out = [Variable(p["name"], "parameter", "tunable", unit=None, description=p["description"] or f"scene parameter {p['name']}", start=p["value"])
-               for p in spec["parameters"]]
-        ii = spec["integrator"]
-        out.append(Variable("integrator.method", "parameter", "fixed", "String", None, "integration method: auto, rk4, dopri5, dop853, radau5, gen_alpha", ii["method"]))
-        out.append(Variable("integrator.rtol", "parameter", "fixed", unit="1", description="relative tolerance of the adaptive integrators", start=ii["rtol"]))
-        out.append(Variable("integrator.atol", "parameter", "fixed", unit="1", description="absolute tolerance of the adaptive integrators", start=ii["atol"]))
-        out.append(Variable("integrator.max_step", "parameter", "fixed", unit="s", description="largest internal step (0: no limit)", start=ii["max_step"]))
-        out.append(Variable("integrator.step", "parameter", "fixed", unit="s", description="fixed step of rk4 and gen_alpha (0: one step per communication interval for rk4, adaptive for gen_alpha)", start=ii["step"]))
-        for c, u in zip(ev.velocity_coordinates, units_vel):
-            unit = {"m/s": "N", "rad/s": "N.m"}.get(u, "1")
-            out.append(Variable(f"q.{c}", "input", "continuous", unit=unit, description=f"generalized force on velocity coordinate {c}"))
-        for f in spec["forces"]:
-            if "input" in f:
-                unit = "N" if f["type"] == "force" else "N.m"
-                for ax in "xyz":
-                    out.append(Variable(f"{f['input']}.{ax}", "input", "continuous", unit=unit,
-                                        description=f"{f['type']} on {f['body']}, {f['frame']} frame, {ax} component"))
-        for c, u in zip(ev.coordinates, units_pos):
-            out.append(Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}"))
-        for c, u in zip(ev.velocity_coordinates, units_vel):
-            out.append(Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}"))
-        for o in spec["outputs"]:
-            for qty, sym, unit in (("position", "r", "m"), ("velocity", "v", "m/s")):
-                if qty in o["quantities"]:
-                    for ax in "xyz":
-                        out.append(Variable(f"{o['name']}.{sym}.{ax}", "output", "continuous", unit=unit,
-                                            description=f"world-frame {qty} of a point on {o['body']}, {ax} component"))
-        return out
 
     def set(self, name, value):
         v = self._by_name.get(name)
@@ -338,32 +293,3 @@ class Simulation:
         """Back to the state after instantiation (fmi2Reset)."""
         self.__init__(self.spec)
 
-
-def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
-    """In-process run: returns (t, Y, YD) at the communication points. `inputs`: {name: value} held for the
-    whole run, or a function `inputs(t) -> {name: value}` called at every communication point."""
-    spec = scene if isinstance(scene, dict) else scene.spec
-    sim = Simulation(spec)
-    if method is not None:
-        sim.set("integrator.method", method)
-    for k, v in options.items():
-        sim.set(f"integrator.{k}", v)
-    e = spec["experiment"]
-    t0, stop, step = e["start"], stop if stop is not None else e["stop"], step if step is not None else e["step"]
-    n = int(round((stop - t0) / step))
-    ts = t0 + step * np.arange(n + 1)
-    sim.initialize(t0)
-    if inputs is None or isinstance(inputs, dict):  # held for the whole run: points of one step together
-        for name, val in (inputs or {}).items():
-            sim.set(name, val)
-        X = sim.run(ts)
-    else:
-        X = [sim.x.copy()]
-        for k in range(n):
-            for name, val in inputs(ts[k]).items():
-                sim.set(name, val)
-            sim.do_step(ts[k], ts[k + 1] - ts[k])
-            X.append(sim.x.copy())
-        X = np.array(X)
-    npos = sim.ev.model.npos
-    return ts, X[:, :npos], X[:, npos:]

@@ -42,8 +42,9 @@ class Instance:
         self.lib = lib = self.model.lib
         self.npos, self.nvel, self.n = npos, nvel, npos + nvel
         # keep the callback object alive as long as the instance
-        self._logger = ctypes.cast(None, type(lib.mbs_instance_new.argtypes[1])) if logger is None else \
-            lib.mbs_instance_new.argtypes[1](lambda env, status, msg: logger(status, msg.decode(errors="replace")))
+        LOGGER = lib.mbs_instance_new.argtypes[1]
+        self._logger = LOGGER() if logger is None else \
+            LOGGER(lambda env, status, msg: logger(status, msg.decode(errors="replace")))
         self.ptr = lib.mbs_instance_new(self.model.ptr, self._logger, None)
         if not self.ptr:
             raise MemoryError("engine instance")
@@ -85,6 +86,9 @@ class Instance:
     def get_string(self, vr):
         self._check(self.lib.mbs_get_string(self.ptr, vr, ctypes.byref(self._str)))
         return self._str.value.decode()
+
+    def set_start(self, index, value):
+        self._check(self.lib.mbs_set_start(self.ptr, index, value))
 
     # -- running
     def reset(self):

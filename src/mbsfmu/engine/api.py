@@ -17,6 +17,7 @@ SIGNATURES = {
     "mbs_get_real": (c_int, [c_void_p, c_int, P_double]),
     "mbs_set_string": (c_int, [c_void_p, c_int, c_char_p]),
     "mbs_get_string": (c_int, [c_void_p, c_int, ctypes.POINTER(c_char_p)]),
+    "mbs_set_start": (c_int, [c_void_p, c_int, c_double]),
     "mbs_initialize": (c_int, [c_void_p, c_double]),
     "mbs_do_step": (c_int, [c_void_p, c_double, c_double]),
     "mbs_run": (c_int, [c_void_p, c_void_p, c_int, c_void_p]),

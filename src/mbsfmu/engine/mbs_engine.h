@@ -62,6 +62,10 @@ MBS_API int mbs_get_real(MbsInstance *s, int vr, double *value);
 MBS_API int mbs_set_string(MbsInstance *s, int vr, const char *value); /* integrator.method */
 MBS_API int mbs_get_string(MbsInstance *s, int vr, const char **value);
 
+/* Replace the scene's initial value of state entry `index` (of [y; ẏ]) before initialization; NaN: the
+ * scene's value again (parameter studies vary initial values this way). */
+MBS_API int mbs_set_start(MbsInstance *s, int index, double value);
+
 /* Exit of initialization mode: bind parameters, initial state, build the integrator. */
 MBS_API int mbs_initialize(MbsInstance *s, double t0);
 /* Advance from t (= current time) to t + h with inputs held. MBS_DISCARD: the step failed, the

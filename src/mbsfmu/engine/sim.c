@@ -21,6 +21,7 @@ struct MbsInstance {
     double *u;            /* inputs as set: q_in (nvel), then force inputs (3 per input) */
     double *u_applied;    /* inputs held over the current step */
     double *x, *x_before; /* state [y; ẏ] (before initialization: the initial state) */
+    double *start;        /* start values that replace the scene's initial state (NaN: none) */
     double *work, *M, *k, *q, *xdot, *out;
     void *elastic_work;
     int method;
@@ -143,7 +144,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->nu = f + 3 * m->hdr[H_NINPUT];
     s->ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
     size_t nwork = (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f;
-    size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 2 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + s->n
+    size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 3 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + s->n
                    + 6 * (size_t)m->hdr[H_NOUT] + 1;
     double *buf = calloc(total, sizeof(double));
     if (!buf) { free(s); return NULL; }
@@ -153,6 +154,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->u_applied = buf;        buf += s->nu;
     s->x = buf;                buf += s->n;
     s->x_before = buf;         buf += s->n;
+    s->start = buf;            buf += s->n;
     s->work = buf;             buf += nwork;
     s->M = buf;                buf += (size_t)f * f;
     s->k = buf;                buf += f;
@@ -186,6 +188,7 @@ int mbs_reset(MbsInstance *s)
     memset(s->td, 0, (size_t)s->ntd * sizeof(double));
     memset(s->u, 0, (size_t)s->nu * sizeof(double));
     memset(s->u_applied, 0, (size_t)s->nu * sizeof(double));
+    for (int i = 0; i < s->n; i++) s->start[i] = NAN;
     s->method = m->hdr[H_METHOD];
     s->rtol = di[DI_RTOL];
     s->atol = di[DI_ATOL];
@@ -222,6 +225,7 @@ static int initial_state(MbsInstance *s)
     int rc = bind(s);
     if (rc) return rc;
     mbs_initial_state(s->m, s->D, s->x);
+    for (int i = 0; i < s->n; i++) if (!isnan(s->start[i])) s->x[i] = s->start[i];
     for (int i = 0; i < s->n; i++)
         if (!isfinite(s->x[i])) return report(s, MBS_ERROR, "initial value of %s is not finite", i < NPOS(s->m) ? s->m->coord_name[i] : "a velocity");
     s->initial_valid = 1;
@@ -325,6 +329,15 @@ int mbs_get_real(MbsInstance *s, int vr, double *value)
     }
 }
 
+int mbs_set_start(MbsInstance *s, int index, double value)
+{
+    if (index < 0 || index >= s->n) return report(s, MBS_ERROR, "no state entry %d", index);
+    if (s->initialized) return report(s, MBS_ERROR, "start values are set before initialization");
+    s->start[index] = value;
+    s->initial_valid = 0;
+    return MBS_OK;
+}
+
 int mbs_set_string(MbsInstance *s, int vr, const char *value)
 {
     if (mbs_model_var_kind(s->m, vr) != MBS_V_METHOD) return report(s, MBS_ERROR, "value reference %d is not a String parameter", vr);
@@ -360,7 +373,6 @@ static MbsIntegrator *new_integrator(MbsInstance *s, int method, char *err, size
 int mbs_initialize(MbsInstance *s, double t0)
 {
     char err[512];
-    if (s->initialized) return report(s, MBS_ERROR, "already initialized");
     if (!isfinite(t0)) return report(s, MBS_ERROR, "start time is not finite");
     int rc = initial_state(s);
     if (rc) return rc;

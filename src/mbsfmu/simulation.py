@@ -1,0 +1,234 @@
+"""One simulated scene on the engine: the FMU's variables, parameters and inputs held over a step.
+
+In-process runs, the pythonfmu FMU and the native FMU all run the same C engine (mbsfmu.engine), so all
+three give the same numbers. Python compiles the scene once (engine/compile.py); every step runs in C.
+"""
+
+import uuid
+
+import numpy as np
+
+from .engine import Instance
+from .engine.compile import compile_scene
+from .equations.model import Model
+from .errors import IntegrationError
+
+METHODS = ("auto", "rk4", "dopri5", "dop853", "radau5", "gen_alpha")
+
+
+class Variable:
+    """An FMU variable: name, causality, variability, type, unit, description, start."""
+
+    __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start")
+
+    def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0):
+        self.name, self.causality, self.variability, self.type = name, causality, variability, type
+        self.unit, self.description, self.start = unit, description, start
+
+    def __repr__(self):
+        return f"Variable({self.name!r}, {self.causality}, {self.unit})"
+
+
+def variables(spec, model):
+    """The FMU variables of a scene, in value-reference order (the same for both FMU kinds)."""
+    units_pos, units_vel = model.coordinate_units()
+    out = [Variable(p["name"], "parameter", "tunable", unit=p.get("unit"),
+                    description=p["description"] or f"scene parameter {p['name']}", start=p["value"])
+           for p in spec["parameters"]]
+    ii = spec["integrator"]
+    out.append(Variable("integrator.method", "parameter", "fixed", "String", None, "integration method: " + ", ".join(METHODS), ii["method"]))
+    out.append(Variable("integrator.rtol", "parameter", "fixed", unit="1", description="relative tolerance of the adaptive integrators", start=ii["rtol"]))
+    out.append(Variable("integrator.atol", "parameter", "fixed", unit="1", description="absolute tolerance of the adaptive integrators", start=ii["atol"]))
+    out.append(Variable("integrator.max_step", "parameter", "fixed", unit="s", description="largest internal step (0: no limit)", start=ii["max_step"]))
+    out.append(Variable("integrator.step", "parameter", "fixed", unit="s", description="fixed step of rk4 and gen_alpha (0: one step per communication interval for rk4, adaptive for gen_alpha)", start=ii["step"]))
+    for c, u in zip(model.velocity_coordinates, units_vel):
+        unit = {"m/s": "N", "rad/s": "N.m"}.get(u, "1")
+        out.append(Variable(f"q.{c}", "input", "continuous", unit=unit, description=f"generalized force on velocity coordinate {c}"))
+    for f in spec["forces"]:
+        if "input" in f:
+            unit = "N" if f["type"] == "force" else "N.m"
+            for ax in "xyz":
+                out.append(Variable(f"{f['input']}.{ax}", "input", "continuous", unit=unit,
+                                    description=f"{f['type']} on {f['body']}, {f['frame']} frame, {ax} component"))
+    for c, u in zip(model.coordinates, units_pos):
+        out.append(Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}"))
+    for c, u in zip(model.velocity_coordinates, units_vel):
+        out.append(Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}"))
+    for o in spec["outputs"]:
+        for qty, sym, unit in (("position", "r", "m"), ("velocity", "v", "m/s")):
+            if qty in o["quantities"]:
+                for ax in "xyz":
+                    out.append(Variable(f"{o['name']}.{sym}.{ax}", "output", "continuous", unit=unit,
+                                        description=f"world-frame {qty} of a point on {o['body']}, {ax} component"))
+    return out
+
+
+def compiled(spec, guid=None):
+    """(compiled scene bytes, variables, model) of a normalized spec; guid: the FMU's, else a fresh one."""
+    model = Model(spec)
+    var = variables(spec, model)
+    return compile_scene(spec, var, guid or "{" + str(uuid.uuid4()) + "}"), var, model
+
+
+class Simulation:
+    """A scene ready to step: set parameters and inputs, initialize, do_step, read outputs."""
+
+    def __new__(cls, spec):
+        # transition: elastic scenes run on the Python reference until their terms are in the engine
+        if cls is Simulation and any(b.get("elastic") for b in spec["bodies"]) and not _engine_has_elastic():
+            from .legacy_simulation import Simulation as Legacy
+            return Legacy(spec)
+        return super().__new__(cls)
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.blob, self.variables, model = compiled(spec)
+        self.coordinates, self.velocity_coordinates = list(model.coordinates), list(model.velocity_coordinates)
+        self.npos, self.nvel = model.npos, model.nvel
+        self.engine = Instance(self.blob, self.npos, self.nvel)
+        self._vr = {v.name: i for i, v in enumerate(self.variables)}
+        self._start = {f"y0.{c}": i for i, c in enumerate(self.coordinates)}
+        self._start.update({f"yd0.{c}": self.npos + i for i, c in enumerate(self.velocity_coordinates)})
+        self.time = spec["experiment"]["start"]
+        self.initialized = False
+
+    # -- variables ----------------------------------------------------------------------------------
+    def set(self, name, value):
+        """Set an input or parameter by FMU name; `y0.<coordinate>` / `yd0.<coordinate>` replace an initial
+        value (before initialize)."""
+        if name in self._start:
+            self.engine.set_start(self._start[name], float(value))
+            return
+        vr = self._vr.get(name)
+        if vr is None or self.variables[vr].causality == "output":
+            raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
+        if self.variables[vr].type == "String":
+            self.engine.set_string(vr, value)
+        else:
+            self.engine.set_real(vr, float(value))
+
+    def get(self, name):
+        vr = self._vr.get(name)
+        if vr is None:
+            raise KeyError(f"'{name}' is not a variable of {self.spec['name']}")
+        if self.variables[vr].type == "String":
+            return self.engine.get_string(vr)
+        return self.engine.get_real(vr)
+
+    # -- running ------------------------------------------------------------------------------------
+    def initialize(self, t0=None):
+        """Bind parameters, build the integrator and the initial state (exit of initialization mode)."""
+        if t0 is not None:
+            self.time = float(t0)
+        self.engine.initialize(self.time)
+        self.initialized = True
+
+    def do_step(self, t, h):
+        """Advance from t to t + h with the inputs held; raises IntegrationError (state stays at self.time)."""
+        if not self.initialized:
+            self.initialize(t)
+        try:
+            self.engine.do_step(t, h)
+        finally:
+            self.time = self.engine.time
+
+    def run(self, ts):
+        """States at the communication points ts (ts[0] = now) with the inputs held throughout: the same
+        steps as one do_step per interval, but points inside one dense-output step are interpolated
+        together (like solve_ivp's t_eval). Returns X with a row [y; ẏ] per point."""
+        ts = np.asarray(ts, dtype=float)
+        if not self.initialized:
+            self.initialize(ts[0])
+        try:
+            return self.engine.run(ts)
+        finally:
+            self.time = self.engine.time
+
+    @property
+    def x(self):
+        return np.array(self.engine.state())
+
+    @property
+    def y(self):
+        return self.x[:self.npos]
+
+    @property
+    def yd(self):
+        return self.x[self.npos:]
+
+    @property
+    def stats(self):
+        """Integrator counters: steps, rejected, rhs_evaluations, jac_evaluations, lu_decompositions (auto:
+        switched, switched_at)."""
+        return self.engine.stats()
+
+    def f(self, t, x):
+        """ẋ = [Z(y)·ẏ; M⁻¹(q − k)] with the current inputs (for peers such as scipy's solve_ivp)."""
+        return self.engine.rhs(t, x)
+
+    def output_values(self, x, t=None):
+        """{FMU output name: value} of the `outputs:` points at state x."""
+        out, t = {}, self.time if t is None else t
+        for o, spec_o in enumerate(self.spec["outputs"]):
+            p = self.engine.output_point(o, t, x)
+            for k, (qty, sym) in enumerate((("position", "r"), ("velocity", "v"))):
+                if qty in spec_o["quantities"]:
+                    for a, ax in enumerate("xyz"):
+                        out[f"{spec_o['name']}.{sym}.{ax}"] = float(p[3 * k + a])
+        return out
+
+    # -- state ----------------------------------------------------------------------------------------
+    def get_state(self):
+        """Everything that determines the future, as the engine's checked bytes (the FMU state)."""
+        return self.engine.save_state()
+
+    def set_state(self, s):
+        self.engine.load_state(s)
+        self.time = self.engine.time
+        self.initialized = True  # the engine knows; do_step refuses when the state was saved before initialization
+
+    def reset(self):
+        """Back to the state after instantiation (fmi2Reset)."""
+        self.engine.reset()
+        self.time = self.spec["experiment"]["start"]
+        self.initialized = False
+
+
+def _engine_has_elastic():
+    from .engine.build import HERE
+    return (HERE / "elastic.c").exists()
+
+
+def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
+    """In-process run: returns (t, Y, YD) at the communication points. `inputs`: {name: value} held for the
+    whole run, or a function `inputs(t) -> {name: value}`, sampled at every communication point and held
+    over the following interval (as an FMU master does)."""
+    spec = scene if isinstance(scene, dict) else scene.spec
+    sim = Simulation(spec)
+    if method is not None:
+        sim.set("integrator.method", method)
+    for k, v in options.items():
+        sim.set(f"integrator.{k}", v)
+    e = spec["experiment"]
+    t0, stop, step = e["start"], stop if stop is not None else e["stop"], step if step is not None else e["step"]
+    if not step > 0 or not stop >= t0:
+        raise ValueError(f"need step > 0 and stop >= start (got step={step}, start={t0}, stop={stop})")
+    n = int(round((stop - t0) / step))
+    ts = t0 + step * np.arange(n + 1)
+    sim.initialize(t0)
+    if inputs is None or isinstance(inputs, dict):  # held for the whole run: points of one step together
+        for name, val in (inputs or {}).items():
+            sim.set(name, val)
+        X = sim.run(ts)
+    else:
+        X = [sim.x]
+        for k in range(n):
+            for name, val in inputs(ts[k]).items():
+                sim.set(name, val)
+            sim.do_step(ts[k], ts[k + 1] - ts[k])
+            X.append(sim.x)
+        X = np.array(X)
+    return ts, X[:, :sim.npos], X[:, sim.npos:]
+
+
+__all__ = ["Simulation", "Variable", "simulate", "variables", "compiled", "IntegrationError"]
