@@ -128,7 +128,8 @@ class FmuRunner:
     def _instance(self):
         from fmpy import instantiate_fmu
         if self.fmu is None:
-            self.fmu = instantiate_fmu(self.unzipdir, self.md, "CoSimulation", logger=self._logger)
+            self.fmu = instantiate_fmu(self.unzipdir, self.md, "CoSimulation", logger=self._logger,
+                                       debug_logging=True)  # pythonfmu forwards messages only with logging on
             self.fresh = True
         elif not self.fresh:
             self.fmu.reset()

@@ -1,0 +1,204 @@
+"""Parameter sweeps (issue 14): results against an independent scipy integration of the pendulum ODE,
+Latin-hypercube properties, failures recorded per case, an embedded 2-worker cluster and an external
+`dask scheduler` + `dask worker` used through `mbsfmu sweep --scheduler`."""
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+pd = pytest.importorskip("pandas", reason="sweeps need pandas (pip install 'mbsfmu[sweep]')")
+pytest.importorskip("dask.distributed", reason="sweeps need dask[distributed] (pip install 'mbsfmu[sweep]')")
+
+import mbsfmu  # noqa: E402
+from mbsfmu.cli import main  # noqa: E402
+from mbsfmu.simulation import Simulation  # noqa: E402
+from mbsfmu.sweep.cases import latin_hypercube, make_cases  # noqa: E402
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+STOP = 1.5
+M_ROD, M_BOB, R_BOB, G = 0.3, 1.0, 0.031, 9.81  # models/pendulum.yaml
+
+
+def pendulum_angle(L, theta0, stop=STOP):
+    """θ(stop) of models/pendulum.yaml, written here from scratch: rod (m_rod, length L, hinged at one end)
+    plus a solid sphere (m_bob, r_bob) at its end; I_O θ'' = −g (m_rod L/2 + m_bob L) sin θ."""
+    I_O = M_ROD * L**2 / 3 + M_BOB * (L**2 + 0.4 * R_BOB**2)
+    w2 = G * (M_ROD * L / 2 + M_BOB * L) / I_O
+    sol = solve_ivp(lambda t, x: [x[1], -w2 * math.sin(x[0])], (0, stop), [theta0, 0.0],
+                    method="DOP853", rtol=1e-12, atol=1e-14)
+    return sol.y[0, -1]
+
+
+@pytest.fixture(scope="module")
+def pendulum_theta0(tmp_path_factory):
+    """models/pendulum.yaml with its initial angle as a parameter theta0 (varied like any parameter)."""
+    text = (MODELS / "pendulum.yaml").read_text()
+    assert "initial: {theta: pi/6}" in text
+    text = text.replace("initial: {theta: pi/6}", "initial: {theta: theta0}")
+    text = text.replace("parameters:\n", "parameters:\n  theta0: {value: 0.5, description: initial angle}\n", 1)
+    path = tmp_path_factory.mktemp("sweep") / "pendulum_theta0.yaml"
+    path.write_text(text)
+    return path
+
+
+def _check_angles(table, angle_name):
+    assert (table["status"] == "ok").all(), table["status"].tolist()
+    for _, row in table.iterrows():
+        assert row["y.theta"] == pytest.approx(pendulum_angle(row["L"], row[angle_name]), abs=1e-6)
+
+
+def test_grid_on_two_local_workers_matches_scipy(pendulum_theta0):
+    """Length × initial angle on an embedded LocalCluster of 2 processes; rtol varied as an integrator setting."""
+    vary = {"L": "0.5:1.1:3", "theta0": "0.2,1.0,2.5", "integrator.rtol": [1e-11]}
+    table = mbsfmu.sweep(pendulum_theta0, vary=vary, stop=STOP, workers=2, outputs=["y.theta", "yd.theta"])
+    assert len(table) == 9
+    assert list(table.columns) == ["case", "L", "theta0", "integrator.rtol", "y.theta", "yd.theta", "status",
+                                   "wall_time"]
+    assert sorted(zip(table["L"], table["theta0"])) == sorted((L, a) for L in (0.5, 0.8, 1.1) for a in (0.2, 1.0, 2.5))
+    _check_angles(table, "theta0")
+    assert (table["wall_time"] > 0).all()
+
+
+def test_initial_angle_as_y0():
+    try:
+        Simulation(mbsfmu.load(MODELS / "pendulum.yaml").spec).set("y0.theta", 0.1)
+    except KeyError:
+        pytest.skip("Simulation.set('y0.<coordinate>') is not available yet (issue 10)")
+    table = mbsfmu.sweep(MODELS / "pendulum.yaml", vary={"L": "0.5,1.1", "y0.theta": "0.2,2.5", "integrator.rtol": [1e-11]},
+                         stop=STOP, scheduler="inprocess", outputs="y.theta")
+    _check_angles(table, "y0.theta")
+
+
+def test_series_long_format(pendulum_theta0):
+    table, series = mbsfmu.sweep(pendulum_theta0, vary={"L": "0.6,0.9", "integrator.rtol": [1e-11]}, stop=0.5,
+                                 step=0.1, series=True, scheduler="inprocess", outputs=["y.theta", "bob.r.z"])
+    assert len(series) == 2 * 6 and list(series.columns) == ["case", "time", "y.theta", "bob.r.z"]
+    for (case, t), row in series.set_index(["case", "time"]).iterrows():
+        L = table.loc[case, "L"]
+        assert row["y.theta"] == pytest.approx(pendulum_angle(L, 0.5, t) if t > 0 else 0.5, abs=1e-6)
+        assert row["bob.r.z"] == pytest.approx(-L * math.cos(row["y.theta"]), abs=1e-12)  # bob at (0, 0, −L)
+    last = series[series["time"] == 0.5].set_index("case")
+    assert np.allclose(last["y.theta"], table["y.theta"], rtol=0, atol=0)
+
+
+def test_latin_hypercube_reproducible_and_stratified():
+    ranges = {"L": (0.5, 1.5), "m": (2.0, 3.0), "k": (-1.0, 1.0)}
+    n = 40
+    a, b, c = latin_hypercube(ranges, n, seed=7), latin_hypercube(ranges, n, seed=7), latin_hypercube(ranges, n, seed=8)
+    assert a == b and a != c
+    for name, (lo, hi) in ranges.items():
+        x = np.array(a[name])
+        assert ((x >= lo) & (x <= hi)).all()
+        strata = np.floor((x - lo) / (hi - lo) * n).astype(int)
+        assert sorted(strata) == list(range(n)), name  # one sample in each of the n equal strata
+
+
+def test_samples_through_the_api(pendulum_theta0):
+    vary = {"L": "0.5:1.5", "theta0": (0.1, 0.3)}
+    table = mbsfmu.sweep(pendulum_theta0, vary=vary, samples=12, seed=3, stop=0.2, scheduler="inprocess")
+    cases = make_cases(vary, samples=12, seed=3)
+    assert table["L"].tolist() == cases["L"] and table["theta0"].tolist() == cases["theta0"]
+    assert (table["status"] == "ok").all()
+
+
+def test_failing_cases_are_recorded_and_the_rest_complete():
+    """m_rod = m_bob = 0 leaves the hinge without inertia (singular mass matrix); 'bogus' is no method."""
+    table = mbsfmu.sweep(MODELS / "pendulum.yaml", vary={"m_rod": [0.0], "m_bob": "0,1",
+                                                          "integrator.method": "dop853,bogus"}, stop=0.5, scheduler="inprocess", outputs=["y.theta"])
+    status = dict(zip(zip(table["m_bob"], table["integrator.method"]), table["status"]))
+    assert "singular" in status[(0.0, "dop853")]
+    assert "bogus" in status[(1.0, "bogus")] and "bogus" in status[(0.0, "bogus")]
+    assert status[(1.0, "dop853")] == "ok"
+    ok = table[table["status"] == "ok"].iloc[0]
+    # bob alone on a massless rod: a point-like pendulum of length L = 0.8 with I = m(L² + 0.4 r²)
+    w2 = G * 0.8 / (0.8**2 + 0.4 * R_BOB**2)
+    ref = solve_ivp(lambda t, x: [x[1], -w2 * math.sin(x[0])], (0, 0.5), [math.pi / 6, 0], rtol=1e-12, atol=1e-14)
+    assert ok["y.theta"] == pytest.approx(ref.y[0, -1], abs=1e-6)
+    assert table[table["status"] != "ok"]["y.theta"].isna().all()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--vary", "L=1:2"], "start:stop:count"),
+    (["--vary", "L=1:2:x"], "not an integer"),
+    (["--vary", "nope=1,2"], "cannot vary 'nope'"),
+    (["--vary", "L=1,2", "--seed", "3"], "--seed applies to --samples"),
+    (["--vary", "L=1,2", "--samples", "5"], "range lo:hi"),
+    (["--vary", "L=1,2", "--outputs", "y.nope"], "not an output"),
+    (["--vary", "L=1,2", "--out", "r.xlsx"], ".parquet or .csv"),
+    (["--vary", "L"], "NAME=VALUE"),
+])
+def test_cli_errors_are_one_line(capsys, argv, message):
+    assert main(["sweep", str(MODELS / "pendulum.yaml"), "--scheduler", "inprocess", *argv]) == 1
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+def test_cli_grid_writes_table_series_and_plot(tmp_path, capsys):
+    out, series, png = tmp_path / "r.parquet", tmp_path / "s.csv", tmp_path / "p.png"
+    rc = main(["sweep", str(MODELS / "pendulum.yaml"), "--vary", "L=0.6:1.0:3", "--vary", "m_bob=0.5,1",
+               "--stop", "0.3", "--scheduler", "inprocess", "-q", "--out", str(out), "--series", str(series),
+               "--plot", str(png), "--outputs", "y.theta,bob.r.x"])
+    assert rc == 0, capsys.readouterr().err
+    table = pd.read_parquet(out)
+    assert len(table) == 6 and (table["status"] == "ok").all()
+    assert len(pd.read_csv(series)) == 6 * 31
+    assert png.stat().st_size > 10_000
+
+
+@pytest.fixture
+def external_cluster(tmp_path):
+    """`dask scheduler` and one `dask worker` as subprocesses on 127.0.0.1; yields the scheduler address."""
+    dask = shutil.which("dask") or pytest.skip("the dask command is not on PATH")
+    info = tmp_path / "scheduler.json"
+    common = dict(stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path)
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(info)], **common)]
+    try:
+        deadline = time.monotonic() + 30
+        while not info.exists() or not info.read_text().strip():
+            assert time.monotonic() < deadline and procs[0].poll() is None, "dask scheduler did not start"
+            time.sleep(0.1)
+        address = json.loads(info.read_text())["address"]
+        procs.append(subprocess.Popen([dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+                                       "--no-nanny", "--no-dashboard"], **common))
+        yield address
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def test_external_scheduler_through_cli(external_cluster, pendulum_theta0, tmp_path, capsys):
+    out = tmp_path / "r.csv"
+    rc = main(["sweep", str(pendulum_theta0), "--vary", "L=0.7,1.2", "--vary", "theta0=0.4,2.0",
+               "--vary", "integrator.rtol=1e-11", "--stop", str(STOP), "--scheduler", external_cluster,
+               "--workers", "1", "-q", "--out", str(out), "--outputs", "y.theta"])
+    assert rc == 0, capsys.readouterr().err
+    table = pd.read_csv(out)
+    assert len(table) == 4
+    _check_angles(table, "theta0")
+
+
+def test_sweep_of_a_built_fmu(tmp_path):
+    """Explicit cases (a DataFrame) through fmpy on the pythonfmu FMU: instantiated once, fmi2Reset between
+    cases, a fresh instance after the failing case (no inertia at the hinge)."""
+    fmu = mbsfmu.build_fmu(MODELS / "pendulum.yaml", tmp_path)
+    cases = pd.DataFrame({"L": [0.5, 0.8, 1.1], "m_rod": [M_ROD, 0.0, M_ROD], "m_bob": [M_BOB, 0.0, M_BOB],
+                          "integrator.rtol": [1e-11] * 3})
+    table = mbsfmu.sweep(str(fmu), vary=cases, stop=STOP, step=0.05, scheduler="inprocess", outputs=["y.theta"])
+    assert table["status"].tolist()[::2] == ["ok", "ok"]
+    assert "singular" in table["status"][1]
+    for _, row in table.iloc[::2].iterrows():
+        assert row["y.theta"] == pytest.approx(pendulum_angle(row["L"], math.pi / 6), abs=1e-6)
