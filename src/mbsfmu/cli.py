@@ -154,11 +154,18 @@ def _run_scene(path, args):
     _check_times(e["start"], stop, step)
     t, Y, YD = simulate(scene, stop=stop, step=step, method=args.method)
     sim = Simulation(spec)
-    values = {f"y.{c}": Y[:, i] for i, c in enumerate(sim.ev.coordinates)}
-    values.update({f"yd.{c}": YD[:, i] for i, c in enumerate(sim.ev.velocity_coordinates)})
-    points = [sim.ev.output_values(y, yd, ti) for ti, y, yd in zip(t, Y, YD)]
-    outputs = [v for v in sim.variables if v.causality == "output"]
-    cols = np.column_stack([values[v.name] if v.name in values else [p[v.name] for p in points] for v in outputs])
+    sim.initialize(e["start"])  # binds the parameters the output points depend on
+    outputs = [v for v in sim.variables if v.causality == "output"]  # y.*, yd.*, then the points
+    cols = np.hstack([Y, YD, np.zeros((len(t), len(outputs) - Y.shape[1] - YD.shape[1]))])
+    if spec["outputs"]:
+        names = [v.name for v in outputs]
+        for k, (ti, y, yd) in enumerate(zip(t, Y, YD)):
+            if hasattr(sim, "output_values"):
+                p = sim.output_values(np.concatenate([y, yd]), ti)
+            else:  # the Python reference path (elastic scenes, until the engine has them: issue 10)
+                p = sim.ev.output_values(y, yd, ti)
+            for n, v in p.items():
+                cols[k, names.index(n)] = v
     method = args.method or spec["integrator"]["method"]
     title = f"{spec['name']} (scene): {method}, rtol {spec['integrator']['rtol']:g}"
     return title, t, cols, [v.name for v in outputs], [v.unit for v in outputs]
@@ -323,7 +330,7 @@ def parser():
     p = sub.add_parser("animate", help="write a self-contained HTML page that plays the motion in 3-D")
     p.add_argument("model", help="scene .yaml or mbsfmu .fmu")
     p.add_argument("-o", "--output", default="animation.html", help="HTML file to write (default: animation.html)")
-    p.add_argument("--stop", type=float, default=None, help="simulate until (default: the scene's experiment)")
+    p.add_argument("--stop", type=_seconds, default=None, help="simulate until (default: the scene's experiment)")
     p.add_argument("--input", help="input CSV: a 'time' column, then input names")
     p.add_argument("--result", help="draw this result CSV (from 'mbsfmu simulate --csv') instead of simulating")
     p.add_argument("--fps", type=float, default=60, help="frames kept per simulated second (default: 60)")
@@ -344,7 +351,7 @@ def parser():
     for name, text in (("bench", "work-precision benchmark of a scene (options: mbsfmu bench --help)"),
                        ("stress", "numerical stability suite (options: mbsfmu stress --help)")):
         p = sub.add_parser(name, help=text, add_help=False)
-        p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.add_argument("rest", nargs=argparse.REMAINDER, help=f"scene and options, see mbsfmu {name} --help")
         p.set_defaults(run=lambda a, name=name: _bench(name, a.rest))
     return top
 

@@ -17,18 +17,23 @@ def panels(units):
     return groups
 
 
+def styles():
+    """The line styles of one panel, in order: 10 colours solid, then dashed, dotted, dash-dotted."""
+    import matplotlib.pyplot as plt
+    from cycler import cycler
+    return cycler(linestyle=LINESTYLES) * cycler(color=plt.get_cmap("tab10").colors)
+
+
 def plot_result(path, t, cols, names, units, title):
     """Write a PNG: time on x, one panel per unit; cols[:, k] is signal names[k] in units[k]."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from cycler import cycler
-    styles = cycler(linestyle=LINESTYLES) * cycler(color=plt.get_cmap("tab10").colors)
     groups = panels(units)
     height = 1.2 + 2.3 * len(groups)  # inches
     fig, axes = plt.subplots(len(groups), 1, sharex=True, squeeze=False, figsize=(9, height))
     for ax, (unit, idx) in zip(axes[:, 0], groups.items()):
-        ax.set_prop_cycle(styles)
+        ax.set_prop_cycle(styles())
         for k in idx:
             ax.plot(t, cols[:, k], label=names[k])
         ax.set_ylabel(f"{QUANTITY.get(unit, unit)} [{unit}]")
