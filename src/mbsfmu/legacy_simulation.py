@@ -35,8 +35,6 @@ class Problem:
 
     def accel(self, t, y, v):
         """ÿ = M⁻¹ (q − k)."""
-        if self.ev.native is not None:
-            return self._native_f(t, np.concatenate([y, v]))[self.npos:]
         self._check_gimbal(t, y)
         M, k, q = self.ev._equations(y, v, t, self.q_in, self.F_in)
         try:
@@ -46,30 +44,8 @@ class Problem:
 
     def f(self, t, x):
         self.rhs_calls += 1
-        if self.ev.native is not None:
-            return self._native_f(t, x)
         y, v = x[:self.npos], x[self.npos:]
         return np.concatenate([self.ev.position_rates(y, v), self.accel(t, y, v)])
-
-    def _native_f(self, t, x):
-        """ẋ from the compiled kernel (equations/native.c)."""
-        self._check_gimbal(t, x[:self.npos])
-        xd = self.ev.native.rhs(t, x, self.q_in, self.F_in)
-        if xd is None:
-            raise self._singular(t, x[:self.npos])
-        return xd
-
-    def stages(self, A, C, K, i0, s, h, x, t, t_end):
-        """Runge–Kutta stages K[i0:s] from the compiled kernel for rigid scenes (else None: the integrator
-        evaluates f stage by stage). Returns the argument of the last stage."""
-        native = self.ev.native
-        if native is None or not (A.flags.c_contiguous and K.flags.c_contiguous) or s > len(native.td):
-            return None
-        rc, xs = native.stages(A, C, K, i0, s, h, x, t, t_end, self.q_in, self.F_in)
-        self.rhs_calls += s - i0
-        if rc:
-            raise self._singular(t, xs[:self.npos])
-        return xs
 
     def _singular(self, t, y):
         """M is not positive definite at y: gimbal lock of Cardan angles, or a mass-less chain."""
@@ -257,6 +233,14 @@ class Simulation:
     def _compute_outputs(self, y, yd):
         """Values of the `outputs:` points (y and ẏ are read straight from the state)."""
         return self.ev.output_values(y, yd, self.time)
+
+    npos = property(lambda self: self.problem.npos)
+    nvel = property(lambda self: self.problem.nvel)
+    stats = property(lambda self: dict(self.integrator.stats) if self.integrator else {})
+    initialized = property(lambda self: self.integrator is not None)
+
+    def f(self, t, x):
+        return self.problem.f(t, x)
 
     @property
     def y(self):

@@ -4,6 +4,8 @@ In-process runs, the pythonfmu FMU and the native FMU all run the same C engine 
 three give the same numbers. Python compiles the scene once (engine/compile.py); every step runs in C.
 """
 
+import hashlib
+import json
 import uuid
 
 import numpy as np
@@ -64,10 +66,14 @@ def variables(spec, model):
 
 
 def compiled(spec, guid=None):
-    """(compiled scene bytes, variables, model) of a normalized spec; guid: the FMU's, else a fresh one."""
+    """(compiled scene bytes, variables, model) of a normalized spec; guid: the FMU's, else one derived from the
+    scene (equal scenes accept each other's states)."""
     model = Model(spec)
     var = variables(spec, model)
-    return compile_scene(spec, var, guid or "{" + str(uuid.uuid4()) + "}"), var, model
+    if guid is None:
+        digest = hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()
+        guid = "{" + str(uuid.UUID(digest[:32])) + "}"
+    return compile_scene(spec, var, guid), var, model
 
 
 class Simulation:

@@ -44,12 +44,12 @@ def benchmark_equations(scene_path, out_dir=None, n_states=20, fmu=True, stop=No
         states.append((y, rng.normal(size=yd0.size), 0.0))
     res = {"scene": spec["name"], "n": int(yd0.size), "notes": []}
     res["mbsfmu_equations_us"] = _time_per_call(ev.equations, states)  # numpy reference path (tree.py)
-    if ev.native is not None:
-        res["mbsfmu_native_us"] = _time_per_call(ev.native.equations, states)
     sim = Simulation(spec)
     sim.initialize(0.0)
+    eng = sim.engine
+    res["mbsfmu_native_us"] = _time_per_call(lambda y, yd, t: eng.equations(t, np.concatenate([y, yd])), states)
     xs = [(0.0, np.concatenate([y, yd])) for y, yd, _ in states]
-    res["mbsfmu_rhs_us"] = _time_per_call(sim.problem.f, xs)
+    res["mbsfmu_rhs_us"] = _time_per_call(sim.f, xs)
     try:
         import pinocchio as pin
 

@@ -7,7 +7,7 @@
   same machine state for both), with the mbsfmu run also through a do_step loop (an FMU master's calls);
   the ratio in the summary comes from these paired timings.
 * scipy `solve_ivp` (RK45, DOP853, Radau, BDF, LSODA) integrates the SAME right-hand side
-  `Simulation.problem.f` with `t_eval` = communication points. scipy does not normalize quaternions
+  `Simulation.f` (the engine's right-hand side) with `t_eval` = communication points. scipy does not normalize quaternions
   (mbsfmu projects them back to unit length after every accepted step).
 * Exudyn (C++; generalized-α and RK44, fixed step) runs an ObjectKinematicTree built from the compiled
   model when every joint is revolute or prismatic (other scenes: skipped with a note).
@@ -65,25 +65,15 @@ def comm_points(spec, stop=None, step=None):
     return t0 + step * np.arange(n + 1)
 
 
-def _with_budget(problem, budget):
-    """Wrap problem.f on the instance so a run over `budget` CPU seconds raises Budget (checked every 64 calls)."""
-    orig = type(problem).f.__get__(problem)
-    start = time.process_time()
-    count = [0]
-
-    def f(t, x):
-        count[0] += 1
-        if count[0] & 63 == 0 and time.process_time() - start > budget:
-            raise Budget(f"over the {budget:g} s CPU budget")
-        return orig(t, x)
-
-    problem.f = f
-    return problem
+def _check_budget(start, budget):
+    if time.process_time() - start > budget:
+        raise Budget(f"over the {budget:g} s CPU budget")
 
 
 def run_mbsfmu(spec, method, ts, rtol=1e-6, atol=1e-8, h=None, budget=math.inf, inputs=None, loop=False):
     """Simulation.run over ts (loop: one Simulation.do_step per communication step, as an FMU master
-    drives it) → (Y at ts, cpu seconds, integrator stats)."""
+    drives it) → (Y at ts, cpu seconds, integrator stats). With a finite CPU budget the run goes in chunks of
+    64 points and stops with Budget when it is spent."""
     from mbsfmu.simulation import Simulation
     c0 = time.process_time()
     sim = Simulation(spec)
@@ -92,37 +82,45 @@ def run_mbsfmu(spec, method, ts, rtol=1e-6, atol=1e-8, h=None, budget=math.inf, 
     sim.set("integrator.atol", atol)
     if h is not None:
         sim.set("integrator.step", h)
-    if math.isfinite(budget):
-        _with_budget(sim.problem, budget)
     sim.initialize(ts[0])
     if inputs:
         for k, v in inputs.items():
             sim.set(k, v)
     if loop:
-        Y = np.empty((len(ts), sim.problem.npos))
+        Y = np.empty((len(ts), sim.npos))
         Y[0] = sim.y
         for k in range(len(ts) - 1):
             sim.do_step(ts[k], ts[k + 1] - ts[k])
             Y[k + 1] = sim.y
+            if k & 63 == 63 and math.isfinite(budget):
+                _check_budget(c0, budget)
+    elif math.isfinite(budget):
+        Y = np.empty((len(ts), sim.npos))
+        for i in range(0, len(ts) - 1, 64):
+            Y[i:i + 65] = sim.run(ts[i:i + 65])[:, :sim.npos]
+            _check_budget(c0, budget)
     else:
-        Y = sim.run(ts)[:, :sim.problem.npos]
+        Y = sim.run(ts)[:, :sim.npos]
     cpu = time.process_time() - c0
-    stats = dict(sim.integrator.stats)
-    stats.setdefault("rhs_evaluations", sim.problem.rhs_calls)
-    return Y, cpu, stats
+    return Y, cpu, dict(sim.stats)
 
 
 def run_scipy(spec, method, ts, rtol=1e-6, atol=1e-8, budget=math.inf):
-    """solve_ivp on Simulation.problem.f (no quaternion normalization) → (Y at ts, cpu, stats)."""
+    """solve_ivp on Simulation.f (no quaternion normalization) → (Y at ts, cpu, stats)."""
     from scipy.integrate import solve_ivp
     from scipy.integrate._ivp.ivp import METHODS
     from mbsfmu.simulation import Simulation
     c0 = time.process_time()
     sim = Simulation(spec)
     sim.initialize(ts[0])
-    if math.isfinite(budget):
-        _with_budget(sim.problem, budget)
-    steps = [0]
+    calls, steps = [0], [0]
+
+    def f(t, x):
+        calls[0] += 1
+        if calls[0] & 63 == 0 and math.isfinite(budget):
+            _check_budget(c0, budget)
+        return sim.f(t, x)
+
     base = METHODS[method]
 
     class Counted(base):  # counts accepted steps (one _step_impl call = one accepted step)
@@ -130,12 +128,11 @@ def run_scipy(spec, method, ts, rtol=1e-6, atol=1e-8, budget=math.inf):
             steps[0] += 1
             return super()._step_impl()
 
-    calls0 = sim.problem.rhs_calls
-    sol = solve_ivp(sim.problem.f, (ts[0], ts[-1]), sim.x, method=Counted, t_eval=ts, rtol=rtol, atol=atol)
+    sol = solve_ivp(f, (ts[0], ts[-1]), sim.x, method=Counted, t_eval=ts, rtol=rtol, atol=atol)
     cpu = time.process_time() - c0
     if sol.status != 0 or sol.y.shape[1] != len(ts):
         raise RuntimeError(f"solve_ivp {method}: {sol.message}")
-    return sol.y[:sim.problem.npos].T.copy(), cpu, {"steps": steps[0], "rhs_evaluations": sim.problem.rhs_calls - calls0}
+    return sol.y[:sim.npos].T.copy(), cpu, {"steps": steps[0], "rhs_evaluations": calls[0]}
 
 
 # ------------------------------------------------------------------------------------------------ Exudyn
@@ -324,7 +321,7 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
         methods = [m for m in methods if not (m in EXUDYN_METHODS or m.startswith("exudyn:"))]
     if spec_has_quaternions(spec):
         notes.append("Quaternions: mbsfmu normalizes them after every accepted step, scipy integrates "
-                     "problem.f without normalization.")
+                     "Simulation.f without normalization.")
     jobs = plan(spec, methods, quick, ts)
     Yref, ref_cpu, floor = reference(spec, ts)
     rows = []
@@ -432,9 +429,9 @@ def summary(rows, spec, ts, ref_cpu, floor, notes, head=None):
              f"repeated up to {REPEATS} times within {REPEAT_CPU:g} s, the fastest counts). "
              "mbsfmu runs through `Simulation.run` (as `simulate`: the steps of one do_step per communication "
              "step, points inside one dense-output step interpolated together); "
-             "scipy runs `solve_ivp(problem.f, t_eval=communication points)` on the same right-hand side; "
+             "scipy runs `solve_ivp(Simulation.f, t_eval=communication points)` on the same right-hand side; "
              "Exudyn runs its C++ KinematicTree with a fixed step. Adaptive methods: atol = rtol·1e-2. "
-             "rhs_evaluations: calls of problem.f (first-order RHS incl. finite-difference Jacobians); for gen_alpha "
+             "rhs_evaluations: calls of the right-hand side (first-order RHS incl. finite-difference Jacobians); for gen_alpha "
              "calls of the acceleration function; empty for Exudyn.", ""]
     b = {f: best_at(rows, f) for f in ("mbsfmu", "scipy", "exudyn")}
     lines.append(f"## Fastest run with error ≤ {TARGET_ERROR:g}")

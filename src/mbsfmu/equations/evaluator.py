@@ -1,4 +1,7 @@
-"""The scene-specific evaluator of M(y,t)·ÿ + k(y,ẏ,t) = q(y,ẏ,t) — the public `mbsfmu.compile` result."""
+"""The scene-specific evaluator of M(y,t)·ÿ + k(y,ẏ,t) = q(y,ẏ,t) — the public `mbsfmu.compile` result.
+
+This is the readable numpy reference of the seed equations (tree.py, bodies/); runs use the C engine
+(mbsfmu.engine), and the tests hold the engine against this evaluator."""
 
 import math
 
@@ -7,18 +10,15 @@ import numpy as np
 from ..expr import parse
 from ..kinematics.rotations import cross, matrix_to_quat, quat_rate_matrix
 from .model import Model, initial_rotation
-from .native import native_tree
 from .tree import applied_forces, kinematics, mass_matrix_and_bias, point
 
 
 class Evaluator:
     """Equations of motion of one scene. `y` are position coordinates, `yd` velocity coordinates."""
 
-    def __init__(self, spec, native=True):
+    def __init__(self, spec):
         self.model = Model(spec)
         m = self.model
-        # compiled right-hand side for rigid scenes (None: the numpy path of tree.py)
-        self.native = native_tree(m) if native else None
         self.name = m.name
         self.coordinates = list(m.coordinates)
         self.velocity_coordinates = list(m.velocity_coordinates)
@@ -44,8 +44,6 @@ class Evaluator:
     def set_parameters(self, params):
         """Change parameters without recompiling (re-binds the numbers only)."""
         self.model.bind({k: float(v) for k, v in params.items()})
-        if self.native is not None:
-            self.native.bind()
         self._bind_outputs()
 
     def initial_state(self):
@@ -150,18 +148,11 @@ class Evaluator:
         """{FMU output name: value} of the scene's `outputs:` points (world position r, velocity v)."""
         if not self._out_points:
             return {}
-        if self.native is not None:
-            frames = self.native.frames(np.concatenate([y, yd]), t)
-        else:
-            d = kinematics(self.model, np.asarray(y, float), np.asarray(yd, float), t)
+        d = kinematics(self.model, np.asarray(y, float), np.asarray(yd, float), t)
         out = {}
         for o, i, r_b, syms in self._out_points:
             if r_b is None:
                 r, v, _ = _node_pt(self.model, d, i, o["node"])
-            elif self.native is not None:
-                S, org, w, vel = frames[i]
-                rho = S @ r_b
-                r, v = org + rho, vel + cross(w, rho)
             else:
                 r, v, _ = point(d, i, r_b)
             for sym in syms:

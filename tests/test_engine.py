@@ -1,0 +1,212 @@
+"""The C engine (mbsfmu.engine) against the numpy reference of the seed equations (equations/tree.py, which
+Pinocchio checks independently in test_pinocchio.py and test_drives.py): every joint type, force element,
+drive and input, parameter re-binding inside the engine; the instance's variables and checked state bytes."""
+
+import glob
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mbsfmu
+from mbsfmu.engine import EngineError
+from mbsfmu.errors import IntegrationError
+from mbsfmu.simulation import Simulation, simulate
+
+REPO = Path(__file__).resolve().parent.parent
+RIGID = [p for p in sorted(glob.glob(str(REPO / "models" / "*.yaml")) + glob.glob(str(REPO / "models" / "stress" / "*.yaml")))
+         if "elastic" not in Path(p).read_text() and "flexible" not in p and "spinup" not in p]
+
+# every joint type, both rotation parameterizations, every force element, a drive and force inputs
+ALL_FEATURES = """
+mbsfmu: 1
+name: all_features
+parameters: {k: 40.0, w: 2.0}
+gravity: [0.2, -0.4, -9.81]
+bodies:
+  base:
+    parent: world
+    joint: {type: planar, axes: [[1, 0, 0], [0, 1, 0]], at: [0.1, 0, 0.2], rotation: {axis: [1, 2, 3], angle: 0.4}}
+    mass: 2.0
+    center_of_mass: [0.1, 0.05, 0]
+    inertia: [[0.2, 0.01, 0], [0.01, 0.3, 0], [0, 0, 0.25]]
+  cyl:
+    parent: base
+    joint: {type: cylindrical, axis: [0, 0.6, 0.8], at: [0.3, 0, 0]}
+    mass: 1.0
+    center_of_mass: [0, 0, 0.2]
+    inertia: [[0.05, 0, 0], [0, 0.04, 0], [0, 0, 0.02]]
+  uni:
+    parent: cyl
+    joint: {type: universal, axes: [[1, 0, 0], [0, 1, 0]], at: [0, 0, 0.4], drive: {uni.angle1: "0.3*sin(w*t)"}}
+    mass: 0.7
+    center_of_mass: [0.1, 0, 0]
+    inertia: [[0.01, 0, 0], [0, 0.02, 0], [0, 0, 0.02]]
+  ball:
+    parent: uni
+    joint: {type: spherical, parameterization: cardan, at: [0.2, 0, 0]}
+    mass: 0.5
+    center_of_mass: [0, 0.1, 0]
+    inertia: [[0.01, 0, 0], [0, 0.012, 0], [0, 0, 0.015]]
+  flyer:
+    parent: world
+    joint: {type: free, parameterization: cardan, at: [0, 1, 0]}
+    mass: 1.5
+    center_of_mass: [0.02, 0, 0.01]
+    inertia: [[0.1, 0, 0.01], [0, 0.12, 0], [0.01, 0, 0.09]]
+  puck:
+    parent: flyer
+    joint: {type: free, at: [0.2, 0, 0]}
+    mass: 0.3
+    inertia: [[0.002, 0, 0], [0, 0.003, 0], [0, 0, 0.004]]
+  slider:
+    parent: puck
+    joint: {type: prismatic, axis: [1, 1, 0]}
+    mass: 0.2
+    inertia: [[0.001, 0, 0], [0, 0.001, 0], [0, 0, 0.001]]
+  top:
+    parent: slider
+    joint: {type: spherical, at: [0, 0, 0.1]}
+    mass: 0.4
+    center_of_mass: [0, 0, 0.05]
+    inertia: [[0.003, 0, 0], [0, 0.003, 0], [0, 0, 0.005]]
+forces:
+  - {type: joint_spring_damper, coordinate: slider.s, stiffness: k, damping: 0.3, offset: 0.05}
+  - {type: spring_damper, bodies: [world, ball], at: [[0, 0, 1], [0.1, 0, 0]], stiffness: k, damping: 0.5, length: 0.4}
+  - {type: spring_damper, bodies: [flyer, top], at: [[0, 0.1, 0], [0, 0, 0.1]], stiffness: 15, damping: 0.2, length: 0.1}
+  - {type: force, body: cyl, at: [0, 0.1, 0], frame: body, value: ["sin(t)", 0, "2*cos(w*t)"]}
+  - {type: torque, body: ball, frame: world, value: [0.1, -0.2, 0.3]}
+  - {type: force, body: puck, at: [0.01, 0, 0], frame: body, input: F_puck}
+  - {type: torque, body: flyer, frame: body, input: T_flyer}
+"""
+
+
+
+
+def _random_state(ev, rng):
+    y = rng.normal(size=len(ev.coordinates)) * 0.5
+    for qi in ev.model.quaternions:
+        y[qi] /= np.linalg.norm(y[qi])
+    return y, rng.normal(size=len(ev.velocity_coordinates))
+
+
+def _compare(spec, rng, t=0.37, params=None):
+    """M, k, q, ẋ and output points of the engine and of the numpy reference at a random state and inputs."""
+    ev, sim = mbsfmu.compile(spec), Simulation(spec)
+    for name, value in (params or {}).items():
+        sim.set(name, value)
+    ev.set_parameters(params or {})
+    y, yd = _random_state(ev, rng)
+    u = {n: rng.normal() for n in ev.inputs}
+    for name, value in u.items():
+        sim.set(name, value)
+    M, k, q = ev.equations(y, yd, t, u)
+    x = np.concatenate([y, yd])
+    M2, k2, q2 = sim.engine.equations(t, x)
+    scale = max(1.0, np.abs(M).max(), np.abs(k).max(), np.abs(q).max())
+    for a, b in ((M, M2), (k, k2), (q, q2)):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * scale)
+    ref = np.concatenate([ev.position_rates(y, yd), np.linalg.solve(M, q - k)])
+    np.testing.assert_allclose(sim.f(t, x), ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+    got, want = sim.output_values(x, t), ev.output_values(y, yd, t)
+    assert set(got) == set(want)
+    for name in want:
+        assert abs(got[name] - want[name]) <= 1e-12 * max(1.0, abs(want[name]))
+
+
+@pytest.mark.parametrize("path", RIGID, ids=lambda p: Path(p).stem)
+def test_shipped_rigid_scenes_agree_with_numpy_reference(path):
+    _compare(mbsfmu.load(path).spec, np.random.default_rng(3))
+
+
+def test_every_joint_force_element_drive_and_input_agrees_with_numpy_reference():
+    spec = mbsfmu.loads(ALL_FEATURES).spec
+    rng = np.random.default_rng(11)
+    for t in (0.0, 0.37, 1.9):
+        _compare(spec, rng, t)
+
+
+def test_parameters_rebind_inside_the_engine():
+    """Parameters feed stiffnesses (k) and a drive's frequency (w): the engine's bind and time programs."""
+    _compare(mbsfmu.loads(ALL_FEATURES).spec, np.random.default_rng(5), params={"k": 400.0, "w": 0.5})
+    spec = mbsfmu.load(REPO / "models" / "double_pendulum.yaml").spec
+    _compare(spec, np.random.default_rng(6), params={p["name"]: 1.7 * p["value"] for p in spec["parameters"]})
+
+
+def test_initial_state_and_start_values():
+    spec = mbsfmu.load(REPO / "models" / "double_pendulum.yaml").spec
+    ev, sim = mbsfmu.compile(spec), Simulation(spec)
+    y0, yd0 = ev.initial_state()
+    assert [sim.get(f"y.{c}") for c in ev.coordinates] == list(y0)
+    sim.set(f"y0.{ev.coordinates[0]}", 0.25)
+    sim.set(f"yd0.{ev.velocity_coordinates[1]}", -1.5)
+    sim.initialize(0.0)
+    assert sim.get(f"y.{ev.coordinates[0]}") == 0.25 and sim.get(f"yd.{ev.velocity_coordinates[1]}") == -1.5
+
+
+def test_singular_mass_matrix_is_a_clean_integration_error():
+    scene = mbsfmu.loads("""
+mbsfmu: 1
+name: massless
+bodies:
+  arm: {parent: world, joint: {type: revolute, axis: [0, 0, 1]}, mass: 0, inertia: [[0, 0, 0], [0, 0, 0], [0, 0, 0]]}
+""")
+    sim = Simulation(scene.spec)
+    sim.initialize(0.0)
+    with pytest.raises(IntegrationError, match="singular"):
+        sim.do_step(0.0, 0.1)
+    assert sim.time == 0.0
+
+
+def test_wrong_calls_are_refused_with_a_message():
+    sim = Simulation(mbsfmu.load(REPO / "models" / "pendulum.yaml").spec)
+    with pytest.raises(KeyError):
+        sim.set(f"y.{sim.coordinates[0]}", 1.0)
+    with pytest.raises(EngineError, match="valid: rk4, dopri5"):
+        sim.set("integrator.method", "euler")
+    sim.initialize(0.0)
+    with pytest.raises(EngineError, match="fixed"):
+        sim.set("integrator.rtol", 1e-3)
+    with pytest.raises(EngineError, match="simulation is at"):
+        sim.do_step(1.0, 0.1)
+
+
+def test_state_bytes_restore_bit_identical_and_refuse_foreign_or_corrupt_bytes():
+    spec = mbsfmu.loads(ALL_FEATURES).spec
+    a = Simulation(spec)
+    a.set("F_puck.x", 0.3)
+    a.initialize(0.0)
+    for k in range(5):
+        a.do_step(0.01 * k, 0.01)
+    state = a.get_state()
+    a.do_step(0.05, 0.01)
+    expected = a.x
+    b = Simulation(spec)  # a fresh instance continues bit for bit
+    b.set_state(state)
+    b.do_step(0.05, 0.01)
+    assert np.array_equal(b.x, expected)
+    before = b.x
+    other = Simulation(mbsfmu.load(REPO / "models" / "pendulum.yaml").spec)
+    other.initialize(0.0)
+    rng = np.random.default_rng(0)
+    flipped = bytearray(state)
+    flipped[len(state) // 2] ^= 1
+    bad = [state[:-1], state + b"x", b"", bytes(rng.integers(0, 256, len(state), dtype=np.uint8)),
+           other.get_state(), bytes(flipped)]
+    for data in bad:
+        with pytest.raises(EngineError, match="state unchanged"):
+            b.set_state(data)
+        assert np.array_equal(b.x, before)
+
+
+def test_simulate_input_function_is_held_between_points():
+    """An input function is sampled at communication points: the same as setting it before each step."""
+    spec = mbsfmu.load(REPO / "models" / "pendulum.yaml").spec
+    name = "q." + Simulation(spec).velocity_coordinates[0]
+    t, Y, _ = simulate(spec, stop=0.5, step=0.01, inputs=lambda t: {name: 1.0 if t < 0.2 else 0.0})
+    sim = Simulation(spec)
+    sim.initialize(0.0)
+    for k in range(len(t) - 1):
+        sim.set(name, 1.0 if t[k] < 0.2 else 0.0)
+        sim.do_step(t[k], t[k + 1] - t[k])
+    assert np.array_equal(sim.y, Y[-1])
