@@ -11,7 +11,6 @@ Writes <out>/sweep.md, sweep.csv and sweep.png.
 """
 
 import argparse
-import logging
 import os
 import statistics
 import time
@@ -45,9 +44,10 @@ def plain_loop(spec, cases, ts, outputs):
 
 def measure(n_cases=200, stop=2.0, repeats=5, max_workers=None):
     import numpy as np
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
     import mbsfmu
     from ..sweep.cases import make_cases
+    from ..sweep.dispatch import local_cluster
     scene = mbsfmu.load(MODEL)
     cols = make_cases(VARY, samples=n_cases, seed=1)
     cases = [{k: cols[k][i] for k in cols} for i in range(n_cases)]
@@ -66,8 +66,7 @@ def measure(n_cases=200, stop=2.0, repeats=5, max_workers=None):
     counts = list(range(1, (max_workers or os.cpu_count() or 1) + 1))
     clusters = {}
     for k in counts:
-        cluster = LocalCluster(n_workers=k, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+        cluster = local_cluster(k)
         client = Client(cluster)
         client.run(_warm)
         clusters[k] = (cluster, client)

@@ -11,7 +11,8 @@ import numpy as np
 
 from .runner import run_batch
 
-BATCHES_PER_SLOT = 8   # a few batches per worker: load balance and progress steps, little scheduling overhead
+BATCHES_PER_SLOT = 8   # several batches per worker: load balance and progress steps
+BATCH_SECONDS = 0.1    # yet at least this much work per task: a task costs the scheduler a few ms
 MAX_BATCH = 256        # long sweeps still report progress and lose little to a dying worker
 WAIT_FOR_WORKERS = 60  # seconds an existing cluster may take to offer its first worker
 
@@ -31,50 +32,78 @@ def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
             return _on_cluster(client, model, cases, setup, bar)
 
 
-def batches(cases, slots):
-    size = min(MAX_BATCH, max(1, math.ceil(len(cases) / (slots * BATCHES_PER_SLOT))))
+def batches(cases, slots, cost=None):
+    """Split cases into batches: about BATCHES_PER_SLOT per slot, but (given the seconds one case costs)
+    at least BATCH_SECONDS of work each, and never fewer batches than slots."""
+    size = max(1, math.ceil(len(cases) / (slots * BATCHES_PER_SLOT)))
+    if cost is not None and math.isfinite(cost) and cost > 0:
+        size = max(size, min(math.ceil(BATCH_SECONDS / cost), math.ceil(len(cases) / slots)))
+    size = min(size, max(MAX_BATCH, math.ceil(len(cases) / slots)))
     return [cases[k:k + size] for k in range(0, len(cases), size)]
 
 
 def _on_cluster(client, model, cases, setup, bar):
+    """A first wave of one case per slot measures what a case costs; the rest goes out in batches sized
+    from that."""
     from dask.distributed import as_completed
-    slots = sum(client.nthreads().values())
+    slots = max(1, sum(client.nthreads().values()))
     [shared] = client.scatter([model], broadcast=True, hash=False)  # the model travels once per worker
-    pending = {client.submit(run_batch, shared, b, setup, pure=False): b for b in batches(cases, slots)}
-    rows = []
-    for fut in as_completed(list(pending)):
+    pending = {}
+
+    def submit(batch):
+        fut = client.submit(run_batch, shared, batch, setup, pure=False)
+        pending[fut] = batch
+        return fut
+
+    waves = as_completed([submit([c]) for c in cases[:slots]])
+    rest, rows = cases[slots:], []
+    for fut in waves:
         batch = pending.pop(fut)
         try:
-            rows += fut.result()
+            done = fut.result()
         except Exception as e:  # the worker died (e.g. killed): its cases fail, the sweep goes on
             nan = np.full(len(setup.outputs), np.nan)
-            rows += [(i, f"worker failed: {type(e).__name__}: {e}", math.nan, nan, None) for i, _ in batch]
+            done = [(i, f"worker failed: {type(e).__name__}: {e}", math.nan, nan, None) for i, _ in batch]
+        rows += done
         fut.release()
         bar.update(len(batch))
+        if rest:
+            for b in batches(rest, slots, cost=done[0][2]):
+                waves.add(submit(b))
+            rest = []
     return rows
+
+
+def local_cluster(n):
+    """The embedded cluster: n single-threaded worker processes; the scheduler hands every task to a
+    worker at once (no root-task queuing), so a worker never waits a round trip between batches."""
+    import dask
+    from dask.distributed import LocalCluster
+    with dask.config.set({"distributed.scheduler.worker-saturation": math.inf}):
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                            silence_logs=logging.ERROR)
 
 
 @contextlib.contextmanager
 def _client(scheduler, workers):
-    """A Dask client: on an embedded LocalCluster (closed afterwards), an address, or a Client given."""
-    from dask.distributed import Client, LocalCluster
-    if isinstance(scheduler, Client):
-        yield scheduler
-        return
+    """A Dask client: on an embedded LocalCluster (closed afterwards), an address, or a Client given; on an
+    existing cluster wait until `workers` workers (default 1) have joined."""
+    from dask.distributed import Client
     if scheduler is None:
         n = int(workers or os.cpu_count() or 1)
         if n < 1:
             raise ValueError(f"workers must be at least 1, got {workers}")
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                          silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        with local_cluster(n) as cluster, Client(cluster) as client:
             yield client
         return
-    with Client(scheduler, timeout=WAIT_FOR_WORKERS) as client:
+    with contextlib.ExitStack() as stack:
+        client = scheduler if isinstance(scheduler, Client) else stack.enter_context(
+            Client(scheduler, timeout=WAIT_FOR_WORKERS))
         try:
             client.wait_for_workers(int(workers or 1), timeout=WAIT_FOR_WORKERS)
         except TimeoutError:
-            raise TimeoutError(f"no Dask worker joined {scheduler} within {WAIT_FOR_WORKERS} s "
-                               f"(start them with: dask worker {scheduler})") from None
+            raise TimeoutError(f"fewer than {workers or 1} Dask workers joined {client.scheduler.address} within "
+                               f"{WAIT_FOR_WORKERS} s (start them with: dask worker ADDRESS)") from None
         yield client
 
 
