@@ -12,6 +12,7 @@ import numpy as np
 
 from ..equations.model import Model
 from ..expr import CONSTANTS, parse
+from .elastic_tables import elastic_sections
 
 FORMAT_VERSION = 1
 # sections (mbs_model.h: S_*) and their element kinds (0 int32, 1 double, 2 bytes)
@@ -156,7 +157,12 @@ def compile_scene(spec, variables, guid=""):
             if b.vel_idx[k] >= 0 and c in j["initial_velocity"]:
                 x0[npos + b.vel_idx[k]] = P.number(j["initial_velocity"][c], env, "x0", npos + b.vel_idx[k])
         ib[i, IB_ELASTIC] = -1
-        ib[i, IB_NODE] = -1
+        ib[i, IB_NODE] = -1 if b.node is None else _node_index(m, b.parent, b.node)
+        if b.elastic:  # initial elastic coordinates (tunable, like every initial value)
+            for key, idx, base in (("initial", b.q_idx, 0), ("initial_velocity", b.qd_idx, npos)):
+                for c, v in b.elastic[key].items():
+                    k_ = base + idx[b.elastic["coordinates"].index(c)]
+                    x0[k_] = P.number(v, env, "x0", k_)
     for s_, (i, k, (e, ed, edd)) in enumerate(drives):
         ib[i, IB_DRV + k] = s_
         for c, ex in enumerate((e, ed, edd)):
@@ -233,8 +239,11 @@ def compile_scene(spec, variables, guid=""):
     plain = np.concatenate([m.plain_pos, m.plain_vel]).astype(np.int32)
     vars_ = np.array([_variable(v, params, m, inputs) for v in variables], dtype=np.int32).reshape(-1, 2)
     features = F_EXPR * bool(P.rows) | F_ELASTIC * m.has_elastic
+    elastic_i, elastic_d = np.zeros(0, np.int32), np.zeros(0)
     if m.has_elastic:
-        raise NotImplementedError("elastic bodies are not yet in the compiled engine")
+        elastic_i, elastic_d, elastic_index = elastic_sections(m, spec)
+        for i, e in elastic_index.items():
+            ib[i, IB_ELASTIC] = e
     header = dict(NB=nb, NPOS=npos, NVEL=f, NFORCE=len(m.bound_forces), NQUAT=len(quat), NPLAIN=len(m.plain_pos),
                   NDRV=len(drives), NVEC=len(inputs) + len(timed), NINPUT=len(inputs), NPARAM=len(params),
                   NVARS=len(vars_), NOUT=len(m.outputs), NPROG=len(prog), NCODE=len(P.code),
@@ -242,11 +251,12 @@ def compile_scene(spec, variables, guid=""):
                   FEATURES=features, MAXSTACK=MAXSTACK, D_PARAM=0, D_CONST=len(params), D_BODY=offsets["body"],
                   D_FORCE=offsets["force"], D_G=offsets["g"], D_X0=offsets["x0"], D_OUT=offsets["out"],
                   D_INTEG=offsets["integ"], ND=nd)
-    names = b"".join(n.encode() + b"\0" for n in list(m.coordinates) + [b.name for b in m.bodies])
+    names = b"".join(n.encode() + b"\0" for n in list(m.coordinates) + [b.name for b in m.bodies] + [v.name for v in variables])
     sections = [(S_HEADER, 0, np.array([header[k] for k in H_FIELDS], dtype=np.int32)),
                 (S_BODY_I, 0, ib), (S_FORCE_I, 0, iforce), (S_QUAT, 0, quat), (S_PLAIN, 0, plain),
                 (S_VARS, 0, vars_), (S_OUT_I, 0, out_i), (S_PROG, 0, prog),
-                (S_CODE, 0, np.array(P.code, dtype=np.int32)), (S_D, 1, D), (S_NAMES, 2, np.frombuffer(names, np.uint8))]
+                (S_CODE, 0, np.array(P.code, dtype=np.int32)), (S_ELASTIC_I, 0, elastic_i), (S_D, 1, D),
+                (S_ELASTIC_D, 1, elastic_d), (S_NAMES, 2, np.frombuffer(names, np.uint8))]
     return _pack(sections, guid)
 
 

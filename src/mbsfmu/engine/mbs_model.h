@@ -27,7 +27,7 @@ enum {
     S_ELASTIC_I,    /* elastic.c */
     S_D,            /* all numbers    double (layout below) */
     S_ELASTIC_D,    /* elastic.c (double) */
-    S_NAMES,        /* bytes: npos coordinate names, then nb body names, each NUL-terminated (messages) */
+    S_NAMES,        /* bytes: npos coordinate, nb body, nvars variable names, each NUL-terminated (messages) */
     S_NSECTIONS
 };
 
@@ -76,7 +76,7 @@ struct MbsModel {
     const int32_t *ib, *iforce, *quat, *plain, *vars, *out, *prog, *code, *elastic_i;
     const double *D, *elastic_d;      /* defaults: the instance copies D */
     int n_elastic_i, n_elastic_d;
-    const char **coord_name, **body_name;  /* into the blob */
+    const char **coord_name, **body_name, **var_name;  /* into the blob */
     void *blob;                        /* owned copy of the compiled scene */
 };
 

@@ -117,10 +117,11 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
         if (!in(m->out[3 * k], 0, nb) || m->out[3 * k + 1] < -1 || !in(m->out[3 * k + 2], 0, 4)) FAIL("corrupt output table");
     int nnames = 0;
     const char *names = section(b, len, tab, nsec, S_NAMES, 2, -1, &nnames);
-    m->coord_name = calloc((size_t)np + nb + 1, sizeof(char *));
+    m->coord_name = calloc((size_t)np + nb + H[H_NVARS] + 1, sizeof(char *));
     if (!m->coord_name) FAIL("out of memory");
     m->body_name = m->coord_name + np;
-    for (int k = 0, pos = 0; k < np + nb; k++) {
+    m->var_name = m->body_name + nb;
+    for (int k = 0, pos = 0; k < np + nb + H[H_NVARS]; k++) {
         const char *end = names ? memchr(names + pos, 0, (size_t)(nnames - pos)) : NULL;
         if (!end) FAIL("corrupt name table");
         m->coord_name[k] = names + pos;

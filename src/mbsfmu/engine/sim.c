@@ -208,7 +208,11 @@ static int bind(MbsInstance *s)
 {
     const MbsModel *m = s->m;
     for (int p = 0; p < m->hdr[H_NPARAM]; p++)
-        if (!isfinite(s->D[p])) return report(s, MBS_ERROR, "parameter %d is not finite (%g)", p, s->D[p]);
+        if (!isfinite(s->D[p])) {
+            int vr = 0;
+            while (vr < m->hdr[H_NVARS] && !(m->vars[2 * vr] == MBS_V_PARAM && m->vars[2 * vr + 1] == p)) vr++;
+            return report(s, MBS_ERROR, "parameter %s is not finite (%g)", vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?", s->D[p]);
+        }
 #ifdef MBS_WITH_EXPR
     mbs_run_programs(m, 0, s->D, NULL, 0.0);
 #endif
@@ -238,7 +242,12 @@ static int apply_inputs(MbsInstance *s)
     const MbsModel *m = s->m;
     const int f = NVEL(m);
     for (int i = 0; i < s->nu; i++)
-        if (!isfinite(s->u[i])) return report(s, MBS_DISCARD, "input %d is not finite (%g); step refused", i, s->u[i]);
+        if (!isfinite(s->u[i])) {
+            int want_kind = i < f ? MBS_V_QIN : MBS_V_FIN, want = i < f ? i : i - f, vr = 0;
+            while (vr < m->hdr[H_NVARS] && !(m->vars[2 * vr] == want_kind && m->vars[2 * vr + 1] == want)) vr++;
+            return report(s, MBS_DISCARD, "input %s is not finite (%g); step refused",
+                          vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?", s->u[i]);
+        }
     s->inputs_dirty = 0;
     if (!memcmp(s->u, s->u_applied, (size_t)s->nu * sizeof(double))) return MBS_OK;
     memcpy(s->u_applied, s->u, (size_t)s->nu * sizeof(double));
