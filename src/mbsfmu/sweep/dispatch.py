@@ -80,8 +80,8 @@ def local_cluster(n):
     import dask
     from dask.distributed import LocalCluster
     with dask.config.set({"distributed.scheduler.worker-saturation": math.inf}):
-        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                            silence_logs=logging.ERROR)
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address=None, silence_logs=logging.ERROR)
 
 
 @contextlib.contextmanager
