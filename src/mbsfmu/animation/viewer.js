@@ -184,7 +184,10 @@ window.addEventListener('keydown', (e) => {
     show(T[e.key === 'ArrowRight' ? Math.min(N - 1, k0 + 1) : (T[k0] < now ? k0 : Math.max(0, k0 - 1))]);
   }
 });
-function fromHash() {
+function fromHash() {  // #t=1.5 opens paused at t = 1.5 s; &ui=0 hides the text and the control bar
+  const hideUi = /(?:^|[#&])ui=0(?:&|$)/.test(window.location.hash);
+  ['info', 'bar'].forEach((id) => { el(id).style.display = hideUi ? 'none' : ''; });
+  dirty = true;
   const m = /(?:^|[#&])t=([-+0-9.eE]+)/.exec(window.location.hash);
   if (!m || !Number.isFinite(parseFloat(m[1]))) return false;
   setPlaying(false);
