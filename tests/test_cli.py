@@ -98,3 +98,123 @@ def test_fmutool_check(fmu):
     assert r.returncode == 0, text
     assert "compliant with FMI-2.0" in text and "No semantic error" in text
     assert "ERROR" not in text.upper().replace("NO SEMANTIC ERROR", "")
+
+
+# ---- a newcomer's first hour (issue 13): no tracebacks, readable output ----------------------------------
+PENDULUM = REPO / "models" / "pendulum.yaml"
+
+
+def _one_line_failure(r):
+    assert r.returncode != 0, (r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+@pytest.mark.parametrize("args", [
+    ("simulate", PENDULUM, "--stop", "-1"),
+    ("simulate", PENDULUM, "--step", "0"),
+    ("simulate", PENDULUM, "--stop", "abc"),
+    ("simulate", PENDULUM, "--stop", "nan"),
+    ("simulate", PENDULUM, "--stop", "2", "--step", "3"),
+    ("simulate", PENDULUM, "--stop", "1e9", "--step", "1e-6"),
+    ("simulate", PENDULUM, "--stop", "1", "--signals", "nope.*"),
+    ("simulate", PENDULUM, "--stop", "1", "--method", "euler"),
+    ("check", "FMU"),
+    ("build", "FMU"),
+    ("info", PENDULUM),
+    ("check", "BINARY"),
+    ("animate", PENDULUM, "--stop", "-1"),
+    (),
+    ("nonsense",),
+    ("simulate",),
+])
+def test_bad_invocations_fail_in_one_line(args, tmp_path):
+    import zipfile
+    fake = {"FMU": tmp_path / "x.fmu", "BINARY": tmp_path / "x.yaml"}
+    with zipfile.ZipFile(fake["FMU"], "w") as z:
+        z.writestr("modelDescription.xml", "<fmiModelDescription/>")
+    fake["BINARY"].write_bytes(bytes(range(256)) * 4)
+    r = cli(*[fake.get(a, a) for a in args], cwd=tmp_path)
+    _one_line_failure(r)
+
+
+def test_closed_pipe_ends_quietly(tmp_path):
+    """`mbsfmu simulate … | head`: the reader is gone before anything is written → exit 141, stderr empty."""
+    p = subprocess.Popen([sys.executable, "-m", "mbsfmu.cli", "simulate", str(PENDULUM), "--stop", "1"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path)
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=300) == 141 and err == "", err
+
+
+def test_every_option_has_help():
+    import argparse
+    from mbsfmu.cli import parser
+    top = parser()
+    sub = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
+    assert {"build", "check", "simulate", "info", "validate", "bench", "stress"} <= set(sub.choices)
+    missing = [f"{name} {a.dest}" for name, p in sub.choices.items() for a in p._actions if not a.help]
+    assert missing == []
+    r = cli("simulate", "--help")
+    assert r.returncode == 0 and "--stop" in r.stdout and "end time" in r.stdout and "--signals" in r.stdout
+
+
+def test_table_says_which_rows_it_shows(tmp_path):
+    r = cli("simulate", PENDULUM, "--stop", "2", "--step", "0.01", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0] == "# showing 21 of 201 rows, one every 10 (all rows: --csv FILE)"
+    assert [float(ln.split(",")[0]) for ln in lines[2:]] == pytest.approx([0.1 * k for k in range(21)])
+
+
+def test_scene_run_shows_the_output_points_like_the_fmu(fmu, tmp_path):
+    """The same outputs (y, yd and the `outputs:` points) for a scene and its FMU; the bob of the pendulum
+    scene sits at L·(−sin θ, 0, −cos θ) (independent check of the point columns)."""
+    scene_csv, fmu_csv = tmp_path / "scene.csv", tmp_path / "fmu.csv"
+    r = cli("simulate", PENDULUM, "--stop", "1", "--csv", scene_csv)
+    assert r.returncode == 0, r.stderr
+    import numpy as np
+    data = np.genfromtxt(scene_csv, delimiter=",", names=True, deletechars="")
+    L = 0.8
+    assert np.allclose(data["bob.r.x"], -L * np.sin(data["y.theta"]), atol=1e-12)
+    assert np.allclose(data["bob.r.z"], -L * np.cos(data["y.theta"]), atol=1e-12)
+    assert np.allclose(data["bob.v.x"], -L * np.cos(data["y.theta"]) * data["yd.theta"], atol=1e-12)
+    pend_fmu = tmp_path / "pendulum.fmu"
+    assert cli("build", PENDULUM, "-o", tmp_path).returncode == 0
+    r = cli("simulate", pend_fmu, "--stop", "1", "--csv", fmu_csv)
+    assert r.returncode == 0, r.stderr
+    assert fmu_csv.read_text().splitlines()[0] == scene_csv.read_text().splitlines()[0]
+    other = np.genfromtxt(fmu_csv, delimiter=",", names=True, deletechars="")
+    assert np.allclose(other["y.theta"], data["y.theta"], atol=1e-9)
+
+
+def test_signals_choose_columns_and_plot_has_a_panel_per_unit(tmp_path):
+    from mbsfmu.plot import panels, styles
+    r = cli("simulate", REPO / "models" / "robot_arm_6dof.yaml", "--stop", "0.2", "--signals", "y.*,*.r.z",
+            "--csv", tmp_path / "r.csv", "--plot", tmp_path / "r.png")
+    assert r.returncode == 0, r.stderr
+    header = (tmp_path / "r.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "time" and all(h.startswith("y.") or h.endswith(".r.z") for h in header[1:])
+    assert (tmp_path / "r.png").stat().st_size > 10_000
+    assert panels(["rad", "rad/s", "rad", "m", None, "1"]) == {"rad": [0, 2], "rad/s": [1], "m": [3], "1": [4, 5]}
+    assert len({(s["color"], s["linestyle"]) for s in styles()}) == 40  # distinct well past 10 curves
+
+
+def test_input_from_a_scene_leaves_no_temporary_files(tmp_path):
+    inp = tmp_path / "u.csv"
+    inp.write_text("time,q.theta\n0,0\n0.1,0.5\n")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    r = subprocess.run([sys.executable, "-m", "mbsfmu.cli", "simulate", str(PENDULUM), "--input", str(inp),
+                        "--stop", "0.2"], capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                       env={**__import__("os").environ, "TMPDIR": str(tmp)})
+    assert r.returncode == 0, r.stderr
+    assert list(tmp.glob("mbsfmu_sim_*")) == []
+
+
+def test_stress_without_out_writes_a_fresh_folder(tmp_path):
+    r = cli("stress", "--quick", "--cases", "nan_input", "--methods", "rk4", "--no-progress", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    made = [p for p in tmp_path.iterdir() if p.name.startswith("stress-")]
+    assert len(made) == 1 and (made[0] / "stress.md").is_file()
+    assert f"output folder: {made[0].name}/" in r.stdout

@@ -356,13 +356,19 @@ def parser():
     return top
 
 
-def main(argv=None):
+def parse(argv=None):
+    """Command line → argparse namespace (`bench` and `stress` keep their arguments for their own parsers)."""
     top = parser()
     args, extra = top.parse_known_args(argv)
     if args.command in ("bench", "stress"):  # their own parsers read options, --help included
         args.rest = extra + list(args.rest)
     elif extra:
         top.error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
+def main(argv=None):
+    args = parse(argv)
     try:
         status = args.run(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit

@@ -1,0 +1,181 @@
+"""docs/ is the contract: every example scene builds a valid FMU, the examples cover every joint and force type,
+two of them follow their closed-form motion (so the documented axis and coordinate conventions are right), the
+documented commands parse, the Python pages run, links resolve. A fresh virtual environment following the README
+is slow: run it with MBSFMU_SLOW=1."""
+from __future__ import annotations
+
+import math
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mbsfmu
+from mbsfmu.cli import parse
+
+REPO = Path(__file__).resolve().parents[1]
+DOCS = REPO / "docs"
+EXAMPLES = sorted((DOCS / "examples").glob("*.yaml"))
+PAGES = [REPO / "README.md"] + sorted(DOCS.glob("*.md"))
+OWN_PAGES = [REPO / "README.md"] + [DOCS / n for n in ("README.md", "scene-format.md", "fmu.md", "python-api.md",
+                                                      "integrators.md", "cli.md")]
+PLANNED = {"animation.md", "sweeps.md"}  # written by the animation and sweep work (issues 15, 14)
+
+
+def blocks(page, lang):
+    return re.findall(rf"```{lang}\n(.*?)```", page.read_text(encoding="utf-8"), re.S)
+
+
+def test_examples_cover_every_joint_and_force_type():
+    from mbsfmu.scene.load import FORCE_TYPES, JOINT_TYPES
+    joints, forces, params, elastic, drives, outputs = set(), set(), set(), False, False, False
+    for f in EXAMPLES:
+        spec = mbsfmu.load(f).spec
+        for b in spec["bodies"]:
+            joints.add(b["joint"]["type"])
+            params.add(b["joint"].get("parameterization"))
+            elastic |= bool(b["elastic"])
+            drives |= bool(b["joint"]["drive"])
+        forces |= {g["type"] for g in spec["forces"]}
+        outputs |= bool(spec["outputs"])
+    assert joints == set(JOINT_TYPES)
+    assert forces == set(FORCE_TYPES)
+    assert {"quaternion", "cardan"} <= params and elastic and drives and outputs
+    text = (DOCS / "scene-format.md").read_text(encoding="utf-8")
+    for f in EXAMPLES:
+        assert f"examples/{f.name}" in text, f"{f.name} is not linked from scene-format.md"
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+def test_example_builds_a_valid_fmu(path, tmp_path):
+    from fmpy.validation import validate_fmu
+    fmu = mbsfmu.build_fmu(path, tmp_path)
+    assert validate_fmu(str(fmu)) == []
+    t, Y, YD = mbsfmu.simulate(mbsfmu.load(path), stop=0.1, step=0.01)
+    assert np.isfinite(Y).all() and np.isfinite(YD).all()
+
+
+def test_cylindrical_example_follows_its_closed_form():
+    """Sleeve on a vertical shaft: m s̈ = −k s − m g, so s = −mg/k + (s0 + mg/k) cos(√(k/m) t); the spin
+    about the axis is free and uncoupled (centre of mass on the axis): angle = ω0 t."""
+    scene = mbsfmu.load(DOCS / "examples" / "cylindrical.yaml")
+    m, k, g, s0, w0 = 0.5, 50.0, 9.81, 0.1, 3.0
+    t, Y, YD = mbsfmu.simulate(scene, stop=2.0, step=0.01)
+    s_exact = -m * g / k + (s0 + m * g / k) * np.cos(math.sqrt(k / m) * t)
+    assert np.abs(Y[:, 0] - s_exact).max() < 1e-7
+    assert np.abs(Y[:, 1] - w0 * t).max() < 1e-7
+
+
+def test_planar_example_follows_its_closed_form():
+    """Board tossed in the x-z plane: board.x along world x, board.y along world z (the documented axes),
+    board.angle about the normal; gravity acts on board.y only: y = vy t − g t²/2."""
+    scene = mbsfmu.load(DOCS / "examples" / "planar.yaml")
+    t, Y, YD = mbsfmu.simulate(scene, stop=0.8, step=0.01)
+    assert np.abs(Y[:, 0] - 1.0 * t).max() < 1e-8
+    assert np.abs(Y[:, 1] - (4.0 * t - 9.81 * t ** 2 / 2)).max() < 1e-8
+    assert np.abs(Y[:, 2] - 6.0 * t).max() < 1e-8
+
+
+def test_parameter_unit_reaches_the_model_description(tmp_path):
+    import zipfile
+    from xml.etree import ElementTree
+    text = (DOCS / "examples" / "prismatic.yaml").read_text(encoding="utf-8").replace(
+        "k: {value: 200.0, description: spring stiffness}", "k: {value: 200.0, description: spring stiffness, unit: N/m}")
+    try:
+        scene = mbsfmu.loads(text)
+    except mbsfmu.ModelError as e:
+        if "unit" in str(e):
+            pytest.skip(f"the scene loader does not accept parameters.unit yet (issue 12): {e}")
+        raise
+    fmu = mbsfmu.build_fmu(scene, tmp_path)
+    root = ElementTree.fromstring(zipfile.ZipFile(fmu).read("modelDescription.xml"))
+    real = root.find("ModelVariables/ScalarVariable[@name='k']/Real")
+    assert real.get("unit") == "N/m" and real.get("start") == "200.0"
+    assert root.find("UnitDefinitions/Unit[@name='N/m']") is not None
+
+
+def test_start_values_are_shortest_round_trip(tmp_path):
+    """0.8 is written as 0.8, not 0.80000000000000004; every start value reads back to the same double."""
+    import zipfile
+    from xml.etree import ElementTree
+    scene = mbsfmu.load(REPO / "models" / "pendulum.yaml")
+    fmu = mbsfmu.build_fmu(scene, tmp_path)
+    root = ElementTree.fromstring(zipfile.ZipFile(fmu).read("modelDescription.xml"))
+    starts = {v.get("name"): v.find("Real").get("start") for v in root.iter("ScalarVariable")
+              if v.find("Real") is not None and v.find("Real").get("start") is not None}
+    assert starts["L"] == "0.8" and starts["m_rod"] == "0.3"
+    for p in scene.spec["parameters"]:
+        assert float(starts[p["name"]]) == p["value"]
+
+
+def _commands(page):
+    for block in blocks(page, "bash"):
+        for line in block.replace("\\\n", " ").splitlines():  # continued lines joined
+            words = shlex.split(line, comments=True)
+            if words and words[0] == "mbsfmu":
+                yield words[1:]
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_documented_commands_parse(page):
+    """Every `mbsfmu …` line in the README and docs/ is accepted by the command-line parser."""
+    for words in _commands(page):
+        try:
+            parse(words)
+        except SystemExit as e:
+            pytest.fail(f"{page.name}: `mbsfmu {' '.join(words)}` does not parse (exit {e.code})")
+
+
+@pytest.mark.parametrize("name", ["python-api.md", "fmu.md"])
+def test_python_pages_run(name, tmp_path, monkeypatch, capsys):
+    """The page's python blocks, in order, in one namespace, from a folder that looks like the repository."""
+    for d in ("models", "docs"):
+        (tmp_path / d).symlink_to(REPO / d)
+    monkeypatch.chdir(tmp_path)
+    ns = {}
+    for code in blocks(DOCS / name, "python"):
+        exec(compile(code, name, "exec"), ns)  # our own documentation, not foreign input
+
+
+def test_readme_python_blocks_compile():
+    for code in blocks(REPO / "README.md", "python"):
+        compile(code, "README.md", "exec")
+
+
+@pytest.mark.parametrize("page", OWN_PAGES, ids=lambda p: p.name)
+def test_links_resolve(page):
+    for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", page.read_text(encoding="utf-8")):
+        if re.match(r"[a-z]+://", target):
+            continue
+        path = (page.parent / target).resolve()
+        if path.name in PLANNED and path.parent == DOCS:
+            continue
+        assert path.exists(), f"{page.name}: broken link {target}"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("MBSFMU_SLOW") != "1", reason="fresh venv + pip install: set MBSFMU_SLOW=1")
+def test_fresh_venv_runs_every_readme_command(tmp_path):
+    """The README's install command in a new virtual environment, then every README `mbsfmu` command."""
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    py, exe = venv / "bin" / "python", venv / "bin" / "mbsfmu"
+    r = subprocess.run([str(py), "-m", "pip", "install", "-q", "-e", str(REPO)], capture_output=True, text=True,
+                       timeout=1800)
+    assert r.returncode == 0, r.stderr[-3000:]
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "models").symlink_to(REPO / "models")
+    r = subprocess.run([str(py), str(REPO / "build_fmu.py"), "models/double_pendulum.yaml", "-o", "out/"],
+                       cwd=work, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    for words in _commands(REPO / "README.md"):
+        args = [a for w in words for a in (sorted(str(p.relative_to(work)) for p in work.glob(w)) or [w])]
+        r = subprocess.run([str(exe), *args], cwd=work, capture_output=True, text=True, timeout=900)
+        assert r.returncode == 0, (words, r.stderr[-3000:])
+        assert "Traceback" not in r.stderr
