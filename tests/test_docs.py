@@ -179,3 +179,21 @@ def test_fresh_venv_runs_every_readme_command(tmp_path):
         r = subprocess.run([str(exe), *args], cwd=work, capture_output=True, text=True, timeout=900)
         assert r.returncode == 0, (words, r.stderr[-3000:])
         assert "Traceback" not in r.stderr
+
+
+def _variables(fmu):
+    from fmpy import read_model_description
+    return [(v.name, v.causality, v.variability, v.unit, v.start) for v in read_model_description(str(fmu)).modelVariables]
+
+
+def test_native_fmu_validates_and_has_the_same_variables(tmp_path):
+    """docs/fmu.md: both kinds expose identical variables; the native one passes fmpy's validation."""
+    import shutil
+    from fmpy.validation import validate_fmu
+    if shutil.which(os.environ.get("CC", "cc")) is None:
+        pytest.skip("native FMUs need a C compiler")
+    path = DOCS / "examples" / "cylindrical.yaml"
+    native = mbsfmu.build_fmu(path, tmp_path / "native", kind="native")
+    assert validate_fmu(str(native)) == []
+    python = mbsfmu.build_fmu(path, tmp_path / "python")
+    assert _variables(native) == _variables(python)
