@@ -1,0 +1,69 @@
+"""The compiled scene's elastic sections (seed 004): the mass invariants of every elastic body, computed once
+here (bodies/ffrf.invariants), and its node data, laid out for engine/elastic.c.
+
+S_ELASTIC_I (int32):  NE, NFIX, then NE rows of EI fields, then NFIX parameter indices.
+S_ELASTIC_D (double): per elastic body, at its EI_D offset, in this order (row-major, R components):
+                      m, S0 3, S_RR 3×3, J_sum 3×3, C_t 3×n, A 3×3×n, C_r0 3×n, JPsi 3×n,
+                      G 3×n×n as [i][l][k] = G_ikl, B 3×3×n×n as [i][j][l][k] = B_ijkl, M_ee, K, D n×n,
+                      (stiffening only) K_a, K_omega n×n, then per node R_RP 3, Φ_P 3×n, Ψ_P 3×n;
+                      after the bodies the NFIX parameter values the data were computed with.
+The inner index of G and B is the one contracted with q, so that G·q and B·q run along memory.
+
+The finite-element data depend on the parameters that feed the beam generator (and a damping_ratio): those
+are structural. The engine cannot recompute them, so it refuses a different value (elastic.c); the FMU
+declares them fixed (`structural_parameters`).
+"""
+
+import numpy as np
+
+from ..expr import parse
+
+EH_NE, EH_NFIX, EH = 0, 1, 2
+EI_BODY, EI_N, EI_NODES, EI_Q, EI_QD, EI_STIFF, EI_D, EI = range(8)
+
+
+def structural_parameters(spec):
+    """Names of the parameters that feed an elastic body's generated data (beam fields, damping_ratio)."""
+    params = [p["name"] for p in spec["parameters"]]
+    used = set()
+    for b in spec["bodies"]:
+        e = b.get("elastic")
+        if not e:
+            continue
+        exprs = [e.get("damping_ratio")]
+        for v in (e.get("beam") or {}).values():
+            exprs += v if isinstance(v, list) else [v]
+        for x in exprs:
+            if isinstance(x, str):
+                used |= parse(x).names
+    return [p for p in params if p in used]
+
+
+def body_block(inv, nodal):
+    """One elastic body's doubles in the S_ELASTIC_D order."""
+    n = inv.n
+    G = np.transpose(inv.G, (0, 2, 1))            # [i][l][k]
+    B = np.transpose(inv.B, (0, 1, 3, 2))         # [i][j][l][k]
+    parts = [[inv.m], inv.S0, inv.S_RR, inv.J_sum, inv.C_t, inv.A, inv.C_r0, inv.JPsi, G, B, inv.M_ee, inv.K, inv.D]
+    if inv.K_a is not None:
+        parts += [inv.K_a, inv.K_omega]
+    nodes = np.concatenate([nodal.R_RP, nodal.Phi.reshape(-1, 3 * n), nodal.Psi.reshape(-1, 3 * n)], axis=1)
+    return np.concatenate([np.ravel(np.asarray(p, float)) for p in parts] + [nodes.ravel()])
+
+
+def elastic_sections(model, spec):
+    """(S_ELASTIC_I, S_ELASTIC_D, {body index: elastic index}) of a compiled Model."""
+    rows, blocks, index, off = [], [], {}, 0
+    for i, b in enumerate(model.bodies):
+        if not b.elastic:
+            continue
+        block = body_block(b.inv, b.nodal)
+        index[i] = len(rows)
+        rows.append([i, b.inv.n, b.nodal.nodes, b.q_idx[0], b.qd_idx[0], int(b.inv.K_a is not None), off])
+        blocks.append(block)
+        off += block.size
+    params = [p["name"] for p in spec["parameters"]]
+    fixed = structural_parameters(spec)
+    I = np.concatenate([[len(rows), len(fixed)], np.ravel(rows), [params.index(p) for p in fixed]])
+    D = np.concatenate(blocks + [[float(model.parameters[p]) for p in fixed]])
+    return I.astype(np.int32), D.astype(float), index
