@@ -1,10 +1,11 @@
 """Build an FMI 2.0 co-simulation FMU from a scene.
 
-The FMU is a pythonfmu FMU whose resources hold
+The default kind is a pythonfmu FMU whose resources hold
 
-* ``mbsfmu_spec.json`` - the normalized scene (``scene.spec``),
-* ``mbsfmu_rt_<hash>/`` - a renamed copy of the *runtime* part of mbsfmu (no YAML loading, no
-  sympy, no plotting; ``bodies/`` only for scenes with elastic bodies),
+* ``mbsfmu_scene.bin`` - the compiled scene the engine reads, ``mbsfmu_meta.json`` - its FMU variables,
+* ``mbsfmu_rt_<hash>/`` - a renamed copy of the run-time part of mbsfmu: the ctypes seam of the C engine
+  (``engine/*.py``), the compiled engine library for this platform and its C sources (compiled on the
+  target with ``cc`` if the library does not load there); no numpy, scipy, YAML or plotting,
 * ``mbsfmu_<name>_<hash>.py`` - the generated Fmi2Slave script (from ``slave.py.in``),
 
 and whose ``modelDescription.xml`` is written here (pythonfmu's own one is incomplete: no units,
@@ -29,15 +30,20 @@ from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 KINDS = ("pythonfmu", "native")
-SPEC_FILE = "mbsfmu_spec.json"
+SPEC_FILE = "mbsfmu_spec.json"      # legacy (elastic) FMUs only
+SCENE_FILE = "mbsfmu_scene.bin"
+META_FILE = "mbsfmu_meta.json"
 PYTHON_FILE = "mbsfmu_python.json"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
+LEGACY_TEMPLATE = Path(__file__).with_name("slave_legacy.py.in")
 SHIM_SOURCE = Path(__file__).with_name("shim.c")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
 
 # Runtime parts of the package copied into every FMU (missing optional entries are skipped).
-RUNTIME_ALWAYS = ("errors.py", "expr.py", "simulation.py", "kinematics", "equations", "integrators")
-RUNTIME_ELASTIC = ("bodies",)
+RUNTIME_ENGINE = ("errors.py", "engine/__init__.py", "engine/api.py", "engine/build.py")
+# transition: elastic scenes run on the Python reference until their terms are in the engine
+RUNTIME_LEGACY = ("errors.py", "expr.py", "simulation.py", "legacy_simulation.py", "kinematics", "equations",
+                  "integrators", "bodies", "engine")
 # Never needed at FMU run time.
 FORBIDDEN_IMPORTS = ("yaml", "sympy", "matplotlib", "tqdm")
 
@@ -90,43 +96,44 @@ def _has_elastic(obj) -> bool:
     return False
 
 
-def _runtime_files(root: Path, elastic: bool) -> dict[str, bytes]:
-    """{relative posix path: content} of the runtime sources (only ``*.py``)."""
+def _runtime_files(root: Path, legacy: bool) -> dict[str, bytes]:
+    """{relative posix path: content} of the run-time part copied into the FMU."""
     files: dict[str, bytes] = {}
-    for entry in RUNTIME_ALWAYS + (RUNTIME_ELASTIC if elastic else ()):
+    for entry in RUNTIME_LEGACY if legacy else RUNTIME_ENGINE:
         p = root / entry
         if p.is_file():
             files[entry] = p.read_bytes()
         elif p.is_dir():
             for f in sorted(p.rglob("*.py")):
-                if "__pycache__" in f.parts:
-                    continue
-                files[f.relative_to(root).as_posix()] = f.read_bytes()
+                if "__pycache__" not in f.parts:
+                    files[f.relative_to(root).as_posix()] = f.read_bytes()
             if not (p / "__init__.py").exists():
                 files[f"{entry}/__init__.py"] = b""
-    if not elastic:
-        files.update(_native_files(root))
-    if "simulation.py" not in files:
-        raise RuntimeError(f"mbsfmu runtime incomplete: no simulation.py in {root}")
+    if not legacy:
+        files.update(_engine_files(root))
     files["__init__.py"] = b'"""mbsfmu run-time (copied into an FMU by mbsfmu.fmu.build)."""\n'
     return files
 
 
-def _native_files(root: Path) -> dict[str, bytes]:
-    """The compiled right-hand side of rigid scenes (equations/native.c and its library for this platform).
-    Without a C compiler the FMU falls back to the numpy path (or compiles on the target)."""
-    from ..equations import native
-    src = root / "equations" / "native.c"
-    if not src.exists():
-        return {}
-    out = {"equations/native.c": src.read_bytes()}
+def _engine_files(root: Path) -> dict[str, bytes]:
+    """The engine's C sources and headers (to compile on a target where the library does not load) and the
+    compiled library for this platform (engine/build.py finds it by its source hash)."""
+    from ..engine import build
+    srcs, hdrs, _ = build.sources()
+    out = {f"engine/{p.name}": p.read_bytes() for p in srcs + hdrs}
     try:
-        lib = native.library_path()
-    except Exception as exc:  # no compiler: still a working (slower) FMU
-        warnings.warn(f"FMU without compiled right-hand side ({exc}); it will use the numpy path", RuntimeWarning)
+        lib = build.library_path()
+    except build.EngineUnavailable as exc:
+        warnings.warn(f"FMU without a compiled engine ({exc}); it compiles on first use where a C compiler is",
+                      RuntimeWarning)
         return out
-    out[f"equations/{lib.name}"] = lib.read_bytes()
+    out[f"engine/{lib.name}"] = lib.read_bytes()
     return out
+
+
+def _engine_has_elastic() -> bool:
+    from ..simulation import _engine_has_elastic as has
+    return has()
 
 
 def forbidden_imports(files: dict[str, bytes]) -> list[str]:
@@ -197,8 +204,9 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     name = getattr(scene, "name", None) or spec["name"]
     if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
         raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
+    legacy = _has_elastic(spec.get("bodies")) and not _engine_has_elastic()
     root = Path(runtime_root) if runtime_root is not None else PACKAGE_ROOT
-    files = _runtime_files(root, _has_elastic(spec.get("bodies")))
+    files = _runtime_files(root, legacy)
     bad = forbidden_imports(files)
     if bad:
         warnings.warn("mbsfmu runtime imports modules not available/wanted at FMU run time: "
@@ -209,11 +217,14 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     rt_hash = _hash(*[p.encode() + b"\0" + c for p, c in sorted(files.items())])
     rt_package = f"mbsfmu_rt_{rt_hash[:16]}"
     files = _rename_absolute_imports(files, rt_package)
-    template = TEMPLATE.read_text(encoding="utf-8")
+    template = (LEGACY_TEMPLATE if legacy else TEMPLATE).read_text(encoding="utf-8")
     fmu_hash = _hash(rt_hash.encode(), spec_bytes, template.encode(), version.encode())
+    guid = "{" + str(uuid.UUID(fmu_hash[:32])) + "}"
     module_name = f"mbsfmu_{name}_{fmu_hash[:12]}"
     script = (template.replace("@RUNTIME_PACKAGE@", rt_package)
               .replace("@SPEC_FILE@", SPEC_FILE)
+              .replace("@SCENE_FILE@", SCENE_FILE)
+              .replace("@META_FILE@", META_FILE)
               .replace("@PYTHON_FILE@", PYTHON_FILE)
               .replace("@MODEL_NAME@", name)
               .replace("@MBSFMU_VERSION@", version))
@@ -230,22 +241,36 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
             f = pkg / rel
             f.parent.mkdir(parents=True, exist_ok=True)
             f.write_bytes(content)
-        (stage / SPEC_FILE).write_bytes(spec_bytes)
+        if legacy:
+            data_files = [stage / SPEC_FILE]
+            (stage / SPEC_FILE).write_bytes(spec_bytes)
+        else:
+            from ..simulation import compiled
+            blob, var, model = compiled(spec, guid)
+            meta = {"npos": model.npos, "nvel": model.nvel, "start": spec["experiment"]["start"],
+                    "description": spec.get("description") or "",
+                    "variables": [{k: getattr(v, k) for k in ("name", "causality", "variability", "type", "description")}
+                                  for v in var]}
+            (stage / SCENE_FILE).write_bytes(blob)
+            (stage / META_FILE).write_text(json.dumps(meta, indent=1), encoding="utf-8")
+            data_files = [stage / SCENE_FILE, stage / META_FILE]
         (stage / PYTHON_FILE).write_text(json.dumps(python_runtime(), indent=1), encoding="utf-8")
         script_file = stage / f"{module_name}.py"
         script_file.write_text(script, encoding="utf-8")
 
-        variables, spec_for_xml = _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package)
+        variables = _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package,
+                                          data_files, legacy)
+        if not legacy:
+            variables = var
 
-    guid = "{" + str(uuid.UUID(fmu_hash[:32])) + "}"
-    xml = model_description(spec_for_xml, name, variables, version, guid=guid)
+    xml = model_description(spec, name, variables, version, guid=guid)
     _replace_in_zip(dest, "modelDescription.xml", xml)
     if shim:
         _attach_shim(dest, name)
     return dest
 
 
-def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package):
+def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package, data_files, legacy):
     from pythonfmu.builder import FmuBuilder
 
     path_before = list(sys.path)
@@ -255,10 +280,9 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
         sys.path.insert(0, str(stage))
         mod = importlib.import_module(module_name)
         inst = mod.MbsfmuSlave(instance_name="mbsfmu_build", resources=str(stage))
-        variables = list(inst._sim.variables)
-        spec = json.loads((stage / SPEC_FILE).read_text(encoding="utf-8"))
+        variables = list(inst._sim.variables) if legacy else None
         FmuBuilder.build_FMU(
-            script_file, dest=dest, project_files=[pkg, stage / SPEC_FILE, stage / PYTHON_FILE],
+            script_file, dest=dest, project_files=[pkg, *data_files, stage / PYTHON_FILE],
             needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
             canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False,
             canGetAndSetFMUstate=True, canSerializeFMUstate=True)
@@ -268,7 +292,7 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
         for key in set(sys.modules) - modules_before:
             if key == module_name or key == rt_package or key.startswith(rt_package + "."):
                 del sys.modules[key]
-    return variables, spec
+    return variables
 
 
 def python_runtime() -> dict:
