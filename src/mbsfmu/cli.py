@@ -66,7 +66,8 @@ def _need_scene(path):
 
 def _animate(args):
     from .animation import animate
-    out = animate(args.model, args.output, stop=args.stop, input_csv=args.input, result_csv=args.result, fps=args.fps)
+    out = animate(args.model, args.output, stop=args.stop, input_csv=args.input, result_csv=args.result, fps=args.fps,
+                  scene=args.scene)
     print(f"wrote {out}")
 
 
@@ -275,18 +276,20 @@ def _validate(args):
 def _bench(name, rest):
     """`bench` and `stress` parse their own options; without --out they write to a fresh folder."""
     import importlib
+    scene = rest[0] if name == "bench" and rest and not rest[0].startswith("-") else None  # as documented: first
+    if scene is not None:
+        _need_scene(scene)
     if not any(a in ("-h", "--help", "--out") or a.startswith("--out=") for a in rest):
-        rest = rest + ["--out", _fresh_folder(name, rest)]
+        rest = rest + ["--out", _fresh_folder(name, scene)]
     mod = importlib.import_module(f".bench.{'work_precision' if name == 'bench' else 'stress'}", __package__)
     return getattr(mod, f"{name}_main")(rest)
 
 
-def _fresh_folder(name, rest):
+def _fresh_folder(name, scene):
     """`<name>[-<scene>]-<YYYYmmdd-HHMMSS>` in the current folder (not the tracked reports/)."""
     import time
     from pathlib import Path
-    scene = next((Path(a).stem for a in rest if not a.startswith("-")), None) if name == "bench" else None
-    base = "-".join(filter(None, [name, scene, time.strftime("%Y%m%d-%H%M%S")]))
+    base = "-".join(filter(None, [name, scene and Path(scene).stem, time.strftime("%Y%m%d-%H%M%S")]))
     path, k = Path(base), 1
     while path.exists():
         k += 1
@@ -334,6 +337,7 @@ def parser():
     p.add_argument("--input", help="input CSV: a 'time' column, then input names")
     p.add_argument("--result", help="draw this result CSV (from 'mbsfmu simulate --csv') instead of simulating")
     p.add_argument("--fps", type=float, default=60, help="frames kept per simulated second (default: 60)")
+    p.add_argument("--scene", help="for an FMU: the scene it was built from (native FMUs do not carry it)")
     p.set_defaults(run=_animate)
     p = sub.add_parser("crosscheck", help="write the FMI cross-check files (<model>.fmu, _ref.csv, _ref.opt, _in.csv)")
     p.add_argument("scene", help="scene file (.yaml)")
