@@ -98,11 +98,27 @@ def _shape(a, shape, name, key, shape_text):
 
 
 def _symmetric_psd(a, name, key, what):
-    scale = max(np.abs(a).max(), 1e-300)
-    if np.abs(a - a.T).max() > 1e-9 * scale:
-        raise ModelError(f"`{name}` must be symmetric", key=f"{key}.{name}", hint=what)
-    if np.linalg.eigvalsh(0.5 * (a + a.T)).min() < -1e-9 * scale:
-        raise ModelError(f"`{name}` must be positive semi-definite", key=f"{key}.{name}", hint=what)
+    """a (n×n, or a stack of them) symmetric and positive semi-definite, to 1e-9 of its largest entry."""
+    aT = np.swapaxes(a, -1, -2)
+    scale = np.maximum(np.abs(a).max(axis=(-2, -1)), 1e-300)
+    bad = np.abs(a - aT).max(axis=(-2, -1)) > 1e-9 * scale
+    if np.any(bad):
+        raise ModelError(f"`{name}` must be symmetric", key=f"{key}.{name}", hint=_which(bad, what))
+    bad = np.linalg.eigvalsh(0.5 * (a + aT)).min(axis=-1) < -1e-9 * scale
+    if np.any(bad):
+        raise ModelError(f"`{name}` must be positive semi-definite", key=f"{key}.{name}", hint=_which(bad, what))
+
+
+def _which(bad, what):
+    return what if np.ndim(bad) == 0 else f"node {int(np.argmax(bad))}: {what}"
+
+
+def check_damping(D, n, key):
+    """A modal damping matrix: finite n×n, symmetric positive semi-definite (it may only take energy out)."""
+    D = _array(D, "damping", key, "n×n")
+    _shape(D, (n, n), "damping", key, "n×n")
+    _symmetric_psd(D, "damping", key, "a damping matrix (negative damping feeds energy in)")
+    return D
 
 
 def validate_nodal(data, key="elastic.nodal", damping_ratio=None):
@@ -134,8 +150,7 @@ def validate_nodal(data, key="elastic.nodal", damping_ratio=None):
     if data.get("inertia") is not None:
         inertia = _array(data["inertia"], "inertia", key, "N×3×3")
         _shape(inertia, (N, 3, 3), "inertia", key, "N×3×3")
-        for i in range(N):
-            _symmetric_psd(inertia[i], "inertia", key, f"node {i}: an inertia tensor")
+        _symmetric_psd(inertia, "inertia", key, "an inertia tensor")
     K = _array(data["stiffness"], "stiffness", key, "n×n")
     _shape(K, (n, n), "stiffness", key, "n×n")
     _symmetric_psd(K, "stiffness", key, "a stiffness matrix")
@@ -143,11 +158,14 @@ def validate_nodal(data, key="elastic.nodal", damping_ratio=None):
     if data.get("damping") is not None:
         if damping_ratio is not None:
             raise ModelError("give either `damping` or `damping_ratio`, not both", key=f"{key}.damping")
-        D = _array(data["damping"], "damping", key, "n×n")
-        _shape(D, (n, n), "damping", key, "n×n")
+        D = check_damping(data["damping"], n, key)
     nodal = NodalData(R, mass, Phi, K, Psi=Psi, inertia=inertia, damping=D)
+    M_ee = modal_mass(nodal)
+    if np.linalg.eigvalsh(M_ee).min() <= 1e-12 * max(np.abs(M_ee).max(), 1e-300):
+        raise ModelError("the modal mass Σ m ΦᵀΦ + ΨᵀJΨ is singular: some combination of modes moves no mass",
+                         key=f"{key}.Phi", hint="every mode (column of Phi, Psi) must move a node that has mass")
     if damping_ratio is not None:
-        nodal.damping = damping_from_ratio(modal_mass(nodal), K, _ratio(damping_ratio, key))
+        nodal.damping = damping_from_ratio(M_ee, K, _ratio(damping_ratio, key))
     return nodal
 
 

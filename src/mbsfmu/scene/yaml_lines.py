@@ -1,8 +1,38 @@
-"""Safe YAML reading that remembers the line of every key and list item, for errors that point at the file."""
+"""Safe, bounded YAML reading that remembers the line of every key and list item, for errors that point at the file.
+
+Bounded work for any text: the document size, the nesting depth and the nodes that aliases add (counted on the
+node graph before anything is constructed, so an alias bomb costs nothing) are limited; long scalars and integer
+literals are refused before conversion; strings that an FMU's XML cannot hold and YAML 1.1 booleans as keys
+(`on:`, `off:`, `yes:`) are refused with their line.
+"""
+
+import re
 
 import yaml
+from yaml.composer import ComposerError
+from yaml.constructor import SafeConstructor
+from yaml.events import AliasEvent, MappingStartEvent, ScalarEvent, SequenceStartEvent, StreamEndEvent
+from yaml.nodes import MappingNode, ScalarNode, SequenceNode
+from yaml.resolver import Resolver
 
 from ..errors import ModelError
+from . import limits
+
+try:  # libyaml's event parser (not its composer, whose recursion has no depth limit) when it is there
+    from yaml._yaml import CParser as _Parser
+except ImportError:  # pragma: no cover - pure-Python PyYAML
+    from yaml.parser import Parser as _Parser
+    from yaml.reader import Reader
+    from yaml.scanner import Scanner
+
+    class _Parser(Reader, Scanner, _Parser):
+        def __init__(self, stream):
+            Reader.__init__(self, stream)
+            Scanner.__init__(self)
+            _Parser.__init__(self)
+
+# XML 1.0 characters (what modelDescription.xml can carry); anything else, lone surrogates included, is refused
+_NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
 
 
 class Map(dict):
@@ -19,27 +49,129 @@ class Seq(list):
     lines = {}
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader (no object-constructing tags) that keeps line numbers and refuses duplicate keys."""
+def _line(node):
+    return node.start_mark.line + 1
+
+
+class _Loader(SafeConstructor, Resolver, _Parser):
+    """Parser events → nodes (an iterative, depth-limited composer) → Map/Seq/scalars (safe constructors only)."""
+
+    def __init__(self, text):
+        _Parser.__init__(self, text)
+        SafeConstructor.__init__(self)
+        Resolver.__init__(self)
+        self.key_path, self.tags = [], {}
+
+    def get_single_node(self):
+        """The document's node graph, as yaml.composer builds it, without recursion (so no depth can crash it)."""
+        self.get_event()  # stream start
+        root = None
+        if not self.check_event(StreamEndEvent):
+            self.get_event()  # document start
+            root = self._compose()
+            self.get_event()  # document end
+        if not self.check_event(StreamEndEvent):
+            raise ComposerError(None, None, "expected a single document in the stream", self.get_event().start_mark)
+        self.get_event()
+        return root
+
+    def _compose(self):
+        anchors, open_, root = {}, [], None  # open_: (node, its children so far) of unfinished collections
+        while True:
+            event = self.get_event()
+            if isinstance(event, AliasEvent):
+                if event.anchor not in anchors:
+                    raise ComposerError(None, None, f"found undefined alias {event.anchor!r}", event.start_mark)
+                node = anchors[event.anchor]
+            elif isinstance(event, ScalarEvent):
+                if len(event.value) > limits.SCALAR_CHARS:
+                    raise ModelError(f"a value of {len(event.value):,} characters (at most {limits.SCALAR_CHARS:,})", line=_line(event))
+                node = ScalarNode(self._scalar_tag(event), event.value, event.start_mark, event.end_mark, style=event.style)
+            elif isinstance(event, (SequenceStartEvent, MappingStartEvent)):
+                if len(open_) >= limits.DEPTH:
+                    raise ModelError(f"nested more than {limits.DEPTH} levels deep", line=_line(event))
+                seq = isinstance(event, SequenceStartEvent)
+                kind, default = (SequenceNode, self.DEFAULT_SEQUENCE_TAG) if seq else (MappingNode, self.DEFAULT_MAPPING_TAG)
+                tag = default if event.tag in (None, "!") else event.tag
+                node = kind(tag, [], event.start_mark, None, flow_style=event.flow_style)
+            else:  # the end of the innermost collection
+                node, children = open_.pop()
+                node.end_mark = event.end_mark
+                if isinstance(node, MappingNode):
+                    node.value = list(zip(children[::2], children[1::2]))
+                if not open_:
+                    return node
+                continue
+            starts = isinstance(event, (SequenceStartEvent, MappingStartEvent))
+            if event.anchor is not None and not isinstance(event, AliasEvent):
+                if event.anchor in anchors:
+                    raise ComposerError(None, None, f"found duplicate anchor {event.anchor!r}", event.start_mark)
+                anchors[event.anchor] = node
+            if open_:
+                open_[-1][1].append(node)
+            elif not starts:
+                return node
+            if starts:
+                open_.append((node, node.value if isinstance(node, SequenceNode) else []))
+
+    def _scalar_tag(self, event):
+        if event.tag not in (None, "!"):
+            return event.tag
+        key = (event.value, event.implicit)
+        if key not in self.tags:  # scenes repeat their scalars (0, 1.0, revolute): resolve each text once
+            self.tags[key] = self.resolve(ScalarNode, event.value, event.implicit)
+        return self.tags[key]
+
+
+def _check_expansion(root):
+    """Depth and size of the node graph with aliases expanded (each shared node counted once per use).
+
+    Linear in the distinct nodes: the expanded size of a node is memoized; a recursive alias exceeds the depth.
+    """
+    size, distinct, open_ = {}, [0], set()
+
+    def walk(node, depth):
+        if id(node) in open_:
+            raise ModelError("an alias refers to a node that contains it", line=_line(node), hint="recursive data cannot be a scene")
+        if depth > limits.DEPTH:
+            raise ModelError(f"nested more than {limits.DEPTH} levels deep (aliases expanded)", line=_line(node))
+        if id(node) in size:
+            return size[id(node)]
+        distinct[0] += 1
+        children = (node.value if isinstance(node, SequenceNode) else
+                    [n for pair in node.value for n in pair] if isinstance(node, MappingNode) else ())
+        open_.add(id(node))
+        n = 1 + sum(walk(c, depth + 1) for c in children)
+        open_.discard(id(node))
+        if n > distinct[0] + limits.ALIAS_NODES:
+            raise ModelError(f"aliases expand this document beyond {limits.ALIAS_NODES:,} extra values", line=_line(node),
+                             hint="an alias bomb? use anchors and aliases only for small shared values")
+        size[id(node)] = n
+        return n
+
+    walk(root, 1)
 
 
 def _construct_mapping(loader, node):
     out = Map()
-    out.line, out.lines = node.start_mark.line + 1, {}
+    out.line, out.lines = _line(node), {}
     loader.flatten_mapping(node)
-    path = loader.__dict__.setdefault("key_path", [])  # keys of the enclosing mappings, for messages
+    path = loader.key_path  # keys of the enclosing mappings, for messages
     for key_node, value_node in node.value:
         key = loader.construct_object(key_node, deep=True)
+        if isinstance(key, bool):
+            raise ModelError(f"the key '{key_node.value}' reads as the boolean {key} (YAML 1.1)", line=_line(key_node),
+                             key=_join(path + [key_node.value]), hint=f"quote it: \"{key_node.value}\":")
         if not isinstance(key, (str, int, float)):
-            raise ModelError("a mapping key must be a plain name", line=key_node.start_mark.line + 1)
+            raise ModelError("a mapping key must be a plain name", line=_line(key_node), key=_join(path) or None)
         key = str(key)
         if key in out:
-            raise ModelError(f"duplicate key '{key}' (first given at line {out.lines[key]})", line=key_node.start_mark.line + 1,
+            raise ModelError(f"duplicate key '{key}' (first given at line {out.lines[key]})", line=_line(key_node),
                              key=_join(path + [key]), hint="each key may appear only once in a mapping; body names must be unique")
         path.append(key)
         out[key] = loader.construct_object(value_node, deep=True)
         path.pop()
-        out.lines[key] = key_node.start_mark.line + 1
+        out.lines[key] = _line(key_node)
     return out
 
 
@@ -48,33 +180,70 @@ def _join(path):
 
 
 def _construct_sequence(loader, node):
-    path = loader.__dict__.setdefault("key_path", [])
+    path = loader.key_path
     items = []
     for i, child in enumerate(node.value):
         path.append(f"[{i}]")
         items.append(loader.construct_object(child, deep=True))
         path.pop()
     out = Seq(items)
-    out.line = node.start_mark.line + 1
-    out.lines = {i: child.start_mark.line + 1 for i, child in enumerate(node.value)}
+    out.line = _line(node)
+    out.lines = {i: _line(child) for i, child in enumerate(node.value)}
     return out
 
 
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, _construct_sequence)
+def _construct_str(loader, node):
+    text = loader.construct_scalar(node)
+    bad = _NOT_XML.search(text)
+    if bad:
+        raise ModelError(f"the text holds the character U+{ord(bad.group()):04X}, which an FMU's XML cannot carry",
+                         line=_line(node), key=_join(loader.key_path) or None, hint="remove control characters and lone surrogates")
+    return text
+
+
+def _construct_int(loader, node):
+    if len(node.value) > limits.INT_CHARS:
+        raise ModelError(f"an integer of {len(node.value):,} characters (at most {limits.INT_CHARS})", line=_line(node),
+                         key=_join(loader.key_path) or None, hint="write large numbers as floats, e.g. 1.0e30")
+    return SafeConstructor.construct_yaml_int(loader, node)
+
+
+def _refuse_tag(loader, node):
+    raise ModelError(f"the YAML tag {node.tag} is not supported", line=_line(node), key=_join(loader.key_path) or None,
+                     hint="use plain YAML values: numbers, text, lists and mappings")
+
+
+_Loader.add_constructor(Resolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+_Loader.add_constructor(Resolver.DEFAULT_SEQUENCE_TAG, _construct_sequence)
+_Loader.add_constructor("tag:yaml.org,2002:str", _construct_str)
+_Loader.add_constructor("tag:yaml.org,2002:timestamp", _construct_str)  # a date stays the text it was written as
+_Loader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+for _tag in ("binary", "set", "omap", "pairs"):
+    _Loader.add_constructor(f"tag:yaml.org,2002:{_tag}", _refuse_tag)
 
 
 def read_yaml(text, file=None):
     """Parse YAML text safely into Map/Seq trees; any YAML problem becomes a ModelError with its line."""
+    if len(text) > limits.DOCUMENT_BYTES:
+        raise ModelError(f"the scene is {len(text):,} characters long (at most {limits.DOCUMENT_BYTES:,})", file=file,
+                         hint="put large nodal data in an .npz file next to the scene")
+    bad = _NOT_XML.search(text)
+    if bad:
+        raise ModelError(f"the file holds the character U+{ord(bad.group()):04X}, which neither YAML nor an FMU's XML allows",
+                         file=file, line=text.count("\n", 0, bad.start()) + 1, hint="remove control characters")
     loader = _Loader(text)
     try:
-        return loader.get_single_data()
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_expansion(node)
+        return loader.construct_document(node)
     except ModelError as e:
         raise ModelError(e.message, file=file, line=e.line, key=e.key, hint=e.hint) from None
     except yaml.constructor.ConstructorError as e:
         mark = e.problem_mark
         raise ModelError(f"{e.problem}", file=file, line=mark.line + 1 if mark else None,
-                         key=_join(loader.__dict__.get("key_path", [])) or None,
+                         key=_join(loader.key_path) or None,
                          hint="tags that construct objects are not allowed; use plain YAML values") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)

@@ -1,0 +1,21 @@
+"""Bounds on the work a scene file may ask for (issue 12): every hostile input is refused early and cheaply.
+
+Each limit is far above what a hand-written scene or a real elastic body needs.
+"""
+
+DOCUMENT_BYTES = 8 * 2**20      # a scene file; large nodal data belongs in an .npz beside it
+DEPTH = 64                      # nesting of mappings and lists, aliases expanded (nodal arrays need 3-4)
+ALIAS_NODES = 1_000_000         # nodes that aliases may add to the document once expanded
+SCALAR_CHARS = 65_536           # one string (a description, an expression)
+INT_CHARS = 100                 # one integer literal (digits, sign, base prefix)
+EXPRESSION_CHARS = 4096         # one numeric expression
+MESSAGE_CHARS = 400             # an error message (quoted input is shortened)
+
+NPZ_BYTES = 256 * 2**20         # an .npz file, and the arrays read from it (declared uncompressed sizes)
+NPZ_ENTRIES = 64                # members of an .npz (zip) file
+BEAM_ELEMENTS = 200             # the beam generator's dense FE matrices grow as elements²
+
+RTOL = (1e-14, 1.0)             # integrator.rtol: below 1e-14 no double-precision step can meet it
+AXIS_LENGTH = (1e-9, 1e100)     # joint and rotation axes: a direction needs a length that squares safely
+COMMUNICATION_POINTS = 1e8      # (stop - start) / step of the experiment
+DOMAIN_SAMPLES = 257            # times in [start, stop] at which drives and forces (and derivatives) are evaluated
