@@ -128,14 +128,22 @@ def _one_line_failure(r):
     ("nonsense",),
     ("simulate",),
 ])
-def test_bad_invocations_fail_in_one_line(args, tmp_path):
+def test_bad_invocations_fail_in_one_line(args, tmp_path, monkeypatch, capsys):
+    """In-process for speed: anything escaping main() other than argparse's exit would fail the test
+    (`test_errors_are_one_line` covers the subprocess path)."""
     import zipfile
+    from mbsfmu.cli import main
     fake = {"FMU": tmp_path / "x.fmu", "BINARY": tmp_path / "x.yaml"}
     with zipfile.ZipFile(fake["FMU"], "w") as z:
         z.writestr("modelDescription.xml", "<fmiModelDescription/>")
     fake["BINARY"].write_bytes(bytes(range(256)) * 4)
-    r = cli(*[fake.get(a, a) for a in args], cwd=tmp_path)
-    _one_line_failure(r)
+    monkeypatch.chdir(tmp_path)
+    try:
+        code = main([str(fake.get(a, a)) for a in args])
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    _one_line_failure(subprocess.CompletedProcess(args, code, out, err))
 
 
 def test_closed_pipe_ends_quietly(tmp_path):
