@@ -24,22 +24,23 @@ def decimate(t, fps, max_frames=MAX_FRAMES):
     return np.union1d(np.minimum(idx, n - 1), [0, n - 1])
 
 
-def animate(source, output="animation.html", stop=None, input_csv=None, result_csv=None, fps=60):
+def animate(source, output="animation.html", stop=None, input_csv=None, result_csv=None, fps=60, scene=None):
     """Write an HTML page that plays the motion of `source` (a scene file or loaded scene, or an mbsfmu FMU)
     and return its path. The motion is simulated (a scene in process, an FMU with fmpy) until `stop` (default:
     the scene's experiment), with inputs from `input_csv` (a 'time' column, then input names); or read from
-    `result_csv` (written by `mbsfmu simulate --csv`: 'time' and 'y.<coordinate>' columns)."""
+    `result_csv` (written by `mbsfmu simulate --csv`: 'time' and 'y.<coordinate>' columns). `scene`: the scene
+    an FMU was built from (needed for FMUs that do not carry it, e.g. native ones; shape files are read
+    next to it)."""
     from ..equations.model import Model
     from . import drawing, frames, page, trajectory
-    spec, base, scene = trajectory.load_source(source)
+    spec, base, fmu = trajectory.load_source(source, scene)
     model = Model(spec)
-    coordinates = model.coordinates
     if result_csv:
-        t, Y, YD = trajectory.from_result(result_csv, coordinates)
-    elif scene is not None:
-        t, Y, YD = trajectory.from_scene(scene, stop=stop, input_csv=input_csv)
+        t, Y, YD = trajectory.from_result(result_csv, model.coordinates)
+    elif fmu is None:
+        t, Y, YD = trajectory.from_scene(spec, stop=stop, input_csv=input_csv)
     else:
-        t, Y, YD = trajectory.from_fmu(source, coordinates, stop=stop, input_csv=input_csv)
+        t, Y, YD = trajectory.from_fmu(fmu, model.coordinates, stop=stop, input_csv=input_csv)
     keep = decimate(t, fps)
     t, Y = np.asarray(t, dtype=float)[keep], np.asarray(Y)[keep]
     YD = None if YD is None else np.asarray(YD)[keep]

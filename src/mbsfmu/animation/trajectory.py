@@ -32,25 +32,25 @@ def _check_inputs(path, names, valid, model_name):
         raise ValueError(f"{path}: not inputs of {model_name}: {', '.join(unknown)} (inputs: {', '.join(sorted(valid)) or 'none'})")
 
 
-def from_scene(scene, stop=None, input_csv=None):
-    """Run a loaded scene in process; input CSV columns are interpolated linearly, held over each step."""
+def from_scene(spec, stop=None, input_csv=None):
+    """Run a scene in process; input CSV columns are interpolated linearly, held over each step."""
     from .. import compile, simulate
     inputs = None
     if input_csv:
         names, t_in, data = read_csv(input_csv, "input")
-        _check_inputs(input_csv, names, compile(scene).inputs, scene.name)
+        _check_inputs(input_csv, names, compile(spec).inputs, spec["name"])
         inputs = lambda t: {n: float(np.interp(t, t_in, data[n])) for n in names}  # noqa: E731
-    t, Y, YD = simulate(scene, stop=stop, inputs=inputs)
-    return t, Y, YD
+    return simulate(spec, stop=stop, inputs=inputs)
 
 
 def fmu_spec(path):
-    """The normalized scene an mbsfmu FMU carries."""
+    """The normalized scene an mbsfmu FMU carries (Python-run FMUs do; native ones carry only compiled data)."""
     try:
         with zipfile.ZipFile(path) as z:
             return json.loads(z.read(SPEC_IN_FMU))
     except KeyError:
-        raise ValueError(f"{path} is not an mbsfmu FMU (no {SPEC_IN_FMU})") from None
+        raise ValueError(f"{path} carries no scene description ({SPEC_IN_FMU}); give the scene it was built "
+                         "from as well (--scene SCENE.yaml)") from None
     except (zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{path}: cannot read the FMU's scene: {e}") from None
 
@@ -64,6 +64,9 @@ def from_fmu(path, coordinates, stop=None, input_csv=None):
         names, _, inp = read_csv(input_csv, "input")
         _check_inputs(input_csv, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
     outputs = [f"y.{c}" for c in coordinates]
+    missing = set(outputs) - {v.name for v in md.modelVariables if v.causality == "output"}
+    if missing:
+        raise ValueError(f"{path} has no output(s) {', '.join(sorted(missing))}: it was not built from this scene")
     res = simulate_fmu(str(path), stop_time=stop, input=inp, output=outputs)
     return res["time"], np.column_stack([res[n] for n in outputs]), None
 
@@ -78,15 +81,23 @@ def from_result(path, coordinates):
     return t, np.column_stack([data[f"y.{c}"] for c in coordinates]), None
 
 
-def load_source(source):
-    """SCENE (.yaml or loaded Scene) or FMU → (spec, base folder for shape files, Scene or None)."""
+def load_scene(scene):
+    """A scene file or loaded Scene → (Scene, base folder for shape files)."""
     from ..scene import load
-    if hasattr(source, "spec"):
-        return source.spec, Path(source.path).parent if source.path and Path(source.path).is_file() else Path.cwd(), source
-    path = Path(source)
-    if not path.is_file():
-        raise FileNotFoundError(f"no such file: {path}")
-    if zipfile.is_zipfile(path):
-        return fmu_spec(path), path.parent, None
-    scene = load(path)
-    return scene.spec, path.parent, scene
+    if hasattr(scene, "spec"):
+        return scene, Path(scene.path).parent if scene.path and Path(scene.path).is_file() else Path.cwd()
+    if not Path(scene).is_file():
+        raise FileNotFoundError(f"no such file: {scene}")
+    return load(scene), Path(scene).parent
+
+
+def load_source(source, scene=None):
+    """SCENE or FMU (with the scene it was built from, or the one it carries) → (spec, base folder for shape
+    files, FMU path or None)."""
+    if not hasattr(source, "spec") and Path(source).is_file() and zipfile.is_zipfile(source):
+        if scene is not None:
+            s, base = load_scene(scene)
+            return s.spec, base, Path(source)
+        return fmu_spec(source), Path(source).parent, Path(source)
+    s, base = load_scene(source)
+    return s.spec, base, None
