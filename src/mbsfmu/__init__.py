@@ -10,16 +10,17 @@ __version__ = "0.1.0"
 __all__ = ["load", "loads", "compile", "simulate", "animate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
 
 
-def load(path):
-    """Read and validate a scene file; raises ModelError with file:line, key and a hint."""
+def load(path, allow_outside=False):
+    """Read and validate a scene file; raises ModelError (only) with file:line, key and a hint. Data files must
+    lie in the scene's folder unless allow_outside=True."""
     from .scene import load as _load
-    return _load(path)
+    return _load(path, allow_outside=allow_outside)
 
 
-def loads(text, file="<string>"):
-    """Validate a scene given as YAML text."""
+def loads(text, file="<string>", base=None, allow_outside=False):
+    """Validate a scene given as YAML text (data files relative to `base`, default the current folder)."""
     from .scene import loads as _loads
-    return _loads(text, file=file)
+    return _loads(text, file=file, base=base, allow_outside=allow_outside)
 
 
 def compile(scene):

@@ -79,21 +79,21 @@ def _need_fmu(path):
 # -- commands ----------------------------------------------------------------------------------------
 def _build(args):
     import time
-    from . import build_fmu
+    from . import build_fmu, load
     n = len(args.scene)
     for i, scene in enumerate(args.scene, 1):
         _need_scene(scene)
         t0 = time.perf_counter()
         if n > 1:
             print(f"[{i}/{n}] {scene} ...", end=" ", flush=True)
-        path = build_fmu(scene, args.output, kind=args.kind)
+        path = build_fmu(load(scene, allow_outside=args.allow_outside), args.output, kind=args.kind)
         print(f"{path}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
 
 
 def _check(args):
     from . import compile, load
     _need_scene(args.scene)
-    scene = load(args.scene)
+    scene = load(args.scene, allow_outside=args.allow_outside)
     ev = compile(scene)
     nb, nf = len(scene.spec["bodies"]), len(ev.velocity_coordinates)
     print(f"{scene.name}: {nb} bod{'y' if nb == 1 else 'ies'}, {nf} degree{'' if nf == 1 else 's'} of freedom")
@@ -114,9 +114,9 @@ def _simulate(args):
     import tempfile
     is_fmu = _is_fmu(args.model)
     if args.input and not is_fmu:  # inputs from a CSV go through an FMU built in a temporary folder
-        from . import build_fmu
+        from . import build_fmu, load
         with tempfile.TemporaryDirectory(prefix="mbsfmu_sim_") as tmp:
-            result = _run_fmu(str(build_fmu(args.model, tmp)), args)
+            result = _run_fmu(str(build_fmu(load(args.model, allow_outside=args.allow_outside), tmp)), args)
     else:
         result = _run_fmu(args.model, args) if is_fmu else _run_scene(args.model, args)
     title, t, cols, names, units = result
@@ -149,7 +149,7 @@ def _run_scene(path, args):
     import numpy as np
     from . import load, simulate
     from .simulation import Simulation
-    scene = load(path)
+    scene = load(path, allow_outside=args.allow_outside)
     spec, e = scene.spec, scene.spec["experiment"]
     stop, step = args.stop or e["stop"], args.step or e["step"]
     _check_times(e["start"], stop, step)
@@ -299,6 +299,11 @@ def _fresh_folder(name, scene):
 
 
 # -- the parser ----------------------------------------------------------------------------------------
+def _allow_outside(p):
+    p.add_argument("--allow-outside", action="store_true",
+                   help="read data files (nodal .npz) outside the scene's folder too (default: refused)")
+
+
 def parser():
     top = _Parser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
                   epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -309,9 +314,11 @@ def parser():
     p.add_argument("--kind", choices=("pythonfmu", "native"), default="pythonfmu",
                    help="pythonfmu (default; runs the engine through Python) or native (C only, no Python "
                         "needed where the FMU runs; needs a C compiler here)")
+    _allow_outside(p)
     p.set_defaults(run=_build)
     p = sub.add_parser("check", help="validate a scene and list its coordinates and inputs")
     p.add_argument("scene", help="scene file (.yaml)")
+    _allow_outside(p)
     p.set_defaults(run=_check)
     p = sub.add_parser("simulate", help="simulate a scene (in-process) or an FMU (fmpy)",
                        description="Simulate a scene in-process, or an FMU with fmpy. Without --csv or --plot "
@@ -329,6 +336,7 @@ def parser():
                    help="input CSV: a 'time' column, then FMU input names; held between rows (scenes are built "
                         "into a temporary FMU first)")
     p.add_argument("--plot", metavar="FILE", help="write a PNG plot, one panel per unit")
+    _allow_outside(p)
     p.set_defaults(run=_simulate)
     p = sub.add_parser("animate", help="write a self-contained HTML page that plays the motion in 3-D")
     p.add_argument("model", help="scene .yaml or mbsfmu .fmu")
