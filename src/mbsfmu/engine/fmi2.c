@@ -6,8 +6,9 @@
  * instances (of one or several FMUs) can live in one process.
  *
  * Status mapping: the engine's codes are ordered like fmi2Status (OK, Warning, Discard, Error).  Calls in
- * the wrong phase or with bad arguments are refused with fmi2Error and change nothing; an engine error in
- * initialization, a step or a reset puts the instance into the error phase (only get, reset, free).
+ * the wrong phase or with bad arguments are refused with fmi2Error and change nothing (a failed step too: the
+ * instance stays at its last good point); an error in initialization or a reset puts the instance into the
+ * error phase (then only get, state, reset and free).
  *
  * Every message goes through the host's logger with the categories of the modelDescription
  * (logStatusWarning, logStatusDiscard, logStatusError, logStatusFatal, logAll).  Messages of status
@@ -52,6 +53,8 @@ typedef struct {
     int category_on[NCAT];
     int logged;                /* the engine logged during the current call */
     double t_start;
+    long refused_vr;           /* a parameter the host set before initialization and the engine refused */
+    char refused[256];         /* (-1: none); its message fails fmi2ExitInitializationMode */
 } Fmu;
 
 #define STATE_MAGIC 0x4d425346u /* "MBSF": an fmi2FMUstate made by this file */
@@ -126,12 +129,14 @@ static int hexval(int ch) {
 static int resource_path(const char *uri, const char *file, char *out, size_t n, char *err, size_t errlen) {
     const char *p = uri;
     size_t k = 0;
+    int is_uri = 0;
     if (!uri || !*uri) {
         snprintf(err, errlen, "no fmuResourceLocation given");
         return 1;
     }
     if (strncmp(p, "file:", 5) == 0) {
         p += 5;
+        is_uri = 1;
         if (strncmp(p, "//", 2) == 0) {  /* authority: empty or localhost */
             p += 2;
             if (strncmp(p, "localhost/", 10) == 0)
@@ -151,7 +156,7 @@ static int resource_path(const char *uri, const char *file, char *out, size_t n,
     }
     for (; *p; p++) {
         int ch = (unsigned char)*p;
-        if (ch == '%') {
+        if (ch == '%' && is_uri) {
             int hi = hexval(p[1]), lo = hi < 0 ? -1 : hexval(p[2]);
             if (lo < 0 || (hi == 0 && lo == 0)) {
                 snprintf(err, errlen, "fmuResourceLocation %s: bad percent escape", uri);
@@ -261,6 +266,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     f->cb = *functions;
     f->model = model;
     f->phase = P_INSTANTIATED;
+    f->refused_vr = -1;
     f->logging_on = loggingOn != fmi2False;
     for (j = 0; j < NCAT; j++)
         f->category_on[j] = 1;
@@ -309,6 +315,12 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     fmi2Status st;
     CHECK(P_INIT, "fmi2ExitInitializationMode");
+    if (f->refused_vr >= 0) {  /* the experiment the host asked for cannot run: no silent default */
+        logf_(f, fmi2Error, "fmi2ExitInitializationMode: value reference %ld was refused: %s", f->refused_vr,
+              f->refused);
+        f->phase = P_ERROR;
+        return fmi2Error;
+    }
     st = engine_status(f, mbs_initialize(f->sim, f->t_start), "fmi2ExitInitializationMode");
     if (st >= fmi2Discard) {
         f->phase = P_ERROR;
@@ -330,6 +342,7 @@ fmi2Status fmi2Reset(fmi2Component c) {
     st = engine_status(f, mbs_reset(f->sim), "fmi2Reset");
     f->phase = st >= fmi2Discard ? P_ERROR : P_INSTANTIATED;
     f->t_start = 0.0;
+    f->refused_vr = -1;
     return st >= fmi2Discard ? fmi2Error : st;
 }
 
@@ -339,6 +352,20 @@ static int vr_int(Fmu *f, fmi2ValueReference vr, const char *fn) {
         return (int)vr;
     logf_(f, fmi2Error, "%s: unknown value reference %u", fn, vr);
     return -1;
+}
+
+/* Remember a refused setting before initialization (fmi2ExitInitializationMode fails); a later accepted
+ * setting of the same variable clears it. */
+static fmi2Status setting(Fmu *f, int vr, int rc, const char *fn) {
+    fmi2Status st = engine_status(f, rc, fn);
+    if (f->phase & (P_INSTANTIATED | P_INIT)) {
+        if (st >= fmi2Error) {
+            f->refused_vr = vr;
+            snprintf(f->refused, sizeof f->refused, "%s", mbs_message(f->sim));
+        } else if (f->refused_vr == vr)
+            f->refused_vr = -1;
+    }
+    return st >= fmi2Error ? fmi2Error : st;
 }
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
@@ -367,7 +394,7 @@ fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
         fmi2Status st;
         if (r < 0)
             return fmi2Error;
-        st = engine_status(f, mbs_set_real(f->sim, r, value[i]), "fmi2SetReal");
+        st = setting(f, r, mbs_set_real(f->sim, r, value[i]), "fmi2SetReal");
         if (st >= fmi2Error)
             return fmi2Error;
         if (st > worst)
@@ -404,7 +431,7 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
             logf_(f, fmi2Error, "fmi2SetString: NULL string for value reference %u", vr[i]);
             return fmi2Error;
         }
-        if (engine_status(f, mbs_set_string(f->sim, r, value[i]), "fmi2SetString") >= fmi2Error)
+        if (setting(f, r, mbs_set_string(f->sim, r, value[i]), "fmi2SetString") >= fmi2Error)
             return fmi2Error;
     }
     return fmi2OK;
@@ -593,18 +620,15 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
-    fmi2Status st;
     (void)noSetFMUStatePriorToCurrentPoint;
     CHECK(P_STEP, "fmi2DoStep");
-    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0) {
-        logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h > 0)",
+    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize < 0) {
+        logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h >= 0)",
               currentCommunicationPoint, communicationStepSize);
         return fmi2Error;
     }
-    st = engine_status(f, mbs_do_step(f->sim, currentCommunicationPoint, communicationStepSize), "fmi2DoStep");
-    if (st >= fmi2Error)
-        f->phase = P_ERROR;
-    return st;
+    /* a refused or failed step leaves the instance at its last good point: the phase stays */
+    return engine_status(f, mbs_do_step(f->sim, currentCommunicationPoint, communicationStepSize), "fmi2DoStep");
 }
 
 fmi2Status fmi2CancelStep(fmi2Component c) {

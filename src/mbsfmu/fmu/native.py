@@ -27,7 +27,7 @@ from pathlib import Path
 
 ENGINE = Path(__file__).resolve().parent.parent / "engine"
 FMI_LAYER = ENGINE / "fmi2.c"
-CFLAGS = ("-O2", "-shared", "-fvisibility=hidden")
+SHARED = ("-shared", "-fvisibility=hidden")  # with the engine's CFLAGS: the numbers of the in-process library
 MINGW = "x86_64-w64-mingw32-gcc"
 _INCLUDE = re.compile(rb'^\s*#\s*include\s+"([^"]+)"', re.M)
 
@@ -36,10 +36,19 @@ COSIMULATION = {"needsExecutionTool": "false", "canGetAndSetFMUstate": "true", "
                 "canHandleVariableCommunicationStepSize": "true"}
 
 
-def source_files(spec: dict) -> dict[str, bytes]:
-    """The engine C sources the scene needs and fmi2.c, with their headers (see collect_sources)."""
+def source_files(blob: bytes) -> dict[str, bytes]:
+    """The engine C sources a compiled scene needs and fmi2.c, with their headers (collect_sources). The
+    engine's feature switches (-DMBS_WITH_...) are written at the top of each C file, so that compiling the
+    files of sources/ needs no flags."""
     from ..engine import build as engine_build
-    return collect_sources([Path(p) for p in engine_build.sources(engine_build.features(spec))] + [FMI_LAYER])
+    srcs, _, defs = engine_build.sources(engine_build.features(blob))
+    out = collect_sources(list(srcs) + [FMI_LAYER])
+    if defs:
+        banner = "/* this FMU's engine parts (mbsfmu engine/build.py) */\n" + "".join(
+            f"#define {d[2:].replace('=', ' ', 1)}\n" for d in defs)
+        for name in c_names(out):
+            out[name] = (banner + f'#line 1 "{name}"\n').encode() + out[name]
+    return out
 
 
 def collect_sources(c_files) -> dict[str, bytes]:
@@ -77,15 +86,31 @@ def compiler() -> str | None:
 def compile_library(src_dir: Path, out: Path, cc: str, windows: bool = False) -> Path:
     """Compile every ``*.c`` of src_dir into the shared library ``out`` (the FMI functions are the only
     exported symbols). Raises RuntimeError with the compiler's message."""
+    from ..engine.build import CFLAGS
     c_files = sorted(str(p) for p in Path(src_dir).glob("*.c"))
     if windows:  # no MinGW runtime DLL needed on the target
-        cmd = [cc, *CFLAGS, "-static-libgcc", "-I", str(src_dir), "-o", str(out), *c_files]
+        flags = [f for f in CFLAGS if f != "-fPIC"]
+        cmd = [cc, *flags, *SHARED, "-static-libgcc", "-I", str(src_dir), "-o", str(out), *c_files]
     else:  # -z defs: everything must resolve in libc/libm at link time, not at the user's dlopen
-        cmd = [cc, *CFLAGS, "-fPIC", "-I", str(src_dir), "-o", str(out), *c_files, "-lm", "-Wl,-z,defs"]
+        cmd = [cc, *CFLAGS, *SHARED, "-I", str(src_dir), "-o", str(out), *c_files, "-lm", "-Wl,-z,defs"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"compiling the native FMU failed: {' '.join(cmd)}\n{r.stderr.strip()[:4000]}")
     return out
+
+
+_BINARIES: dict[str, bytes] = {}  # scenes with the same engine parts get the same binary: compile it once
+
+
+def _binary(src: Path, sources: dict[str, bytes], cc: str, windows: bool) -> bytes:
+    h = hashlib.sha256(f"{cc}\0{windows}".encode())
+    for name, data in sorted(sources.items()):
+        h.update(name.encode() + b"\0" + hashlib.sha256(data).digest())
+    key = h.hexdigest()
+    if key not in _BINARIES:
+        out = src.parent / ("lib.dll" if windows else "lib.so")
+        _BINARIES[key] = compile_library(src, out, cc, windows).read_bytes()
+    return _BINARIES[key]
 
 
 def cmake_lists(identifier: str, c_names: list[str]) -> str:
@@ -93,6 +118,7 @@ def cmake_lists(identifier: str, c_names: list[str]) -> str:
 #   cmake -S sources -B build && cmake --build build --config Release
 cmake_minimum_required(VERSION 3.10)
 project({identifier} C)
+set(CMAKE_C_STANDARD 99)
 add_library({identifier} SHARED {' '.join(c_names)})
 set_target_properties({identifier} PROPERTIES PREFIX "" C_VISIBILITY_PRESET hidden)
 target_include_directories({identifier} PRIVATE ${{CMAKE_CURRENT_SOURCE_DIR}})
@@ -105,19 +131,19 @@ endif()
 def readme(identifier: str, c_names: list[str], notes: list[str]) -> str:
     return (f"Sources of the native FMU '{identifier}' (mbsfmu engine + FMI 2.0 co-simulation layer).\n\n"
             "Compiling all *.c files of this folder into a shared library gives a working FMU binary, e.g.\n\n"
-            f"  cc -O2 -shared -fPIC -fvisibility=hidden -I. -o {identifier}.so {' '.join(c_names)} -lm\n"
-            f"  x86_64-w64-mingw32-gcc -O2 -shared -static-libgcc -I. -o {identifier}.dll {' '.join(c_names)}\n\n"
+            f"  cc -O2 -std=c99 -shared -fPIC -fvisibility=hidden -I. -o {identifier}.so {' '.join(c_names)} -lm\n"
+            f"  x86_64-w64-mingw32-gcc -O2 -std=c99 -shared -static-libgcc -I. -o {identifier}.dll {' '.join(c_names)}\n\n"
             "or use CMakeLists.txt. Put the library into binaries/<platform>/ of the FMU; it reads\n"
             "resources/scene.bin at fmi2Instantiate. The FMI functions carry no prefix in a shared library;\n"
             "define FMI2_FUNCTION_PREFIX to link the FMU statically under prefixed names.\n\n"
             + "".join(f"Build note: {n}\n" for n in notes))
 
 
-def guid_for(spec: dict, sources: dict[str, bytes], version: str) -> str:
-    h = hashlib.sha256(json.dumps(spec, sort_keys=True).encode())
-    for name, data in sorted(sources.items()):
-        h.update(name.encode() + b"\0" + data)
-    h.update(version.encode())
+def guid_for(spec: dict, version: str) -> str:
+    """From the scene, the mbsfmu version and every engine source: any change gives another GUID."""
+    h = hashlib.sha256(json.dumps(spec, sort_keys=True).encode() + b"\0" + version.encode())
+    for path in sorted(ENGINE.rglob("*.[ch]")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
     return "{" + str(uuid.UUID(h.hexdigest()[:32])) + "}"
 
 
@@ -132,13 +158,14 @@ def build_native(scene, outdir) -> Path:
     if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):  # the modelIdentifier names the binary: a C identifier
         raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
     version = _version()
-    sources = source_files(spec)
-    guid = guid_for(spec, sources, version)
+    guid = guid_for(spec, version)
     variables = Simulation(spec).variables  # value reference = row of the engine's variable table
+    blob = compile_scene(spec, variables, guid)
+    sources = source_files(blob)
     xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
                             source_files=c_names(sources))
     dest = Path(outdir) / f"{name}.fmu"
-    for n in package(dest, name, sources, compile_scene(spec, guid), xml):
+    for n in package(dest, name, sources, blob, xml):
         warnings.warn(f"native FMU {name}: {n}", RuntimeWarning, stacklevel=3)
     return dest
 
@@ -162,10 +189,9 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
         for fname, data in sources.items():
             (src / fname).write_bytes(data)
         members = {"modelDescription.xml": xml, "resources/scene.bin": scene_bin}
-        members[f"binaries/linux64/{identifier}.so"] = compile_library(src, Path(tmp) / "lib.so", cc).read_bytes()
+        members[f"binaries/linux64/{identifier}.so"] = _binary(src, sources, cc, False)
         if mingw:
-            members[f"binaries/win64/{identifier}.dll"] = compile_library(src, Path(tmp) / "lib.dll", mingw,
-                                                                         windows=True).read_bytes()
+            members[f"binaries/win64/{identifier}.dll"] = _binary(src, sources, mingw, True)
         members.update({f"sources/{f}": d for f, d in sorted(sources.items())})
         members["sources/CMakeLists.txt"] = cmake_lists(identifier, names).encode()
         members["sources/README"] = readme(identifier, names, notes).encode()
