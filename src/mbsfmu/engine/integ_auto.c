@@ -102,21 +102,6 @@ void mbs_auto_stats(const MbsIntegrator *it, MbsStats *out)
 
 /* ---- snapshot: header, then both children's snapshots (fixed size) ---- */
 
-static void put_i32(unsigned char *p, int v)
-{
-    unsigned long u = (unsigned long)(long)v;
-    int k;
-    for (k = 0; k < 4; k++) p[k] = (unsigned char)((u >> (8 * k)) & 0xffu);
-}
-
-static int get_i32(const unsigned char *p)
-{
-    unsigned long u = 0;
-    int k;
-    for (k = 0; k < 4; k++) u |= (unsigned long)p[k] << (8 * k);
-    return (int)((long)(u & 0x7fffffffUL) - (long)(u & 0x80000000UL));
-}
-
 size_t mbs_auto_snapshot_size(const MbsIntegrator *it)
 {
     return AUTO_HEADER + mbs_integ_snapshot_size(it->sub[0]) + mbs_integ_snapshot_size(it->sub[1]);
@@ -126,11 +111,11 @@ void mbs_auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
 {
     size_t n0 = mbs_integ_snapshot_size(it->sub[0]);
     memcpy(buf, "MBSA", 4);
-    put_i32(buf + 4, it->method);
-    put_i32(buf + 8, it->n);
-    put_i32(buf + 12, it->dense);
-    put_i32(buf + 16, state(it)->phase);
-    put_i32(buf + 20, 0);
+    mbs_put_i32(buf + 4, it->method);
+    mbs_put_i32(buf + 8, it->n);
+    mbs_put_i32(buf + 12, it->dense);
+    mbs_put_i32(buf + 16, state(it)->phase);
+    mbs_put_i32(buf + 20, 0);
     memcpy(buf + 24, &state(it)->switched_at, sizeof(double));
     mbs_integ_snapshot_save(it->sub[0], buf + AUTO_HEADER);
     mbs_integ_snapshot_save(it->sub[1], buf + AUTO_HEADER + n0);
@@ -139,11 +124,11 @@ void mbs_auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
 int mbs_auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
 {
     size_t n0 = mbs_integ_snapshot_size(it->sub[0]), n1 = mbs_integ_snapshot_size(it->sub[1]);
-    int phase;
+    long phase;
     if (!buf || len != AUTO_HEADER + n0 + n1 || memcmp(buf, "MBSA", 4) != 0) return 1;
-    phase = get_i32(buf + 16);
-    if (get_i32(buf + 4) != it->method || get_i32(buf + 8) != it->n || get_i32(buf + 12) != it->dense ||
-        (phase != 0 && phase != 1) || get_i32(buf + 20) != 0)
+    phase = mbs_get_i32(buf + 16);
+    if (mbs_get_i32(buf + 4) != it->method || mbs_get_i32(buf + 8) != it->n || mbs_get_i32(buf + 12) != it->dense ||
+        (phase != 0 && phase != 1) || mbs_get_i32(buf + 20) != 0)
         return 1;
     /* both children validated before either changes */
     if (mbs_integ_snapshot_check(it->sub[0], buf + AUTO_HEADER, n0) ||
@@ -151,7 +136,7 @@ int mbs_auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t l
         return 1;
     mbs_integ_snapshot_commit(it->sub[0]);
     mbs_integ_snapshot_commit(it->sub[1]);
-    state(it)->phase = phase;
+    state(it)->phase = (int)phase;
     memcpy(&state(it)->switched_at, buf + 24, sizeof(double));
     mbs_msg_set(it, "");
     return 0;

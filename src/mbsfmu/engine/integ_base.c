@@ -25,11 +25,6 @@ static const MbsMethodClass *const method_classes[MBS_NMETHODS] = {
 
 #define SNAP_HEADER 24 /* "MBSI", method, n, dense (int32 each), history bytes (uint64) */
 
-/* Python's min/max of two floats (first argument wins unless the second compares smaller/larger), so NaN
- * propagates exactly as in the reference implementation. */
-static double pymin(double a, double b) { return b < a ? b : a; }
-static double pymax(double a, double b) { return b > a ? b : a; }
-
 /* ------------------------------------------------------------------------------------------- messages */
 
 static int fmt_int(char *buf, unsigned long long v)
@@ -197,7 +192,7 @@ double mbs_err_norm(int n, const double *err, const double *x_old, const double 
     double s = 0.0;
     int k;
     for (k = 0; k < n; k++) {
-        double e = err[k] / (atol + rtol * pymax(fabs(x_old[k]), fabs(x_new[k])));
+        double e = err[k] / (atol + rtol * mbs_pymax(fabs(x_old[k]), fabs(x_new[k])));
         s += e * e;
     }
     return sqrt(s / n);
@@ -240,7 +235,7 @@ int mbs_integ_initial_step(MbsIntegrator *it, const double *f0, int order, doubl
     d0 = sqrt(d0 / n);
     d1 = sqrt(d1 / n);
     h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
-    h0 = pymin(pymin(h0, it->max_step), span);
+    h0 = mbs_pymin(mbs_pymin(h0, it->max_step), span);
     for (k = 0; k < n; k++) x1[k] = x[k] + h0 * f0[k]; /* explicit Euler trial step */
     if (mbs_integ_f(it, t + h0, x1, f1)) return 1;
     for (k = 0; k < n; k++) {
@@ -251,12 +246,12 @@ int mbs_integ_initial_step(MbsIntegrator *it, const double *f0, int order, doubl
     d2 = sqrt(d2 / n) / h0;
     c->has_h = 1;
     if (!isfinite(d2)) { /* unusable trial point (NaN there): start very small, the controller grows h */
-        c->h = pymax(h0 * 1e-3, 1e-12 * pymax(fabs(t), 1.0));
+        c->h = mbs_pymax(h0 * 1e-3, 1e-12 * mbs_pymax(fabs(t), 1.0));
         return 0;
     }
-    dmax = pymax(d1, d2);
-    h1 = dmax <= 1e-15 ? pymax(1e-6, h0 * 1e-3) : pow(0.01 / dmax, 1.0 / (order + 1));
-    c->h = pymin(pymin(100.0 * h0, h1), it->max_step);
+    dmax = mbs_pymax(d1, d2);
+    h1 = dmax <= 1e-15 ? mbs_pymax(1e-6, h0 * 1e-3) : pow(0.01 / dmax, 1.0 / (order + 1));
+    c->h = mbs_pymin(mbs_pymin(100.0 * h0, h1), it->max_step);
     return 0;
 }
 
@@ -319,7 +314,7 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
     double min_step;
     long attempts = 0;
     if (cls->start(it, t_end)) return 1;
-    min_step = 10.0 * MBS_EPS * pymax(fabs(c->t), fabs(t_end));
+    min_step = 10.0 * MBS_EPS * mbs_pymax(fabs(c->t), fabs(t_end));
     while (c->t < t_end) {
         double t = c->t, h_prop, remaining, t_new, h;
         int clipped, r;
@@ -331,7 +326,7 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
             mbs_msg_add(it, "); the problem may be stiff — try method radau5 or auto");
             return 1;
         }
-        h_prop = pymin(c->h, it->max_step);
+        h_prop = mbs_pymin(c->h, it->max_step);
         remaining = t_end - t;
         if (remaining < min_step) {
             /* t_end within ~10 ulp of t: the same instant up to rounding, land without a step */
@@ -379,14 +374,14 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
             c->t_int = t_new;
             memcpy(it->x_int, it->x, nb);
             c->has_ahead = 1;
-            c->h = pymin(c->h, it->max_step);
+            c->h = mbs_pymin(c->h, it->max_step);
             land(it, t_end);
             return 0;
         }
         /* a step shortened to land on the point says little about the next one: keep the larger proposal
          * unless this step itself asked for a reduction */
-        if (clipped && h < h_prop && c->h >= h) c->h = pymax(c->h, h_prop);
-        c->h = pymin(c->h, it->max_step);
+        if (clipped && h < h_prop && c->h >= h) c->h = mbs_pymax(c->h, h_prop);
+        c->h = mbs_pymin(c->h, it->max_step);
         if (cls->stop_early && cls->stop_early(it)) return 0;
     }
     return 0;
@@ -453,7 +448,7 @@ static int take_options(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOpti
     it->ode = *ode;
     it->n = ode->n;
     /* Hairer caps rtol from below so that the error test never asks for less than ~10 ulp */
-    it->rtol = pymax(opt->rtol, 10.0 * MBS_EPS);
+    it->rtol = mbs_pymax(opt->rtol, 10.0 * MBS_EPS);
     it->atol = opt->atol;
     it->max_step = ms;
     it->h_fixed = opt->h;
@@ -693,14 +688,14 @@ const char *mbs_integ_message(const MbsIntegrator *it) { return it->msg; }
 
 /* ------------------------------------------------------------------------------------------- snapshots */
 
-static void put_i32(unsigned char *p, long v)
+void mbs_put_i32(unsigned char *p, long v)
 {
     int k;
     unsigned long u = (unsigned long)v;
     for (k = 0; k < 4; k++) p[k] = (unsigned char)((u >> (8 * k)) & 0xffu);
 }
 
-static long get_i32(const unsigned char *p)
+long mbs_get_i32(const unsigned char *p)
 {
     unsigned long u = 0;
     int k;
@@ -722,9 +717,9 @@ void mbs_integ_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
         return;
     }
     memcpy(buf, "MBSI", 4);
-    put_i32(buf + 4, it->method);
-    put_i32(buf + 8, it->n);
-    put_i32(buf + 12, it->dense);
+    mbs_put_i32(buf + 4, it->method);
+    mbs_put_i32(buf + 8, it->n);
+    mbs_put_i32(buf + 12, it->dense);
     for (k = 0; k < 8; k++) buf[16 + k] = (unsigned char)((hb >> (8 * k)) & 0xffu);
     memcpy(buf + SNAP_HEADER, it->hist, it->hist_bytes);
 }
@@ -755,7 +750,7 @@ int mbs_integ_snapshot_check(MbsIntegrator *it, const unsigned char *buf, size_t
     int k;
     if (!buf || len != SNAP_HEADER + it->hist_bytes || memcmp(buf, "MBSI", 4) != 0) return 1;
     for (k = 0; k < 8; k++) hb |= (unsigned long long)buf[16 + k] << (8 * k);
-    if (get_i32(buf + 4) != it->method || get_i32(buf + 8) != it->n || get_i32(buf + 12) != it->dense ||
+    if (mbs_get_i32(buf + 4) != it->method || mbs_get_i32(buf + 8) != it->n || mbs_get_i32(buf + 12) != it->dense ||
         hb != (unsigned long long)it->hist_bytes)
         return 1;
     memcpy(it->hist_tmp, buf + SNAP_HEADER, it->hist_bytes);

@@ -5,9 +5,6 @@
 
 #include "integ_internal.h"
 
-static double pymin(double a, double b) { return b < a ? b : a; }
-static double pymax(double a, double b) { return b > a ? b : a; }
-
 /* ------------------------------------------------------------------------------------------- tableaus */
 
 /* DOPRI5 (Hairer's constants); row 6 is b (5th order), the FSAL stage f(t + h, x_new) */
@@ -256,15 +253,15 @@ static int dopri5_attempt(MbsIntegrator *it, double t_new, double h, double *x_n
     if (!isfinite(err)) return mbs_integ_trial_nonfinite(it, h, "right-hand side");
     /* Hairer's PI controller: fac = err^(0.2−0.75β) / facold^β, limited to [1/FAC2, 1/FAC1] (as h/hnew) */
     fac11 = pow(err, EXPO1_5);
-    fac = pymax(1.0 / FAC2_5, pymin(1.0 / FAC1_5, fac11 / pow(s->facold, BETA5) / SAFE5));
+    fac = mbs_pymax(1.0 / FAC2_5, mbs_pymin(1.0 / FAC1_5, fac11 / pow(s->facold, BETA5) / SAFE5));
     if (err > 1.0) { /* rejection: pure I-control, no growth */
-        it->c->h = h / pymin(1.0 / FAC1_5, fac11 / SAFE5);
+        it->c->h = h / mbs_pymin(1.0 / FAC1_5, fac11 / SAFE5);
         s->last_rejected = 1;
         return MBS_REJECT;
     }
-    s->facold = pymax(err, 1e-4);
+    s->facold = mbs_pymax(err, 1e-4);
     h_new = h / fac;
-    if (s->last_rejected) h_new = pymin(h_new, h); /* no growth right after a rejection (Hairer) */
+    if (s->last_rejected) h_new = mbs_pymin(h_new, h); /* no growth right after a rejection (Hairer) */
     s->last_rejected = 0;
     it->c->h = h_new;
     if (it->detect_stiffness) dopri5_stiffness(it, h, v->arg, x_new);
@@ -332,7 +329,7 @@ static int dop853_attempt(MbsIntegrator *it, double t_new, double h, double *x_n
     stage_sum(n, S8 + 1, E8_5, 1.0, v->K, v->acc);
     stage_sum(n, S8 + 1, E8_3, 1.0, v->K, v->e3);
     for (k = 0; k < n; k++) {
-        double sc = it->atol + it->rtol * pymax(fabs(x[k]), fabs(x_new[k]));
+        double sc = it->atol + it->rtol * mbs_pymax(fabs(x[k]), fabs(x_new[k]));
         double e5 = v->acc[k] / sc, e3 = v->e3[k] / sc;
         n5 += e5 * e5;
         n3 += e3 * e3;
@@ -340,14 +337,14 @@ static int dop853_attempt(MbsIntegrator *it, double t_new, double h, double *x_n
     err = (n5 == 0.0 && n3 == 0.0) ? 0.0 : fabs(h) * n5 / sqrt((n5 + 0.01 * n3) * n);
     if (!isfinite(err)) return mbs_integ_trial_nonfinite(it, h, "right-hand side");
     fac11 = pow(err, EXPO1_8);
-    fac = pymax(1.0 / FAC2_8, pymin(1.0 / FAC1_8, fac11 / SAFE8));
+    fac = mbs_pymax(1.0 / FAC2_8, mbs_pymin(1.0 / FAC1_8, fac11 / SAFE8));
     if (err > 1.0) {
-        it->c->h = h / pymin(1.0 / FAC1_8, fac11 / SAFE8);
+        it->c->h = h / mbs_pymin(1.0 / FAC1_8, fac11 / SAFE8);
         s->last_rejected = 1;
         return MBS_REJECT;
     }
     h_new = h / fac;
-    if (s->last_rejected) h_new = pymin(h_new, h);
+    if (s->last_rejected) h_new = mbs_pymin(h_new, h);
     s->last_rejected = 0;
     it->c->h = h_new;
     memcpy(v->k1, v->K + (size_t)S8 * n, (size_t)n * sizeof(double));
@@ -433,7 +430,7 @@ static int rk4_advance(MbsIntegrator *it, double t_end)
     Rk4View *v = (Rk4View *)it->view;
     MbsCommon *c = it->c;
     double *x = it->x, *dx = it->xnew;
-    double h_max = pymin(it->h_fixed > 0 ? it->h_fixed : it->max_step, it->max_step);
+    double h_max = mbs_pymin(it->h_fixed > 0 ? it->h_fixed : it->max_step, it->max_step);
     double t0 = c->t, span = t_end - t0;
     long nsub, i;
     int n = it->n, k;

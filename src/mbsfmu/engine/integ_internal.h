@@ -154,6 +154,11 @@ struct MbsIntegrator {
 extern const MbsMethodClass mbs_rk4_class, mbs_dopri5_class, mbs_dop853_class, mbs_radau5_class,
     mbs_gen_alpha_class;
 
+/* Python's min/max of two floats (the first argument wins unless the second compares smaller/larger), so
+ * NaN propagates exactly as in the reference implementation. */
+static inline double mbs_pymin(double a, double b) { return b < a ? b : a; }
+static inline double mbs_pymax(double a, double b) { return b > a ? b : a; }
+
 /* ---- helpers for methods (integ_base.c) ---- */
 /* ode->f counted as one evaluation; on MBS_F_SINGULAR/GIMBAL the message is the ODE's: return MBS_FAIL. */
 int mbs_integ_f(MbsIntegrator *it, double t, const double *x, double *xdot);
@@ -187,6 +192,9 @@ void mbs_fmt_g(char *buf, double v, int digits);
  * valid, the integrator untouched), commit makes the checked candidate current. */
 int mbs_integ_snapshot_check(MbsIntegrator *it, const unsigned char *buf, size_t len);
 void mbs_integ_snapshot_commit(MbsIntegrator *it);
+/* little-endian int32 fields of snapshot headers */
+void mbs_put_i32(unsigned char *p, long v);
+long mbs_get_i32(const unsigned char *p);
 
 /* ---- auto (integ_auto.c), dispatched from the public functions in integ_base.c ---- */
 int mbs_auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen);
