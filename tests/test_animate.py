@@ -409,6 +409,30 @@ def test_shape_lands_on_the_pixels_the_closed_form_motion_predicts(browser, tmp_
             f"t={t}: box drawn over pixels {drawn_lo}..{drawn_hi}; the camera model puts it at {lo}..{hi}"
 
 
+def test_every_shape_type_draws(browser, tmp_path):
+    """Box, sphere, cylinder, capsule and an STL mesh on the pendulum: no console errors, and the cyan mesh
+    (a tetrahedron, 0.1 m) appears next to the bob's projected position."""
+    stl = tmp_path / "tetra.stl"
+    stl.write_bytes(b"\0" * 80 + struct.pack("<I", 4) + b"".join(struct.pack("<12fH", 0, 0, 0, *tri.ravel(), 0) for tri in TETRA))
+    text = (MODELS / "pendulum.yaml").read_text()
+    text = text.replace("    mass: m_rod\n", "    mass: m_rod\n    shape: [{type: cylinder, radius: 0.01, length: L, at: [0, 0, -L/2]},"
+                        " {type: capsule, radius: 0.02, length: 0.1, at: [0, 0, -0.2], color: orange, opacity: 0.5}]\n")
+    text = text.replace("    mass: m_bob\n", "    mass: m_bob\n    shape: [{type: sphere, radius: r_bob, color: grey},"
+                        " {type: box, size: [0.02, 0.02, 0.02], at: [0, 0, 0.1]},"
+                        " {type: mesh, file: tetra.stl, scale: 0.1, color: '#00ffff', at: [0.03, 0, 0]}]\n")
+    (tmp_path / "s.yaml").write_text(text)
+    page = mbsfmu.animate(tmp_path / "s.yaml", tmp_path / "s.html", stop=0.2)
+    data, _, _ = page_data(page)
+    n_errors = len(browser.errors())
+    img = browser.show(page, 0.0)
+    assert browser.errors()[n_errors:] == []
+    cyan = (img[..., 0] < 50) & (np.abs(img[..., 1] - img[..., 2]) < 30) & (img[..., 1] > 90)  # not the z axis' light blue
+    rows, cols = np.nonzero(cyan)
+    centroid = R_y(math.pi / 6) @ ([0, 0, -0.8] + np.array([0.03, 0, 0]) + 0.1 * TETRA.reshape(-1, 3).mean(axis=0))
+    px = project(data["scene"]["camera"], centroid)
+    assert len(rows) > 50 and np.linalg.norm([cols.mean(), rows.mean()] - px) < 4
+
+
 @pytest.mark.slow
 def test_native_fmu_motion_is_drawn(tmp_path):
     """An FMU run through fmpy: the native FMU does not carry its scene, so it comes with --scene; the rod's

@@ -12,7 +12,8 @@ import numpy as np
 from ..expr import parse
 from ..equations.model import initial_rotation
 from ..kinematics.rotations import matrix_to_quat
-from .mesh import inside, read_mesh
+from ..scene.datafile import resolve
+from .mesh import read_mesh
 
 PALETTE = ("#4878cf", "#d65f5f", "#6acc65", "#b47cc7", "#c4ad66", "#77bedb", "#e08a3c", "#8c8c8c")
 FOV = 40.0  # vertical field of view of the initial camera, degrees
@@ -52,7 +53,8 @@ def shapes(model, i, base):
             if k in s:
                 g[k] = _vec(s[k], env) if k == "size" else parse(s[k])(env)
         if s["type"] == "mesh":
-            g["triangles"] = read_mesh(inside(base, s["file"])) * np.array(_vec(s["scale"], env), dtype=np.float32)
+            f = resolve(base, s["file"])  # confined again: specs from FMUs are foreign data
+            g["triangles"] = read_mesh(f) * np.array(_vec(s["scale"], env), dtype=np.float32)
             g["file"] = s["file"]
         out.append(g)
     return out

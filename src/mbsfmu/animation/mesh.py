@@ -14,15 +14,6 @@ from ..errors import ModelError
 MAX_TRIANGLES = 2_000_000
 
 
-def inside(base, name):
-    """`name` resolved in folder `base`, refused when it leaves the folder (specs from FMUs are foreign data)."""
-    base = Path(base).resolve()
-    f = (base / name).resolve()
-    if Path(name).is_absolute() or not f.is_relative_to(base):
-        raise ModelError(f"mesh file '{name}' lies outside {base}")
-    return f
-
-
 def read_mesh(path):
     path = Path(path)
     try:

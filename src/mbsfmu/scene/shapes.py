@@ -10,6 +10,8 @@ Numbers may be expressions over parameters. Nothing here is used by the equation
 import re
 from pathlib import Path
 
+from ..errors import ModelError
+from . import datafile
 from .yaml_lines import Map, Seq
 
 SHAPE_TYPES = ("box", "sphere", "cylinder", "capsule", "mesh")
@@ -86,12 +88,11 @@ def _scale(ck, s, path):
 def _mesh_file(ck, s, path):
     """A mesh file inside the scene's folder (no absolute paths, no '..' out of it), STL or OBJ, bounded size."""
     name = s["file"]
-    if not isinstance(name, str) or not name:
-        ck.fail(s, "file", path + ".file", "expected a file name relative to the scene file")
+    try:  # always confined, even when nodal data may come from elsewhere: the drawing never needs more
+        f = datafile.resolve(ck.base, name)
+    except ModelError as e:
+        ck.fail(s, "file", path + ".file", e.message.replace("data file", "mesh file"), "mesh files must sit in the scene's folder or below it")
     base = ck.base.resolve()
-    f = (base / name).resolve()
-    if Path(name).is_absolute() or not f.is_relative_to(base):
-        ck.fail(s, "file", path + ".file", f"'{name}' lies outside the scene's folder", "mesh files must sit in the scene's folder or below it")
     if f.suffix.lower() not in MESH_SUFFIXES:
         ck.fail(s, "file", path + ".file", f"'{name}' is not a supported mesh file", "formats: STL (binary or ASCII), OBJ")
     if not f.is_file():
