@@ -10,13 +10,8 @@ Without a C compiler nothing can run in-process: `library()` raises EngineUnavai
 """
 
 import ctypes
-import hashlib
 import os
-import shutil
-import subprocess
 import sys
-import sysconfig
-import tempfile
 from pathlib import Path
 
 HERE = Path(__file__).parent
@@ -52,6 +47,7 @@ def sources(feats=("expr", "elastic")):
 
 
 def compiler():
+    import shutil
     cc = os.environ.get("CC") or "cc"
     if shutil.which(cc) is None:
         raise EngineUnavailable(f"no C compiler ('{cc}'): mbsfmu's engine is C and compiles on first use; install "
@@ -61,6 +57,7 @@ def compiler():
 
 def compile_shared(out, feats=("expr", "elastic"), extra=(), cc=None):
     """Compile the engine (and extra sources, e.g. the FMI layer) into the shared library `out`."""
+    import subprocess
     srcs, _, defs = sources(feats)
     cmd = [cc or compiler(), *CFLAGS, "-shared", *defs, f"-I{HERE}", "-o", str(out), *map(str, srcs), *map(str, extra), "-lm"]
     res = subprocess.run(cmd, capture_output=True, text=True)
@@ -70,6 +67,7 @@ def compile_shared(out, feats=("expr", "elastic"), extra=(), cc=None):
 
 
 def _tag():
+    import hashlib
     srcs, hdrs, defs = sources()
     h = hashlib.sha256(" ".join(CFLAGS + tuple(defs)).encode() + sys.platform.encode())
     for p in sorted(srcs + hdrs):
@@ -79,10 +77,12 @@ def _tag():
 
 def library_path():
     """The in-process engine library (compiled into the cache on first use; atomic for concurrent processes)."""
+    import sysconfig
+    import tempfile
+    shipped = list(HERE.glob("libmbsfmu_engine_*"))  # a pythonfmu FMU carries its own copy (and nothing else does)
+    if len(shipped) == 1:
+        return shipped[0]
     name = f"libmbsfmu_engine_{_tag()}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}.1"
-    shipped = HERE / name   # a pythonfmu FMU carries its own copy
-    if shipped.exists():
-        return shipped
     for cache in (Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu"),
                   Path(tempfile.gettempdir()) / f"mbsfmu-{os.getuid() if hasattr(os, 'getuid') else 0}"):
         try:
