@@ -52,9 +52,12 @@
  * allocated after mbs_integ_new and nothing big is cleared per step.
  *
  * HELPERS a method calls: mbs_integ_f (ode->f, counted; on failure sets the ODE's message), mbs_err_norm,
- * mbs_integ_initial_step, mbs_integ_check_start, mbs_integ_trial_nonfinite, mbs_all_finite, and the
- * message builders mbs_msg_* (no stdio: messages are built by appending strings and numbers formatted
- * like Python's {v:.3g} / {v:g}).  Messages are bare (no "t=...:" prefix; the caller knows mbs_integ_t).
+ * mbs_integ_initial_step, mbs_integ_check_start, mbs_integ_trial_nonfinite, mbs_all_finite,
+ * mbs_integ_fixed_substeps (rk4/gen_alpha), mbs_integ_normalize, mbs_pymin/mbs_pymax (Python's NaN
+ * semantics), and the message builders mbs_msg_* (no stdio: messages are built by appending strings and
+ * numbers formatted like Python's {v:.3g} / {v:g}).  Messages are bare (no "t=...:" prefix; the caller
+ * knows mbs_integ_t).  Stats: count c->jac_evaluations / c->lu_decompositions yourself (rhs evaluations
+ * are counted by mbs_integ_f); steps and rejections are counted by the driver (by a fixed-step advance).
  *
  * REGISTRATION: integ_base.c's table mbs_method_classes[MBS_NMETHODS] points at mbs_rk4_class,
  * mbs_dopri5_class, mbs_dop853_class (integ_erk.c), mbs_radau5_class (integ_radau5.c), mbs_gen_alpha_class
