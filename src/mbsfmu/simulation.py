@@ -12,6 +12,7 @@ import numpy as np
 
 from .engine import Instance
 from .engine.compile import compile_scene
+from .engine.elastic_tables import structural_parameters
 from .equations.model import Model
 from .errors import IntegrationError
 
@@ -34,8 +35,11 @@ class Variable:
 def variables(spec, model):
     """The FMU variables of a scene, in value-reference order (the same for both FMU kinds)."""
     units_pos, units_vel = model.coordinate_units()
-    out = [Variable(p["name"], "parameter", "tunable", unit=p.get("unit"),
-                    description=p["description"] or f"scene parameter {p['name']}", start=p["value"])
+    fixed = set(structural_parameters(spec))  # they feed generated elastic data, which the engine cannot redo
+    out = [Variable(p["name"], "parameter", "fixed" if p["name"] in fixed else "tunable", unit=p.get("unit"),
+                    description=(p["description"] or f"scene parameter {p['name']}")
+                    + (" (structural: feeds an elastic body's generated data; fixed)" if p["name"] in fixed else ""),
+                    start=p["value"])
            for p in spec["parameters"]]
     ii = spec["integrator"]
     out.append(Variable("integrator.method", "parameter", "fixed", "String", None, "integration method: " + ", ".join(METHODS), ii["method"]))

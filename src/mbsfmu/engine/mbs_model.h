@@ -136,6 +136,8 @@ void mbs_elastic_node_point(const MbsEval *e, int body, int node, double *r, dou
 void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, double *J_R);
 void mbs_elastic_equations(const MbsEval *e);               /* adds to M, k, q */
 int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen);
+/* at bind: structural parameters (they fed the beam generator) must keep their compiled values */
+int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen);
 #endif
 
 #endif

@@ -217,6 +217,10 @@ static int bind(MbsInstance *s)
     mbs_run_programs(m, 0, s->D, NULL, 0.0);
 #endif
     mbs_derive(m, s->D);
+#ifdef MBS_WITH_ELASTIC
+    if ((m->hdr[H_FEATURES] & F_ELASTIC) && mbs_elastic_bind(m, s->D, s->msg, sizeof s->msg))
+        return report(s, MBS_ERROR, "%s", s->msg);
+#endif
     for (int k = m->hdr[H_D_BODY]; k < m->hdr[H_ND]; k++)
         if (!isfinite(s->D[k]))
             return report(s, MBS_ERROR, "the parameters give a non-finite number in the scene (entry %d of the "

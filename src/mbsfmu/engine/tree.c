@@ -175,8 +175,8 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
         *o_p = nb_; *w_p = nb_ + 3; *v_p = nb_ + 6; *a_p = nb_ + 9; *al_p = nb_ + 12;
         mm(S_P, db + DB_R0, S_J);
         memset(rho, 0, 3 * sizeof(double));
-        *lo = 0;   /* the node's columns include the parent's elastic coordinates */
-        *hi = f;
+        *lo = (int)pw[W_LO];   /* the parent's columns, widened to its elastic coordinates */
+        *hi = (int)pw[W_HI];
         return;
     }
 #else
@@ -332,6 +332,17 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
             for (int cc = 0; cc < 3; cc++) I_w[3 * r + cc] = SI[3 * r] * S[3 * cc] + SI[3 * r + 1] * S[3 * cc + 1] + SI[3 * r + 2] * S[3 * cc + 2];
         mv(I_w, w, Iw_w);
         mv(I_w, al, Iw_al);
+#ifdef MBS_WITH_ELASTIC
+        if (m->hdr[H_FEATURES] & F_ELASTIC) {
+            /* S (ω_b × I ω_b), ω_b = Sᵀω, as tree.py: at a node S = S_R (E + θ̃) is orthogonal only to first
+             * order (seed 004), and then this differs from ω × I_w ω */
+            double wb[3], Iwb[3], g_b[3];
+            for (int r = 0; r < 3; r++) wb[r] = S[r] * w[0] + S[3 + r] * w[1] + S[6 + r] * w[2];
+            mv(db + DB_I, wb, Iwb);
+            cross(wb, Iwb, g_b);
+            mv(S, g_b, gyr);
+        } else
+#endif
         cross(w, Iw_w, gyr);
         double mg[3] = {0, 0, 0}, mac[3], rot[3];
         if (m->hdr[H_HAS_GRAVITY]) for (int r = 0; r < 3; r++) mg[r] = mass * g[r];

@@ -1,0 +1,444 @@
+/* Elastic bodies in the tree (seed 004, floating frame of reference): the same equations as bodies/ffrf.py and
+ * bodies/tree.py, on the mass invariants that engine/elastic_tables.py computed at compile time.
+ *
+ *   z_II = J_z ẏ,  J_z = [Sᵀ J_T; Sᵀ J_R; E_q]   (R components: v_R, ω_R, q̇)
+ *   M += J_zᵀ M_zz(q) J_z,   k += J_zᵀ (M_zz z̄ + h(q, q̇, ω)),   q += J_zᵀ (f_g + f_e),   z̄ = [Sᵀ ā; Sᵀ ᾱ; 0]
+ *   node P: r_IP = r_IR + S (R_RP + Φ_P q),   S_IP = S (E + (Ψ_P q)~)
+ *
+ * J_z is never formed: its frame rows act on the few columns [lo, hi) the reference frame moves with, its
+ * elastic rows are the identity on the body's own q̇ columns. The q-dependent invariants cost one pass over
+ * B (B·q) and one over G (G·q and G·q̇ together); everything else is O(n).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "mbs_model.h"
+
+/* S_ELASTIC_I layout (elastic_tables.py) */
+enum { EH_NE, EH_NFIX, EH };
+enum { EI_BODY, EI_N, EI_NODES, EI_Q, EI_QD, EI_STIFF, EI_D, EI };
+#define MAX_MODES 4096
+
+/* one body's invariants and node data inside S_ELASTIC_D */
+typedef struct {
+    int n, nodes, q0, qd0, stiff;
+    const double *m, *S0, *S_RR, *J_sum, *C_t, *A, *C_r0, *JPsi, *G, *B, *M_ee, *K, *D, *K_a, *K_w, *node;
+} Inv;
+
+static int64_t block_size(int64_t n, int64_t N, int stiff)
+{
+    return 1 + 3 + 9 + 9 + 3 * n + 9 * n + 3 * n + 3 * n + 3 * n * n + 9 * n * n + 3 * n * n
+           + (stiff ? 2 * n * n : 0) + N * (3 + 6 * n);
+}
+
+static const int32_t *row(const MbsModel *m, int e) { return m->elastic_i + EH + EI * e; }
+
+static Inv inv_of(const MbsModel *m, int e)
+{
+    const int32_t *r = row(m, e);
+    const int n = r[EI_N];
+    const double *p = m->elastic_d + r[EI_D];
+    Inv v = {.n = n, .nodes = r[EI_NODES], .q0 = r[EI_Q], .qd0 = r[EI_QD], .stiff = r[EI_STIFF]};
+    v.m = p;          p += 1;
+    v.S0 = p;         p += 3;
+    v.S_RR = p;       p += 9;
+    v.J_sum = p;      p += 9;
+    v.C_t = p;        p += 3 * n;
+    v.A = p;          p += 9 * n;
+    v.C_r0 = p;       p += 3 * n;
+    v.JPsi = p;       p += 3 * n;
+    v.G = p;          p += 3 * (size_t)n * n;
+    v.B = p;          p += 9 * (size_t)n * n;
+    v.M_ee = p;       p += (size_t)n * n;
+    v.K = p;          p += (size_t)n * n;
+    v.D = p;          p += (size_t)n * n;
+    v.K_a = v.K_w = NULL;
+    if (v.stiff) { v.K_a = p; p += (size_t)n * n; v.K_w = p; p += (size_t)n * n; }
+    v.node = p;
+    return v;
+}
+/* node P: R_RP (3), Φ_P (3×n), Ψ_P (3×n) */
+static const double *node_R(const Inv *v, int P) { return v->node + (size_t)P * (3 + 6 * v->n); }
+static const double *node_Phi(const Inv *v, int P) { return node_R(v, P) + 3; }
+static const double *node_Psi(const Inv *v, int P) { return node_R(v, P) + 3 + 3 * v->n; }
+
+/* ---- workspace: per elastic body its frame columns [lo, hi) before widening; then scratch for one body ---- */
+static int max_modes(const MbsModel *m)
+{
+    int nmax = 0;
+    for (int e = 0; e < m->elastic_i[EH_NE]; e++) if (row(m, e)[EI_N] > nmax) nmax = row(m, e)[EI_N];
+    return nmax;
+}
+
+size_t mbs_elastic_work_size(const MbsModel *m)
+{
+    const size_t n = (size_t)max_modes(m), f = (size_t)NVEL(m);
+    return (2 * (size_t)m->elastic_i[EH_NE] + 6 * f + 9 * n * n + 24 * n + 64) * sizeof(double);
+}
+
+/* ---- small helpers (row-major 3×3, 3-vectors) ---- */
+static void cross(const double *a, const double *b, double *c)
+{
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+static void mv(const double *A, const double *x, double *y)
+{
+    for (int r = 0; r < 3; r++) y[r] = A[3 * r] * x[0] + A[3 * r + 1] * x[1] + A[3 * r + 2] * x[2];
+}
+static void mtv(const double *A, const double *x, double *y)  /* y = Aᵀ x */
+{
+    for (int r = 0; r < 3; r++) y[r] = A[r] * x[0] + A[3 + r] * x[1] + A[6 + r] * x[2];
+}
+static double dot(const double *a, const double *b, int n)
+{
+    double s = 0.0;
+    for (int k = 0; k < n; k++) s += a[k] * b[k];
+    return s;
+}
+/* y = A x for A (3×n) */
+static void mv3n(const double *A, const double *x, int n, double *y)
+{
+    for (int r = 0; r < 3; r++) y[r] = dot(A + r * n, x, n);
+}
+static void matvec(const double *A, const double *x, int n, double *y)  /* n×n */
+{
+    for (int r = 0; r < n; r++) y[r] = dot(A + (size_t)r * n, x, n);
+}
+
+static double *body_work(const MbsEval *e, int i) { return e->work + (size_t)i * W_SIZE(NVEL(e->m)); }
+
+/* ---- kinematics ---- */
+void mbs_elastic_kinematics(const MbsEval *e, int body)
+{
+    const MbsModel *m = e->m;
+    const int el = m->ib[body * IB + IB_ELASTIC];
+    const int32_t *r = row(m, el);
+    double *wk = body_work(e, body), *cols = (double *)e->elastic_work + 2 * el;
+    cols[0] = wk[W_LO];  /* the reference frame's own columns, for J_z */
+    cols[1] = wk[W_HI];
+    if (r[EI_QD] < wk[W_LO]) wk[W_LO] = r[EI_QD];
+    if (r[EI_QD] + r[EI_N] > wk[W_HI]) wk[W_HI] = r[EI_QD] + r[EI_N];
+}
+
+/* Node P of elastic body i: ρ = S (R_RP + Φ_P q) (world), its elastic velocity u = S Φ_P q̇, and the node's
+ * position, velocity, bias acceleration (a may be NULL) and J_T (3 × f over the body's columns; may be NULL). */
+static void node_motion(const MbsEval *e, int i, int P, double *rho, double *r, double *v, double *a, double *J_T)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m);
+    const Inv in = inv_of(m, m->ib[i * IB + IB_ELASTIC]);
+    const double *wk = body_work(e, i), *S = wk + W_S, *w = wk + W_W;
+    const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0, *Phi = node_Phi(&in, P), *R = node_R(&in, P);
+    double rR[3], uR[3], u[3], wxr[3];
+    mv3n(Phi, q, in.n, rR);
+    mv3n(Phi, qd, in.n, uR);
+    for (int k = 0; k < 3; k++) rR[k] += R[k];
+    mv(S, rR, rho);
+    mv(S, uR, u);
+    cross(w, rho, wxr);
+    for (int k = 0; k < 3; k++) { r[k] = wk[W_O + k] + rho[k]; v[k] = wk[W_V + k] + wxr[k] + u[k]; }
+    if (a) {
+        double axr[3], wwxr[3], wxu[3];
+        cross(wk + W_AL, rho, axr);
+        cross(w, wxr, wwxr);
+        cross(w, u, wxu);
+        for (int k = 0; k < 3; k++) a[k] = wk[W_A + k] + axr[k] + wwxr[k] + 2.0 * wxu[k];
+    }
+    if (!J_T) return;
+    const double *JR = wk + W_J, *JT = JR + 3 * f;
+    for (int c = (int)wk[W_LO]; c < (int)wk[W_HI]; c++) {  /* J_T − ρ̃ J_R */
+        double jr[3] = {JR[c], JR[f + c], JR[2 * f + c]}, x[3];
+        cross(rho, jr, x);
+        for (int k = 0; k < 3; k++) J_T[k * f + c] = JT[k * f + c] - x[k];
+    }
+    for (int c = 0; c < in.n; c++) {                         /* + S Φ_P on the elastic columns */
+        double ph[3] = {Phi[c], Phi[in.n + c], Phi[2 * in.n + c]}, s[3];
+        mv(S, ph, s);
+        for (int k = 0; k < 3; k++) J_T[k * f + in.qd0 + c] += s[k];
+    }
+}
+
+void mbs_elastic_node_point(const MbsEval *e, int body, int node, double *r, double *v, double *J_T)
+{
+    double rho[3];
+    node_motion(e, body, node, rho, r, v, NULL, J_T);
+}
+
+/* J_R + S Ψ_P on the elastic columns (3 × f over the body's columns) */
+void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, double *J_R)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m);
+    const Inv in = inv_of(m, m->ib[body * IB + IB_ELASTIC]);
+    const double *wk = body_work(e, body), *S = wk + W_S, *Psi = node_Psi(&in, node);
+    for (int k = 0; k < 3; k++)
+        for (int c = (int)wk[W_LO]; c < (int)wk[W_HI]; c++) J_R[k * f + c] = wk[W_J + k * f + c];
+    for (int c = 0; c < in.n; c++) {
+        double ps[3] = {Psi[c], Psi[in.n + c], Psi[2 * in.n + c]}, s[3];
+        mv(S, ps, s);
+        for (int k = 0; k < 3; k++) J_R[k * f + in.qd0 + c] += s[k];
+    }
+}
+
+/* The frame a child joint sits on at node P of its elastic parent (tree.py: node_frame). J_R, J_T: full 3 × f. */
+void mbs_elastic_node_frame(const MbsEval *e, int child, double *S_P, double *r, double *w, double *v, double *a,
+                            double *al, double *J_R, double *J_T)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m), i = m->ib[child * IB + IB_PARENT], P = m->ib[child * IB + IB_NODE];
+    const Inv in = inv_of(m, m->ib[i * IB + IB_ELASTIC]);
+    const double *wk = body_work(e, i), *S = wk + W_S, *wp = wk + W_W, *Psi = node_Psi(&in, P);
+    const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0;
+    double rho[3], th[3], thd[3], w_rel[3], E_th[9];
+    memcpy(J_T, wk + W_J + 3 * f, 3 * (size_t)f * sizeof(double));
+    node_motion(e, i, P, rho, r, v, a, J_T);
+    mv3n(Psi, q, in.n, th);
+    mv3n(Psi, qd, in.n, thd);
+    /* S_P = S (E + θ̃) */
+    const double Et[9] = {1, -th[2], th[1], th[2], 1, -th[0], -th[1], th[0], 1};
+    memcpy(E_th, Et, sizeof Et);
+    for (int r_ = 0; r_ < 3; r_++)
+        for (int c = 0; c < 3; c++)
+            S_P[3 * r_ + c] = S[3 * r_] * E_th[c] + S[3 * r_ + 1] * E_th[3 + c] + S[3 * r_ + 2] * E_th[6 + c];
+    mv(S, thd, w_rel);
+    double wxw[3];
+    cross(wp, w_rel, wxw);
+    for (int k = 0; k < 3; k++) { w[k] = wp[k] + w_rel[k]; al[k] = wk[W_AL + k] + wxw[k]; }
+    memcpy(J_R, wk + W_J, 3 * (size_t)f * sizeof(double));
+    for (int c = 0; c < in.n; c++) {
+        double ps[3] = {Psi[c], Psi[in.n + c], Psi[2 * in.n + c]}, s[3];
+        mv(S, ps, s);
+        for (int k = 0; k < 3; k++) J_R[k * f + in.qd0 + c] += s[k];
+    }
+}
+
+/* ---- equations of one elastic body (ffrf.py: mass_matrix, quadratic_forces, gravity_forces, elastic_forces)
+ * in R components, then projected with J_z into M, k, q ---- */
+static void body_equations(const MbsEval *e, int el)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m), body = row(m, el)[EI_BODY];
+    const Inv in = inv_of(m, el);
+    const int n = in.n;
+    const double *wk = body_work(e, body), *S = wk + W_S, *JR = wk + W_J, *JT = JR + 3 * f;
+    const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0, *cols = (double *)e->elastic_work + 2 * el;
+    const int lo = (int)cols[0], hi = (int)cols[1];
+    double *Jf = (double *)e->elastic_work + 2 * m->elastic_i[EH_NE];  /* 6 × f: [Sᵀ J_T; Sᵀ J_R] */
+    double *Bq = Jf + 6 * f, *Cr = Bq + 9 * (size_t)n * n, *Gqd = Cr + 3 * n, *ke = Gqd + 3 * n, *qe = ke + n;
+    double *Kaq = qe + n, *Kq = Kaq + n, *tmp = Kq + n;
+    double w[3], aR[3], alR[3], mc[3], Ctqd[3], Aq[9], Aqd[9], Ssym[9], W[9], I[9];
+    const double mass = in.m[0];
+    mtv(S, wk + W_W, w);
+    mtv(S, wk + W_A, aR);
+    mtv(S, wk + W_AL, alR);
+
+    /* first moment m·c = S0 + C_t q (− ½ qᵀK_a q e_x), C_t q̇ */
+    mv3n(in.C_t, q, n, mc);
+    mv3n(in.C_t, qd, n, Ctqd);
+    for (int k = 0; k < 3; k++) mc[k] += in.S0[k];
+    if (in.stiff) { matvec(in.K_a, q, n, Kaq); mc[0] -= 0.5 * dot(q, Kaq, n); }
+    else memset(Kaq, 0, (size_t)n * sizeof(double));
+
+    /* Σ m u uᵀ = S_RR + Aq + Aqᵀ + B:qq and W = Σ m u (Φq̇)ᵀ = A q̇ + B:q q̇ (Bq_ijl = Σ_k B_ijkl q_k) */
+    for (int ij = 0; ij < 9; ij++) {
+        const double *Aij = in.A + ij * n, *Bij = in.B + (size_t)ij * n * n;
+        double *bq = Bq + ij * n;
+        Aq[ij] = dot(Aij, q, n);
+        Aqd[ij] = dot(Aij, qd, n);
+        for (int l = 0; l < n; l++) bq[l] = dot(Bij + (size_t)l * n, q, n);
+        Ssym[ij] = dot(bq, q, n);
+        W[ij] = Aqd[ij] + dot(bq, qd, n);
+    }
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) Ssym[3 * i + j] += in.S_RR[3 * i + j] + Aq[3 * i + j] + Aq[3 * j + i];
+    const double trS = Ssym[0] + Ssym[4] + Ssym[8], trW = W[0] + W[4] + W[8];
+    for (int k = 0; k < 9; k++) I[k] = (k % 4 == 0 ? trS : 0.0) - Ssym[k] + in.J_sum[k];
+
+    /* C_r = C_r0 + G q (3 × n) and Gqd_mk = Σ_l G_mkl q̇_l, in one pass over G */
+    memset(Gqd, 0, 3 * (size_t)n * sizeof(double));
+    for (int i = 0; i < 3; i++)
+        for (int l = 0; l < n; l++) {
+            const double *g = in.G + ((size_t)i * n + l) * n;
+            double *acc = Gqd + i * n;
+            Cr[i * n + l] = in.C_r0[i * n + l] + dot(g, q, n);
+            for (int k = 0; k < n; k++) acc[k] += qd[l] * g[k];
+        }
+
+    /* frame rows: kr = M_rr z̄_r + h_r; gravity gr */
+    double kr[6], gr[6], t1[3], t2[3], t3[3];
+    cross(w, mc, t1);
+    cross(w, t1, t2);                 /* ω̃ω̃ m·c */
+    cross(w, Ctqd, t3);
+    cross(mc, alR, t1);
+    for (int k = 0; k < 3; k++) kr[k] = mass * aR[k] - t1[k] + t2[k] + 2.0 * t3[k];
+    double Iw[3], Ial[3], Jq[3], mca[3];
+    mv(I, w, Iw);
+    mv(I, alR, Ial);
+    mv3n(in.JPsi, qd, n, Jq);
+    for (int k = 0; k < 3; k++) Jq[k] += Iw[k];
+    cross(w, Jq, t1);                 /* ω × (I ω + JΨ q̇) */
+    cross(mc, aR, mca);
+    for (int k = 0; k < 3; k++)
+        kr[3 + k] = mca[k] + Ial[k] + t1[k] + 2.0 * (w[k] * trW - (W[k] * w[0] + W[3 + k] * w[1] + W[6 + k] * w[2]));
+
+    /* elastic rows: ke = M_er z̄_r + h_e */
+    const double ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+    for (int k = 0; k < n; k++) {
+        /* Σ_ij (ω̃ω̃)_ij (A_ijk + Bq_ijk) = ωᵀ X ω − |ω|² tr X */
+        double X[9];
+        for (int ij = 0; ij < 9; ij++) X[ij] = in.A[ij * n + k] + Bq[ij * n + k];
+        double Xw[3];
+        mv(X, w, Xw);
+        ke[k] = dot(w, Xw, 3) - ww * (X[0] + X[4] + X[8])
+              - 2.0 * (w[0] * Gqd[k] + w[1] * Gqd[n + k] + w[2] * Gqd[2 * n + k])
+              + in.C_t[k] * aR[0] + in.C_t[n + k] * aR[1] + in.C_t[2 * n + k] * aR[2]
+              + Cr[k] * alR[0] + Cr[n + k] * alR[1] + Cr[2 * n + k] * alR[2];
+    }
+
+    /* applied: gravity (frame and q rows) and elastic forces −K q − D q̇ */
+    matvec(in.K, q, n, Kq);
+    matvec(in.D, qd, n, tmp);
+    double gR[3] = {0, 0, 0};
+    if (m->hdr[H_HAS_GRAVITY]) mtv(S, e->D + m->hdr[H_D_G], gR);
+    cross(mc, gR, t1);
+    for (int k = 0; k < 3; k++) { gr[k] = mass * gR[k]; gr[3 + k] = t1[k]; }
+    for (int k = 0; k < n; k++)
+        qe[k] = in.C_t[k] * gR[0] + in.C_t[n + k] * gR[1] + in.C_t[2 * n + k] * gR[2] - Kq[k] - tmp[k];
+
+    if (in.stiff) {  /* dynamic stiffening (ffrf.py): a_x / g_x and centrifugal parts */
+        double *Kaqd = tmp;
+        matvec(in.K_a, qd, n, Kaqd);
+        double wx_ex[3] = {0, w[2], -w[1]};             /* ω × e_x */
+        const double c = 2.0 * dot(q, Kaqd, n);
+        for (int k = 0; k < 3; k++) kr[k] -= c * wx_ex[k];
+        kr[0] -= dot(qd, Kaqd, n);
+        matvec(in.K_w, q, n, Kaqd);
+        const double wyz = w[1] * w[1] + w[2] * w[2];
+        for (int k = 0; k < n; k++) {
+            ke[k] += wyz * Kaqd[k] - Kaq[k] * aR[0];
+            qe[k] -= gR[0] * Kaq[k];
+        }
+    }
+
+    /* projection: M += J_zᵀ M_zz J_z, k += J_zᵀ [kr; ke], q += J_zᵀ [gr; qe] */
+    double *M = e->M, *kk = e->k, *qq = e->q;
+    const int e0 = in.qd0;
+    for (int c = lo; c < hi; c++) {
+        double jt[3] = {JT[c], JT[f + c], JT[2 * f + c]}, jr[3] = {JR[c], JR[f + c], JR[2 * f + c]};
+        mtv(S, jt, Jf + 6 * c);
+        mtv(S, jr, Jf + 6 * c + 3);
+    }
+    double Mrr[36];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            Mrr[6 * r + c] = r == c ? mass : 0.0;
+            Mrr[6 * (3 + r) + 3 + c] = I[3 * r + c];
+        }
+    /* −m·c~ (upper right), m·c~ (lower left) */
+    const double mx[9] = {0, -mc[2], mc[1], mc[2], 0, -mc[0], -mc[1], mc[0], 0};
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) { Mrr[6 * r + 3 + c] = -mx[3 * r + c]; Mrr[6 * (3 + r) + c] = mx[3 * r + c]; }
+    for (int c = lo; c < hi; c++) {
+        const double *jc = Jf + 6 * c;
+        double MJ[6];
+        for (int r = 0; r < 6; r++) MJ[r] = dot(Mrr + 6 * r, jc, 6);
+        for (int c2 = lo; c2 < hi; c2++) M[(size_t)c2 * f + c] += dot(Jf + 6 * c2, MJ, 6);
+        kk[c] += dot(jc, kr, 6);
+        qq[c] += dot(jc, gr, 6);
+        for (int k = 0; k < n; k++) {
+            /* M_re column k: [C_t e_k − (K_a q)_k e_x; C_r e_k] */
+            double s = jc[0] * (in.C_t[k] - Kaq[k]) + jc[1] * in.C_t[n + k] + jc[2] * in.C_t[2 * n + k]
+                     + jc[3] * Cr[k] + jc[4] * Cr[n + k] + jc[5] * Cr[2 * n + k];
+            M[(size_t)c * f + e0 + k] += s;
+            M[(size_t)(e0 + k) * f + c] += s;
+        }
+    }
+    for (int k = 0; k < n; k++) {
+        for (int l = 0; l < n; l++) M[(size_t)(e0 + k) * f + e0 + l] += in.M_ee[(size_t)k * n + l];
+        kk[e0 + k] += ke[k];
+        qq[e0 + k] += qe[k];
+    }
+}
+
+void mbs_elastic_equations(const MbsEval *e)
+{
+    for (int el = 0; el < e->m->elastic_i[EH_NE]; el++) body_equations(e, el);
+}
+
+/* ---- load-time checks: every count, offset and index, so that a corrupt file cannot reach memory it
+ * does not own ---- */
+#define FAIL(...) do { snprintf(err, errlen, __VA_ARGS__); return 1; } while (0)
+
+static int in_range(int v, int lo, int hi) { return v >= lo && v < hi; }
+
+int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
+{
+    const int32_t *I = m->elastic_i;
+    const int ni = m->n_elastic_i, nb = NB(m);
+    if (!I || ni < EH) FAIL("corrupt elastic section (missing)");
+    const int ne = I[EH_NE], nfix = I[EH_NFIX];
+    if (!in_range(ne, 1, nb + 1) || nfix < 0 || (int64_t)EH + (int64_t)EI * ne + nfix > ni)
+        FAIL("corrupt elastic section (counts)");
+    int64_t off = 0;
+    for (int el = 0; el < ne; el++) {
+        const int32_t *r = row(m, el);
+        const int b = r[EI_BODY], n = r[EI_N], N = r[EI_NODES];
+        if (!in_range(b, 0, nb) || m->ib[b * IB + IB_ELASTIC] != el || !in_range(n, 1, MAX_MODES + 1) ||
+            N < 1 || !in_range(r[EI_STIFF], 0, 2) || r[EI_D] != off ||
+            !in_range(r[EI_Q], 0, NPOS(m)) || r[EI_Q] + n > NPOS(m) || !in_range(r[EI_QD], 0, NVEL(m)) ||
+            r[EI_QD] + n > NVEL(m) || N > m->n_elastic_d)
+            FAIL("corrupt elastic section (body %d)", el);
+        off += block_size(n, N, r[EI_STIFF]);
+        if (off > m->n_elastic_d) FAIL("corrupt elastic section (data of body %d)", el);
+    }
+    if (off + nfix != m->n_elastic_d) FAIL("corrupt elastic section (data length)");
+    const int32_t *fix = I + EH + EI * ne;  /* structural parameters */
+    for (int k = 0; k < nfix; k++) if (!in_range(fix[k], 0, m->hdr[H_NPARAM])) FAIL("corrupt elastic section (parameter)");
+    /* node indices wherever a node is named */
+    for (int i = 0; i < nb; i++) {
+        const int32_t *ib = m->ib + i * IB;
+        if (ib[IB_NODE] < 0) continue;
+        int p = ib[IB_PARENT], el = p >= 0 ? m->ib[p * IB + IB_ELASTIC] : -1;
+        if (el < 0 || ib[IB_NODE] >= row(m, el)[EI_NODES]) FAIL("corrupt body table (node of body %d)", i);
+    }
+    for (int k = 0; k < m->hdr[H_NFORCE]; k++) {
+        const int32_t *fi = m->iforce + k * IF;
+        for (int end = 0; end < 2; end++) {
+            int node = fi[IF_NODE_A + end], b = end ? fi[IF_B] : fi[IF_A];
+            if (node < 0) continue;
+            if (fi[IF_TYPE] == FE_JOINT_SPRING || (end && fi[IF_TYPE] != FE_SPRING)) FAIL("corrupt force table (node of element %d)", k);
+            int el = b >= 0 ? m->ib[b * IB + IB_ELASTIC] : -1;
+            if (el < 0 || node >= row(m, el)[EI_NODES]) FAIL("corrupt force table (node of element %d)", k);
+        }
+    }
+    for (int o = 0; o < m->hdr[H_NOUT]; o++) {
+        int b = m->out[3 * o], node = m->out[3 * o + 1];
+        if (node < 0) continue;
+        int el = m->ib[b * IB + IB_ELASTIC];
+        if (el < 0 || node >= row(m, el)[EI_NODES]) FAIL("corrupt output table (node of output %d)", o);
+    }
+    return 0;
+}
+
+/* Structural parameters (they fed the beam generator): the bound value must be the one the data were
+ * computed with. */
+int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen)
+{
+    const int32_t *I = m->elastic_i;
+    const int nfix = I[EH_NFIX];
+    const int32_t *fix = I + EH + EI * I[EH_NE];
+    const double *val = m->elastic_d + m->n_elastic_d - nfix;
+    for (int k = 0; k < nfix; k++) {
+        if (D[fix[k]] == val[k]) continue;
+        int vr = 0;
+        while (vr < m->hdr[H_NVARS] && !(m->vars[2 * vr] == MBS_V_PARAM && m->vars[2 * vr + 1] == fix[k])) vr++;
+        const char *name = vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?";
+        FAIL("parameter %s is structural: it feeds the finite-element data of an elastic body, which the engine "
+             "cannot recompute (compiled with %s = %.17g, set to %.17g); compile the scene again with the new value",
+             name, name, val[k], D[fix[k]]);
+    }
+    return 0;
+}
