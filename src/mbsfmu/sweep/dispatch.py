@@ -15,6 +15,7 @@ BATCHES_PER_SLOT = 8   # several batches per worker: load balance and progress s
 BATCH_SECONDS = 0.1    # yet at least this much work per task: a task costs the scheduler a few ms
 MAX_BATCH = 256        # long sweeps still report progress and lose little to a dying worker
 WAIT_FOR_WORKERS = 60  # seconds an existing cluster may take to offer its first worker
+SCATTER_BYTES = 1 << 16  # larger models (FMUs) go to each worker once ahead; a scene's JSON rides with the tasks
 
 
 def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
@@ -47,7 +48,9 @@ def _on_cluster(client, model, cases, setup, bar):
     from that."""
     from dask.distributed import as_completed
     slots = max(1, sum(client.nthreads().values()))
-    [shared] = client.scatter([model], broadcast=True, hash=False)  # the model travels once per worker
+    shared = model
+    if len(model.data) > SCATTER_BYTES:
+        [shared] = client.scatter([model], broadcast=True, hash=False)
     pending = {}
 
     def submit(batch):
