@@ -166,6 +166,8 @@ class _Checker:
             if name not in allowed:
                 hint = "'t' is only allowed in drives and force values" if name == "t" else _suggest(name, sorted(self.params) or ["(no parameters defined)"])
                 self.fail(parent, key, path, f"unknown name '{name}'", hint)
+        if "t" in e.names:  # a function of time: checked over the whole experiment by time_domains
+            return value
         env = dict(self.params, t=0.0)
         try:
             v = e(env)
@@ -490,7 +492,11 @@ class _Checker:
             b, bp = e["beam"], path + ".beam"
             self.keys(b, bp, ("length", "EI", "EA", "GJ", "rhoA", "rhoIp", "elements", "modes", "clamped"), required=("length", "EI", "rhoA"))
             beam = {"length": self.number(b, "length", bp + ".length", positive=True), "rhoA": self.number(b, "rhoA", bp + ".rhoA", positive=True)}
-            EI = b["EI"] if isinstance(b["EI"], list) else [b["EI"], b["EI"]]
+            EI = b["EI"]
+            if not isinstance(EI, list):  # one value for both planes, reported at its own line
+                EI = Seq([EI, EI])
+                EI.line = b.lines["EI"]
+                EI.lines = {0: EI.line, 1: EI.line}
             if len(EI) != 2:
                 self.fail(b, "EI", bp + ".EI", "give one value or [EI_y, EI_z]")
             beam["EI"] = [self.number(EI, i, f"{bp}.EI[{i}]", positive=True) for i in range(2)]
@@ -557,7 +563,10 @@ class _Checker:
             if "beam" in elastic and "damping" in elastic:
                 check_damping(elastic["damping"], body.nodal.n, path)
         except ModelError as err:
-            self.fail_at(err.key or path, err.message, err.hint)
+            key = err.key or path
+            if key == path + ".nodal.damping" and "damping" in elastic:  # given beside `nodal:`, not in it
+                key = path + ".damping"
+            self.fail_at(key, err.message, err.hint)
         except (ValueError, ArithmeticError) as err:  # e.g. a singular modal mass in a linear-algebra routine
             self.fail_at(path, f"cannot build the elastic body: {err}")
         self.node_count[name] = body.nodal.nodes
