@@ -40,11 +40,9 @@ def page_data(path):
 
 
 def quat_matrix(q):
-    """Rotation matrix of a unit quaternion given as x, y, z, w."""
-    x, y, z, w = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    """Rotation matrix of a unit quaternion given as x, y, z, w (scipy's convention, as three.js's)."""
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_quat(np.asarray(q, dtype=float)).as_matrix()
 
 
 def R_y(a):
