@@ -3,9 +3,11 @@
 (a) start-up: from fmi2Instantiate to the end of the first fmi2DoStep, each run in a fresh host process (so
     the pythonfmu FMU pays its interpreter and imports as a simulator would), the FMUs alternating run by run;
     best and median. dlopen is reported beside it.
-(b) cost per communication point beyond the integration, at h = 1 ms: n steps of h with the outputs read after
-    each (fmi2DoStep + fmi2GetReal), minus one fmi2DoStep over n·h on a fresh instance, which makes the same
-    fixed rk4 steps of 1 ms (integrator.method = rk4, integrator.step = 1 ms); divided by n.
+(b) cost per communication point beyond the integration, at h = 1 ms: a chunk of n steps of h with the outputs
+    read after each (fmi2DoStep + fmi2GetReal), minus one fmi2DoStep over n·h (+ one read) on a second instance,
+    which makes the same fixed rk4 steps of 1 ms (integrator.method = rk4, integrator.step = 1 ms); divided by
+    n. Chunks alternate between the two instances, the best chunk of each counts (this machine is shared: the
+    minimum is the cost, the rest is other processes); repeated in fresh processes.
 
 Peers: the native FMU of the scene, its pythonfmu FMU (start-up only) and a trivial native FMU built here:
 engine/fmi2.c over bench/fmu_trivial.c (x' = -a x + u, rk4 at 1 ms), the same FMI layer with a one-state model.
@@ -99,12 +101,12 @@ def startup(host, fmus: dict, runs: int) -> list[dict]:
              "first_step_ms_median": statistics.median(fs)} for k, (lo, fs) in samples.items()]
 
 
-def loop_cost(host, fmus: dict, settings: dict, n: int, runs: int) -> list[dict]:
+def loop_cost(host, fmus: dict, settings: dict, n: int, runs: int, chunks: int = 30) -> list[dict]:
     """Per-point cost beyond the integration (µs), best and median over runs, FMUs alternating."""
     samples = {k: [] for k in fmus}
     for _ in range(runs):
         for kind, fmu in fmus.items():
-            _, points, one = run_host(host, fmu, "-L", "-n", str(n), "-h", str(H),
+            _, points, one = run_host(host, fmu, "-L", "-n", str(n), "-r", str(chunks), "-h", str(H),
                                       settings=settings.get(kind, ()))["LOOP"]
             samples[kind].append((float(points) / n / 1e3, float(one) / n / 1e3))
     rows = []
@@ -147,9 +149,10 @@ def report(scene_path, outdir: Path, runs: int, n: int) -> Path:
               for k, r in start.items()]
     lines += ["", f"Target: native ≤ 20 ms → median {start['native']['first_step_ms_median']:.2f} ms "
               f"({'met' if start['native']['first_step_ms_median'] <= 20 else 'NOT met'}).", "",
-              f"## Per communication point beyond the integration, h = 1 ms, {n} points, {runs} runs", "",
-              "Per point: fmi2DoStep(h) + fmi2GetReal(all outputs). Integration: one fmi2DoStep(n·h) on a fresh "
-              "instance (the same rk4 steps of 1 ms). Overhead = difference / n.", "",
+              f"## Per communication point beyond the integration, h = 1 ms, chunks of {n} points, {runs} runs", "",
+              "Per point: fmi2DoStep(h) + fmi2GetReal(all outputs). Integration: one fmi2DoStep(n·h) + one "
+              "fmi2GetReal on a second instance (the same rk4 steps of 1 ms). Overhead = difference / n; each run "
+              "takes the best of 30 alternating chunks, the table the best and median run.", "",
               "| FMU | per point [µs] | integration [µs] | overhead best [µs] | overhead median [µs] |",
               "|---|---|---|---|---|"]
     lines += [f"| {k} | {r['per_point_us_median']:.3f} | {r['integration_us_median']:.3f} | {r['overhead_us_best']:.3f} "
@@ -165,7 +168,7 @@ def main(argv=None):
     ap.add_argument("scene", nargs="?", default="models/double_pendulum.yaml")
     ap.add_argument("--out", default="reports", help="folder for fmu_speed.md and the CSV files")
     ap.add_argument("--runs", type=int, default=15)
-    ap.add_argument("--points", type=int, default=2000)
+    ap.add_argument("--points", type=int, default=1000, help="communication points per timed chunk")
     a = ap.parse_args(argv)
     print(report(a.scene, Path(a.out), a.runs, a.points))
 
