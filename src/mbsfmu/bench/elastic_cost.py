@@ -1,0 +1,327 @@
+"""Elastic bodies (seed 004): cost of one evaluation against the number of modes, and the flexible pendulum at
+tip error <= 1e-6 of its length, mbsfmu's engine beside Exudyn's ObjectFFRFreducedOrder and scipy.
+
+The scene is the flexible pendulum of tests/test_exudyn_flexible.py: a 1 m steel strip (10 elements, clamped)
+on a revolute joint about world y with a 0.2 kg point mass at its tip, dynamic stiffening off, so that Exudyn
+models exactly the same equations. Exudyn receives the beam's Gauss mass points plus the tip as its mesh,
+Φ there, and K_f = M_f Φ M_m⁻¹ K M_m⁻¹ Φᵀ M_f (its reduction gives back our modal K); gravity as point forces.
+
+(a) One evaluation of the mass matrix and right-hand side at 2, 5, 10, 20, 40 modes, at one random state:
+    mbsfmu `mbs_equations` (M, k, q, through ctypes into preallocated arrays) against Exudyn
+    `ComputeMassMatrix` + `ComputeODE2RHS` of its implicit solver (through pybind11). Timed in alternation,
+    batches of calls, best batch; both include their Python call overhead (the empty ctypes call is listed).
+    Target (issue 11): ratio <= 1 at 10 modes.
+(b) 2 s from horizontal, error = max over the communication points (10 ms) of |r_tip - r_tip,ref|, reference
+    mbsfmu dop853 at rtol 1e-13 (cross-checked with scipy DOP853 on the same equations). Every mbsfmu method over
+    a tolerance/step sweep, scipy solve_ivp on `Simulation.f`, Exudyn generalized-α (ρ∞ 0.8 and 1) over a step sweep;
+    the fastest run of each family with error <= 1e-6 m, re-timed in alternation; ratios.
+
+    python -m mbsfmu.bench.elastic_cost --out reports          (about 2 minutes)
+"""
+
+import argparse
+import ctypes
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+MODES = (2, 5, 10, 20, 40)
+M_TIP, LENGTH, TARGET = 0.2, 1.0, 1e-6
+SCENE = """
+mbsfmu: 1
+name: flexible_pendulum_{modes}
+gravity: [0, 0, -9.81]
+bodies:
+  beam:
+    parent: world
+    joint: {{type: revolute, axis: [0, 1, 0], coordinates: [theta]}}
+    elastic:
+      beam: {{length: 1.0, EI: [43.75, 700.0], rhoA: 0.785, elements: 10, modes: {modes}, clamped: start}}
+      dynamic_stiffening: {stiffening}
+  tip:
+    parent: beam
+    joint: {{type: fixed, node: -1}}
+    mass: {m_tip}
+outputs:
+  - {{body: beam, node: -1, quantities: [position], name: tip}}
+integrator: {{method: dopri5, rtol: 1e-7, atol: 1e-9}}
+experiment: {{start: 0, stop: 2, step: 0.01}}
+"""
+
+
+def scene(modes, stiffening=False):
+    import mbsfmu
+    return mbsfmu.loads(SCENE.format(modes=modes, stiffening=str(stiffening).lower(), m_tip=M_TIP)).spec
+
+
+def exudyn():
+    """Exudyn's faster module (no range checks, AVX2) when the CPU has it: its best case."""
+    os.environ.setdefault("EXUDYN_MODULE", "fast")
+    import exudyn as exu
+    return exu
+
+
+# ------------------------------------------------------------------------------------------------ Exudyn
+def exudyn_model(spec):
+    """(mbs, tip sensor, the FFRF object) of the scene in Exudyn, not yet assembled. The reference node is an
+    Rxyz node whose x, z translations and x, z angles are held by ground CoordinateConstraints (a revolute
+    joint about y that its explicit solvers can eliminate, and that its implicit ones handle as constraints)."""
+    import scipy.sparse as sp
+    import exudyn.itemInterface as eii
+    from exudyn.FEM import FEMinterface, ObjectFFRFreducedOrderInterface
+    from mbsfmu.equations.model import Model
+    nodal = next(b for b in Model(spec).bodies if b.elastic).nodal
+    p = nodal.points()
+    R = np.vstack([p.R, nodal.R_RP[-1]])
+    m = np.concatenate([p.m, [M_TIP]])
+    Phi = np.concatenate([p.Phi, nodal.Phi[-1:]], axis=0).reshape(3 * len(m), nodal.n)
+    Mf = np.kron(np.diag(m), np.eye(3))
+    Mm_inv = np.linalg.inv(Phi.T @ Mf @ Phi)
+    fem = FEMinterface()
+    fem.nodes = {"Position": R}
+    fem.massMatrix = sp.csr_matrix(Mf)
+    fem.stiffnessMatrix = sp.csr_matrix(Mf @ Phi @ Mm_inv @ nodal.stiffness @ Mm_inv @ Phi.T @ Mf)
+    fem.modeBasis = {"matrix": Phi, "type": "NormalModes"}
+    cms = ObjectFFRFreducedOrderInterface(fem, rigidBodyNodeType="NodeType.RotationRxyz")
+    exu = exudyn()
+    mbs = exu.SystemContainer().AddSystem()
+    obj = cms.AddObjectFFRFreducedOrder(mbs)
+    for k, mk in enumerate(m):  # gravity as point forces (see test_exudyn_flexible.exudyn_gravity)
+        mk_ = mbs.AddMarker(eii.MarkerSuperElementPosition(bodyNumber=obj["oFFRFreducedOrder"], meshNodeNumbers=[k],
+                                                           weightingFactors=[1.0]))
+        mbs.AddLoad(eii.LoadForceVector(markerNumber=mk_, loadVector=[0.0, 0.0, -9.81 * mk]))
+    ground = mbs.AddNode(eii.NodePointGround())
+    mg = mbs.AddMarker(eii.MarkerNodeCoordinate(nodeNumber=ground, coordinate=0))
+    for c in (0, 1, 2, 3, 5):   # x, y, z, angle x, angle z
+        mc = mbs.AddMarker(eii.MarkerNodeCoordinate(nodeNumber=obj["nRigidBody"], coordinate=c))
+        mbs.AddObject(eii.CoordinateConstraint(markerNumbers=[mg, mc]))
+    tip = mbs.AddMarker(eii.MarkerSuperElementPosition(bodyNumber=obj["oFFRFreducedOrder"], meshNodeNumbers=[len(m) - 1],
+                                                       weightingFactors=[1.0]))
+    sensor = mbs.AddSensor(eii.SensorMarker(markerNumber=tip, outputVariableType=exu.OutputVariableType.Position,
+                                            storeInternal=True))
+    return mbs, sensor, obj
+
+
+def _settings(exu, T, h, dt, rho=0.8):
+    s = exu.SimulationSettings()
+    s.timeIntegration.endTime = T
+    s.timeIntegration.numberOfSteps = int(round(T / h))
+    s.timeIntegration.verboseMode = 0
+    s.solutionSettings.writeSolutionToFile = False
+    s.solutionSettings.sensorsWritePeriod = dt
+    s.displayComputationTime = False
+    s.displayStatistics = False
+    s.timeIntegration.generalizedAlpha.spectralRadius = rho
+    return s
+
+
+def run_exudyn(spec, rho, ts, h):
+    """Generalized-α (spectral radius rho) with a fixed step h: tip positions at ts, CPU seconds (model build and
+    assembly included, as for mbsfmu). Its explicit solvers (RK44, DOPRI5) stop at once on this model ("system
+    mass matrix seems to be singular": they do not eliminate the reference node's constraints)."""
+    exu = exudyn()
+    c0 = time.process_time()
+    mbs, sensor, _ = exudyn_model(spec)
+    mbs.Assemble()
+    s = _settings(exu, float(ts[-1] - ts[0]), h, float(ts[1] - ts[0]), rho)
+    exu.SolveDynamic(mbs, s, solverType=exu.DynamicSolverType.GeneralizedAlpha, showHints=False)
+    cpu = time.process_time() - c0
+    d = np.asarray(mbs.GetSensorStoredData(sensor))
+    return np.column_stack([np.interp(ts, d[:, 0], d[:, k]) for k in (1, 2, 3)]), cpu
+
+
+# ------------------------------------------------------------------------------------------------ (a) cost
+def _best_batch(fn, calls):
+    """Seconds of the fastest of 5 batches of `calls` calls, per call."""
+    best = math.inf
+    for _ in range(5):
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        best = min(best, time.perf_counter() - t0)
+    return best / calls
+
+
+def evaluation_cost(modes, rounds=5, seconds=0.2):
+    """µs per evaluation of M, k, q: mbsfmu engine, Exudyn, the numpy reference, and an empty ctypes call."""
+    import mbsfmu
+    from mbsfmu.simulation import Simulation
+    exu = exudyn()
+    spec = scene(modes)
+    sim = Simulation(spec)
+    sim.initialize(0.0)
+    rng = np.random.default_rng(modes)
+    f, n = sim.nvel, sim.npos + sim.nvel
+    x = np.r_[rng.normal(size=sim.npos) * 0.01, rng.normal(size=f)]
+    x[0], x[sim.npos] = 0.7, 2.0    # a swinging pendulum with some elastic motion
+    M, k, q = np.empty((f, f)), np.empty(f), np.empty(f)
+    lib, ptr, args = sim.engine.lib, sim.engine.ptr, [p.ctypes.data for p in (x, M, k, q)]
+    ours = lambda: lib.mbs_equations(ptr, 0.0, *args)  # noqa: E731
+    empty = lambda: lib.mbs_time(ptr)                  # noqa: E731
+    mbs, _, _ = exudyn_model(spec)
+    mbs.Assemble()
+    solver = exu.MainSolverImplicitSecondOrder()
+    s = _settings(exu, 1.0, 1e-3, 1e-2)
+    solver.InitializeSolver(mbs, s)
+    theirs = lambda: (solver.ComputeMassMatrix(mbs), solver.ComputeODE2RHS(mbs))  # noqa: E731
+    ev = mbsfmu.compile(spec)
+    y, yd = x[:sim.npos], x[sim.npos:]
+    ref = lambda: ev.equations(y, yd, 0.0)             # noqa: E731
+    calls = {}
+    for name, fn in (("mbsfmu", ours), ("exudyn", theirs), ("numpy", ref), ("ctypes", empty)):
+        t = _best_batch(fn, 10)
+        calls[name] = max(10, int(seconds / 5 / max(t, 1e-9)))
+    best = {name: math.inf for name in calls}
+    for _ in range(rounds):   # alternating: both see the same machine state
+        for name, fn in (("mbsfmu", ours), ("exudyn", theirs)):
+            best[name] = min(best[name], _best_batch(fn, calls[name]))
+    for name, fn in (("numpy", ref), ("ctypes", empty)):
+        best[name] = _best_batch(fn, calls[name])
+    sims = sim, Simulation(scene(modes, stiffening=True))
+    sims[1].initialize(0.0)
+    lib2, ptr2 = sims[1].engine.lib, sims[1].engine.ptr
+    best["mbsfmu_stiffening"] = _best_batch(lambda: lib2.mbs_equations(ptr2, 0.0, *args), calls["mbsfmu"])
+    return {"modes": modes, "nvel": f, "mesh_points": len(next(b for b in ev.model.bodies if b.elastic).nodal.points().m) + 1,
+            **{k + "_us": v * 1e6 for k, v in best.items()}}
+
+
+# ------------------------------------------------------------------------------------------------ (b) speed
+def tip_path(sim, ts, Y):
+    """Tip positions of the position rows Y (the engine's output point; it depends on y only)."""
+    z = np.zeros(sim.nvel)
+    return np.array([sim.engine.output_point(0, t, np.r_[y, z])[:3] for t, y in zip(ts, Y)])
+
+
+def speed_runs(spec, ts, quick=False):
+    """Every family over its sweep: rows {family, method, setting, cpu, error}; plus the reference floor."""
+    from mbsfmu.simulation import Simulation
+    from .work_precision import run_mbsfmu, run_scipy
+    sim = Simulation(spec)
+    sim.initialize(ts[0])   # binds the numbers tip_path's output points use
+    Yref, _, _ = run_mbsfmu(spec, "dop853", ts, rtol=1e-13, atol=1e-15)
+    ref = tip_path(sim, ts, Yref)
+    Ys, _, _ = run_scipy(spec, "DOP853", ts, rtol=1e-13, atol=1e-15)
+    floor = float(np.abs(tip_path(sim, ts, Ys) - ref).max())
+    err = lambda tip: float(np.linalg.norm(tip - ref, axis=1).max())  # noqa: E731
+    rtols = (1e-5, 1e-7, 1e-9) if quick else tuple(10.0 ** -k for k in range(5, 11))
+    steps = (1e-3, 2e-4) if quick else (2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 5e-5)
+    jobs = [("mbsfmu", m, f"rtol={r:.0e}", lambda m=m, r=r: run_mbsfmu(spec, m, ts, rtol=r, atol=r * 1e-2))
+            for m in ("dopri5", "dop853", "radau5", "auto") for r in rtols]
+    jobs += [("mbsfmu", m, f"h={h:g}", lambda m=m, h=h: run_mbsfmu(spec, m, ts, h=h))
+             for m in ("rk4", "gen_alpha") for h in steps]
+    jobs += [("scipy", m, f"rtol={r:.0e}", lambda m=m, r=r: run_scipy(spec, m, ts, rtol=r, atol=r * 1e-2))
+             for m in ("RK45", "DOP853", "Radau", "LSODA") for r in rtols]
+    jobs += [("exudyn", f"GeneralizedAlpha ρ∞={rho:g}", f"h={h:g}", lambda rho=rho, h=h: run_exudyn(spec, rho, ts, h))
+             for rho in (0.8, 1.0) for h in steps]
+    rows = []
+    for fam, method, setting, fn in jobs:
+        try:
+            out = fn()
+        except Exception as e:  # noqa: BLE001 - a failed run is a result (reported), not the end of the benchmark
+            rows.append(dict(family=fam, method=method, setting=setting, cpu=math.nan, error=math.nan, note=str(e)[:80]))
+            continue
+        tip = out[0] if fam == "exudyn" else tip_path(sim, ts, out[0])
+        rows.append(dict(family=fam, method=method, setting=setting, cpu=out[1], error=err(tip), fn=fn, note=""))
+    return rows, floor
+
+
+def head_to_head(rows, rounds=7):
+    """The fastest run of each family at error <= TARGET·L, re-timed in alternation: {family: (row, cpu)}."""
+    best = {}
+    for r in rows:
+        if r["error"] <= TARGET * LENGTH and (r["family"] not in best or r["cpu"] < best[r["family"]]["cpu"]):
+            best[r["family"]] = r
+    cpu = {fam: math.inf for fam in best}
+    for _ in range(rounds):
+        for fam, r in best.items():
+            cpu[fam] = min(cpu[fam], r["fn"]()[1])
+    return {fam: (best[fam], cpu[fam]) for fam in best}
+
+
+# ------------------------------------------------------------------------------------------------ report
+def plot(costs, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    n = [c["modes"] for c in costs]
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    for key, label, style in (("mbsfmu_us", "mbsfmu engine (M, k, q)", "o-"),
+                              ("mbsfmu_stiffening_us", "mbsfmu engine, dynamic stiffening on", "o:"),
+                              ("exudyn_us", "Exudyn ObjectFFRFreducedOrder (M + ODE2RHS)", "s-"),
+                              ("numpy_us", "mbsfmu numpy reference", "^--")):
+        ax.loglog(n, [c[key] for c in costs], style, label=label)
+    ax.set_xlabel("number of modes")
+    ax.set_ylabel("µs per evaluation")
+    ax.set_title("Flexible pendulum: one mass matrix + right-hand side")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def markdown(costs, rows, floor, h2h, cmd):
+    exu = exudyn()
+    lines = ["# Elastic bodies: evaluation cost and the flexible pendulum against Exudyn", "",
+             f"Generated by `{cmd}` (mbsfmu engine; Exudyn {exu.__version__}, module "
+             f"{'exudynCPPfast' if os.environ.get('EXUDYN_MODULE') == 'fast' else 'exudynCPP'}). "
+             "Scene: the flexible pendulum of tests/test_exudyn_flexible.py (1 m strip, 10 elements, 0.2 kg point "
+             "mass at the tip, dynamic stiffening off so that both codes have the same equations).", "",
+             "## One evaluation of the mass matrix and right-hand side", "",
+             "![cost](elastic_cost.png)", "",
+             "| modes | ẏ size | Exudyn mesh points | mbsfmu µs | Exudyn µs | ratio | mbsfmu, stiffening on µs | numpy reference µs | empty ctypes call µs |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for c in costs:
+        lines.append(f"| {c['modes']} | {c['nvel']} | {c['mesh_points']} | {c['mbsfmu_us']:.2f} | {c['exudyn_us']:.2f} | "
+                     f"{c['mbsfmu_us'] / c['exudyn_us']:.2f} | {c['mbsfmu_stiffening_us']:.2f} | {c['numpy_us']:.0f} | "
+                     f"{c['ctypes_us']:.2f} |")
+    lines += ["", "mbsfmu: `mbs_equations` (M, k, q) through ctypes into preallocated arrays; Exudyn: "
+              "`ComputeMassMatrix` + `ComputeODE2RHS` of `MainSolverImplicitSecondOrder` through pybind11. Both "
+              "timings include their Python call overhead; alternating batches, best batch. Target: ratio ≤ 1 at 10 modes.",
+              "", "## Flexible pendulum over 2 s at tip error ≤ 1e-6 m (1e-6 of the length)", "",
+              f"Reference: mbsfmu dop853 at rtol 1e-13; scipy DOP853 on the same equations differs from it by "
+              f"{floor:.1e} m. Error: max over the 10 ms communication points of |r_tip − r_tip,ref|. "
+              "CPU time of the whole run (model set-up included for Exudyn as for mbsfmu), fastest of the alternating re-runs.", ""]
+    if h2h:
+        base = h2h.get("mbsfmu")
+        lines += ["| family | fastest at ≤ 1e-6 m | error (m) | CPU ms | ratio mbsfmu / family |", "|---|---|---|---|---|"]
+        for fam, (r, cpu) in h2h.items():
+            ratio = f"{base[1] / cpu:.2f}" if base else "–"
+            lines.append(f"| {fam} | {r['method']} {r['setting']} | {r['error']:.1e} | {cpu * 1e3:.1f} | {ratio} |")
+    lines += ["", "<details><summary>All runs</summary>", "", "| family | method | setting | CPU ms | error (m) | note |",
+              "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['family']} | {r['method']} | {r['setting']} | {r['cpu'] * 1e3:.1f} | {r['error']:.1e} | {r['note']} |")
+    lines += ["", "</details>", ""]
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", default="reports", help="folder for elastic_cost.md and elastic_cost.png")
+    ap.add_argument("--quick", action="store_true", help="fewer sweep points (a smoke run)")
+    ap.add_argument("--modes", default=",".join(map(str, MODES)), help="comma list of mode counts for (a)")
+    a = ap.parse_args(argv)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    costs = [evaluation_cost(int(n)) for n in a.modes.split(",")]
+    for c in costs:
+        print(f"{c['modes']:3d} modes: mbsfmu {c['mbsfmu_us']:7.2f} µs  Exudyn {c['exudyn_us']:7.2f} µs  "
+              f"ratio {c['mbsfmu_us'] / c['exudyn_us']:.2f}")
+    spec = scene(3)
+    ts = np.linspace(0.0, 2.0, 201)
+    rows, floor = speed_runs(spec, ts, quick=a.quick)
+    h2h = head_to_head(rows)
+    for fam, (r, cpu) in h2h.items():
+        print(f"{fam:7s} {r['method']} {r['setting']}: {cpu * 1e3:.1f} ms, error {r['error']:.1e}")
+    plot(costs, out / "elastic_cost.png")
+    cmd = "python -m mbsfmu.bench.elastic_cost" + (" --quick" if a.quick else "")
+    (out / "elastic_cost.md").write_text(markdown(costs, rows, floor, h2h, cmd))
+    return costs, h2h
+
+
+if __name__ == "__main__":
+    main()
