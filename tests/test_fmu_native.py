@@ -34,8 +34,8 @@ from mbsfmu.fmu.build import _has_elastic  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 HOST = REPO / "tests" / "c" / "fmu_host.c"
-RIGID = [p.stem for p in sorted((REPO / "models").glob("*.yaml"))
-         if not _has_elastic(mbsfmu.load(p).spec["bodies"])]
+MODELS = [p.stem for p in sorted((REPO / "models").glob("*.yaml"))]
+ELASTIC = {m for m in MODELS if _has_elastic(mbsfmu.load(REPO / "models" / f"{m}.yaml").spec["bodies"])}
 STEPS = 50
 
 pytestmark = pytest.mark.skipif(native.compiler() is None, reason="no C compiler (cc, gcc, clang or $CC)")
@@ -43,9 +43,9 @@ pytestmark = pytest.mark.skipif(native.compiler() is None, reason="no C compiler
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    """{model: native FMU path} for every shipped rigid model."""
+    """{model: native FMU path} for every shipped model, rigid and elastic."""
     out = tmp_path_factory.mktemp("native")
-    return {m: mbsfmu.build_fmu(REPO / "models" / f"{m}.yaml", out, kind="native") for m in RIGID}
+    return {m: mbsfmu.build_fmu(REPO / "models" / f"{m}.yaml", out, kind="native") for m in MODELS}
 
 
 @pytest.fixture(scope="module")
@@ -127,8 +127,8 @@ def fails(status, call, *args):
     return e.value
 
 
-# ---- every shipped rigid model ----------------------------------------------------------------------------
-@pytest.mark.parametrize("model", RIGID)
+# ---- every shipped model ----------------------------------------------------------------------------
+@pytest.mark.parametrize("model", MODELS)
 def test_validates_and_equals_in_process_run(built, model):
     fmu = built[model]
     assert validate_fmu(str(fmu)) == []
@@ -179,10 +179,12 @@ def test_binary_depends_on_libc_and_libm_only_and_exports_fmi_only(built, tmp_pa
     assert {"fmi2Instantiate", "fmi2DoStep", "fmi2SerializeFMUstate", "fmi2GetTypesPlatform"} <= exported
 
 
-def test_rigid_scene_carries_no_elastic_code(built):
-    names = zipfile.ZipFile(built["pendulum"]).namelist()
-    assert not [n for n in names if "elastic" in n]
-    assert "binaries/linux64/pendulum.so" in names and "resources/scene.bin" in names
+def test_only_elastic_scenes_carry_elastic_code(built):
+    assert ELASTIC and len(ELASTIC) < len(MODELS)
+    for m, fmu in built.items():
+        names = zipfile.ZipFile(fmu).namelist()
+        assert ("sources/elastic.c" in names) == (m in ELASTIC), m
+        assert f"binaries/linux64/{fmu.stem}.so" in names and "resources/scene.bin" in names
 
 
 # ---- FMU state ----------------------------------------------------------------------------------------------
