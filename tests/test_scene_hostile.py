@@ -275,6 +275,9 @@ CASES = {
                    ["binary", "not supported"]),
     "date_as_parameter": (base("  L: 1.0", "  L: 1.0\n  d: 2024-01-01"), "  d:", "parameters.d", ["finite number"]),
     "list_as_parent": (base("parent: world", "parent: [world]"), "parent:", "bodies.arm.parent", ["body name"]),
+    "list_as_output_body": (BASE + "outputs:\n  - {body: [arm]}\n", "body: [arm]", "outputs[0].body", ["unknown body"]),
+    "mapping_as_spring_coordinate": (BASE + "forces:\n  - {type: joint_spring_damper, coordinate: {a: 1}, stiffness: 1}\n",
+                                     "coordinate:", "forces[0].coordinate", ["unknown coordinate"]),
     "list_as_description": (base("parameters:", "description: [a, b]\nparameters:"), "description", "description", ["text"]),
 }
 # valid neighbours of the name collisions (words None: must load)

@@ -97,6 +97,11 @@ _EXPR_HINT = ("an expression may use numbers, parameters, pi, + - * / ^ ** and p
               + ", ".join(FUNCTIONS) + "; it is parsed, never executed")
 
 
+def _known(name, names):
+    """`name` is one of `names` (a dict or set); a list or mapping given as a name is not."""
+    return isinstance(name, str) and name in names
+
+
 def _suggest(word, valid):
     close = difflib.get_close_matches(str(word), list(valid), n=1)
     hint = f"did you mean '{close[0]}'? " if close else ""
@@ -602,7 +607,7 @@ class _Checker:
                 if not isinstance(bs, list) or len(bs) != 2:
                     self.fail(f, "bodies", path + ".bodies", "expected two body names [A, B] (world allowed)")
                 for j, b in enumerate(bs):
-                    if b != "world" and b not in bodies:
+                    if b != "world" and not _known(b, bodies):
                         self.fail(bs, j, f"{path}.bodies[{j}]", f"unknown body '{b}'", _suggest(b, ["world"] + list(bodies)))
                 if bs[0] == bs[1]:
                     self.fail(f, "bodies", path + ".bodies", "a spring needs two different bodies")
@@ -612,14 +617,14 @@ class _Checker:
                     if not isinstance(f["at"], list) or len(f["at"]) != 2:
                         self.fail(f, "at", path + ".at", "expected two points [[x, y, z], [x, y, z]] in the bodies' frames")
                     g["at"] = [self.vector(f["at"], j, f"{path}.at[{j}]") for j in range(2)]
-                g["node"] = self.nodes(f, path, bs, bodies)
+                g["node"] = self.nodes(f, path, bs)
                 g["stiffness"] = self.number(f, "stiffness", path + ".stiffness", nonneg=True)
                 g["damping"] = self.number(f, "damping", path + ".damping", nonneg=True) if "damping" in f else 0.0
                 g["length"] = self.number(f, "length", path + ".length", nonneg=True) if "length" in f else 0.0
             elif kind == "joint_spring_damper":
                 self.keys(f, path, ("type", "coordinate", "stiffness", "damping", "offset"), required=("coordinate",))
                 c = f["coordinate"]
-                b = self.coords.get(c)
+                b = self.coords.get(c) if _known(c, self.coords) else None
                 if b is None:
                     self.fail(f, "coordinate", path + ".coordinate", f"unknown coordinate '{c}'", _suggest(c, sorted(self.coords)))
                 j = b["joint"]
@@ -637,13 +642,13 @@ class _Checker:
             else:
                 self.keys(f, path, ("type", "body", "at", "node", "value", "input", "frame"), required=("body",))
                 b = f["body"]
-                if b not in bodies:
+                if not _known(b, bodies):
                     self.fail(f, "body", path + ".body", f"unknown body '{b}'", _suggest(b, list(bodies)))
                 g["body"] = b
                 if kind == "torque" and ("at" in f or "node" in f) and not bodies[b]["elastic"]:
                     self.fail(f, "at", path, "a torque acts on the whole rigid body: drop 'at'")
                 g["at"] = self.vector(f, "at", path + ".at") if "at" in f else [0.0] * 3
-                g["node"] = self.nodes(f, path, [b], bodies)[0] if "node" in f else None
+                g["node"] = self.nodes(f, path, [b])[0] if "node" in f else None
                 if ("value" in f) == ("input" in f):
                     self.fail(f, "type", path, "give exactly one of 'value' (three numbers or expressions in t) or 'input' (an FMU input name)")
                 if "value" in f:
@@ -661,7 +666,7 @@ class _Checker:
             out.append(g)
         return out
 
-    def nodes(self, f, path, names, bodies):
+    def nodes(self, f, path, names):
         """`node:` on force elements (one index per body) → list (None for 'at' points)."""
         if "node" not in f:
             return [None] * len(names)
@@ -683,10 +688,10 @@ class _Checker:
         for i, o in enumerate(node):
             path = f"outputs[{i}]"
             self.keys(o, path, ("body", "point", "node", "quantities", "name"), required=("body",))
-            if o["body"] not in bodies:
+            if not _known(o["body"], bodies):
                 self.fail(o, "body", path + ".body", f"unknown body '{o['body']}'", _suggest(o["body"], list(bodies)))
             g = {"body": o["body"], "point": self.vector(o, "point", path + ".point") if "point" in o else [0.0] * 3}
-            g["node"] = self.nodes(o, path, [o["body"]], bodies)[0] if "node" in o else None
+            g["node"] = self.nodes(o, path, [o["body"]])[0] if "node" in o else None
             qs = o.get("quantities", ["position", "velocity"])
             if not isinstance(qs, list) or not qs:
                 self.fail(o, "quantities", path + ".quantities", "expected a list", "valid: position, velocity")
