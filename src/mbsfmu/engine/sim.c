@@ -312,6 +312,7 @@ static int output_point(MbsInstance *s, int o, const double *x, double t, double
 int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double out[6])
 {
     if (o < 0 || o >= s->m->hdr[H_NOUT]) return report(s, MBS_ERROR, "no output point %d", o);
+    if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;  /* numbers bound first */
     return output_point(s, o, x, t, out);
 }
 
