@@ -202,3 +202,15 @@ def test_sweep_of_a_built_fmu(tmp_path):
     assert "singular" in table["status"][1]
     for _, row in table.iloc[::2].iterrows():
         assert row["y.theta"] == pytest.approx(pendulum_angle(row["L"], math.pi / 6), abs=1e-6)
+
+
+@pytest.mark.parametrize("n, slots, cost", [(200, 1, 6.6e-4), (200, 2, 6.6e-4), (5, 4, 1.0), (10_000, 32, 0.2),
+                                            (7, 2, None), (1000, 3, math.nan)])
+def test_batches_cover_every_case_once_and_feed_every_slot(n, slots, cost):
+    from mbsfmu.sweep.dispatch import BATCH_SECONDS, batches
+    cases = [(i, {}) for i in range(n)]
+    bs = batches(cases, slots, cost)
+    assert [c for b in bs for c in b] == cases
+    assert len(bs) >= min(n, slots)
+    if cost and math.isfinite(cost) and len(bs) > slots:  # more batches than slots only with enough work each
+        assert len(bs[0]) * cost >= BATCH_SECONDS or len(bs[0]) == 256

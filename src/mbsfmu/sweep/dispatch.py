@@ -12,7 +12,7 @@ import numpy as np
 from .runner import run_batch
 
 BATCHES_PER_SLOT = 8   # several batches per worker: load balance and progress steps
-BATCH_SECONDS = 0.1    # yet at least this much work per task: a task costs the scheduler a few ms
+BATCH_SECONDS = 0.05   # yet at least this much work per task: a task costs the scheduler a few ms
 MAX_BATCH = 256        # long sweeps still report progress and lose little to a dying worker
 WAIT_FOR_WORKERS = 60  # seconds an existing cluster may take to offer its first worker
 SCATTER_BYTES = 1 << 16  # larger models (FMUs) go to each worker once ahead; a scene's JSON rides with the tasks
