@@ -545,3 +545,19 @@ def test_win64_dll_when_mingw_is_installed(built):
     pe = struct.unpack_from("<I", dll, 0x3C)[0]
     assert dll[pe:pe + 4] == b"PE\0\0" and struct.unpack_from("<H", dll, pe + 4)[0] == 0x8664  # x86-64
     assert b"fmi2DoStep" in dll and b"fmi2Instantiate" in dll  # export names
+
+
+def test_command_line_builds_native(tmp_path):
+    from mbsfmu.cli import main
+    assert main(["build", "--kind", "native", str(REPO / "models" / "pendulum.yaml"), "-o", str(tmp_path)]) == 0
+    xml = ET.fromstring(zipfile.ZipFile(tmp_path / "pendulum.fmu").read("modelDescription.xml"))
+    assert xml.find("CoSimulation").get("needsExecutionTool") == "false"
+    r = subprocess.run([sys.executable, str(REPO / "build_fmu.py"), str(REPO / "models" / "pendulum.yaml"), "--kind",
+                        "native", "-o", str(tmp_path / "b")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "binaries/linux64/pendulum.so" in zipfile.ZipFile(tmp_path / "b" / "pendulum.fmu").namelist()
+    with pytest.raises(SystemExit) as e:
+        main(["build", "--kind", "nonsense", str(REPO / "models" / "pendulum.yaml")])
+    assert e.value.code == 2
+    with pytest.raises(ValueError, match="unknown FMU kind"):
+        mbsfmu.build_fmu(REPO / "models" / "pendulum.yaml", tmp_path, kind="nonsense")

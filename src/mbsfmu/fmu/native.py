@@ -23,6 +23,7 @@ import tempfile
 import uuid
 import warnings
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ENGINE = Path(__file__).resolve().parent.parent / "engine"
@@ -189,9 +190,11 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
         for fname, data in sources.items():
             (src / fname).write_bytes(data)
         members = {"modelDescription.xml": xml, "resources/scene.bin": scene_bin}
-        members[f"binaries/linux64/{identifier}.so"] = _binary(src, sources, cc, False)
-        if mingw:
-            members[f"binaries/win64/{identifier}.dll"] = _binary(src, sources, mingw, True)
+        with ThreadPoolExecutor(2) as pool:  # the two compilers side by side
+            jobs = {f"binaries/linux64/{identifier}.so": pool.submit(_binary, src, sources, cc, False)}
+            if mingw:
+                jobs[f"binaries/win64/{identifier}.dll"] = pool.submit(_binary, src, sources, mingw, True)
+            members.update({member: job.result() for member, job in jobs.items()})
         members.update({f"sources/{f}": d for f, d in sorted(sources.items())})
         members["sources/CMakeLists.txt"] = cmake_lists(identifier, names).encode()
         members["sources/README"] = readme(identifier, names, notes).encode()
