@@ -504,3 +504,26 @@ def test_10000_body_chain_loads_and_compiles_within_seconds(tmp_path):
     r = json.loads(proc.stdout)
     assert r["dof"] == 10_000
     assert r["load"] < 6.0 and r["compile"] < 4.0, r      # CPU seconds (about 2 and 0.7 measured)
+
+
+def test_pure_python_yaml_parser_has_the_same_limits():
+    """Without libyaml the pure-Python parser feeds the same depth-limited composer."""
+    code = textwrap.dedent("""
+        import sys
+        sys.modules["yaml._yaml"] = None  # as if PyYAML had been built without libyaml
+        import mbsfmu
+        from mbsfmu.scene import yaml_lines
+        assert "CParser" not in repr(yaml_lines._Parser.__mro__)
+        print(mbsfmu.load(sys.argv[1]).name)
+        for text in ("a: " + "[" * 100000 + "]" * 100000, "a: &a [1, *a]"):
+            try:
+                mbsfmu.loads(text)
+            except mbsfmu.ModelError as e:
+                print(e.line, e.message)
+    """)
+    model = os.path.join(os.path.dirname(__file__), "..", "models", "flexible_pendulum.yaml")
+    r = subprocess.run([sys.executable, "-c", code, model], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = r.stdout.splitlines()
+    assert lines[0] == "flexible_pendulum"
+    assert lines[1] == "1 nested more than 64 levels deep" and "alias" in lines[2]

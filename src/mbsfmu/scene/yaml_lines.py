@@ -20,16 +20,16 @@ from . import limits
 
 try:  # libyaml's event parser (not its composer, whose recursion has no depth limit) when it is there
     from yaml._yaml import CParser as _Parser
-except ImportError:  # pragma: no cover - pure-Python PyYAML
-    from yaml.parser import Parser as _Parser
+except ImportError:  # pure-Python PyYAML
+    from yaml.parser import Parser
     from yaml.reader import Reader
     from yaml.scanner import Scanner
 
-    class _Parser(Reader, Scanner, _Parser):
+    class _Parser(Reader, Scanner, Parser):
         def __init__(self, stream):
             Reader.__init__(self, stream)
             Scanner.__init__(self)
-            _Parser.__init__(self)
+            Parser.__init__(self)
 
 # XML 1.0 characters (what modelDescription.xml can carry); anything else, lone surrogates included, is refused
 _NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
