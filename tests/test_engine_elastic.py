@@ -170,20 +170,26 @@ def test_rhs_and_short_run_match_reference():
 
 # -- what the engine refuses --------------------------------------------------------------------------
 
-def test_structural_parameter_refused():
-    """L feeds the beam generator: the engine cannot recompute the FE data, so it refuses a new value;
-    the FMU declares it fixed. m_tip stays tunable and takes effect."""
+def test_structural_parameter_recompiles_before_initialize_and_is_refused_after():
+    """L feeds the beam generator: the engine cannot recompute the FE data, so it refuses a new value (the FMU
+    declares it fixed); in-process, Simulation.set compiles the scene again before initialize. m_tip stays
+    tunable and takes effect."""
     spec = mbsfmu.load(MODELS / "flexible_pendulum.yaml").spec
     sim = Simulation(spec)
     var = {v.name: v for v in sim.variables}
     assert var["L"].variability == "fixed" and var["EI"].variability == "fixed"
     assert var["m_tip"].variability == "tunable"
-    sim.set("L", 1.5)
+    engine = Simulation(spec).engine
+    engine.set_real(list(var).index("L"), 1.5)
     with pytest.raises(EngineError, match="L is structural"):
-        sim.initialize(0.0)
-    sim.set("L", 1.0)
+        engine.initialize(0.0)
     sim.set("m_tip", 0.5)
+    sim.set("L", 1.5)           # recompiled; m_tip set before is kept
     sim.initialize(0.0)
+    assert sim.get("L") == 1.5 and sim.get("m_tip") == 0.5
+    assert sim.get("tip.r.x") == pytest.approx(0.05 + 1.5, abs=1e-12)  # hub at the origin, beam along x
+    with pytest.raises(EngineError, match="fixed"):
+        sim.set("L", 1.0)
     sim.do_step(0.0, 0.01)
     assert np.all(np.isfinite(sim.x))
 

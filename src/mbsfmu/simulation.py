@@ -83,13 +83,6 @@ def compiled(spec, guid=None):
 class Simulation:
     """A scene ready to step: set parameters and inputs, initialize, do_step, read outputs."""
 
-    def __new__(cls, spec):
-        # transition: elastic scenes run on the Python reference until their terms are in the engine
-        if cls is Simulation and any(b.get("elastic") for b in spec["bodies"]) and not _engine_has_elastic():
-            from .legacy_simulation import Simulation as Legacy
-            return Legacy(spec)
-        return super().__new__(cls)
-
     def __init__(self, spec):
         self.spec = spec
         self.blob, self.variables, model = compiled(spec)
@@ -97,6 +90,10 @@ class Simulation:
         self.npos, self.nvel = model.npos, model.nvel
         self.engine = Instance(self.blob, self.npos, self.nvel)
         self._vr = {v.name: i for i, v in enumerate(self.variables)}
+        # structural parameters (they shape the elastic bodies' FE data) are compiled in: changing one before
+        # initialize compiles the scene again and replays what was set so far
+        self._structural = {p["name"] for p in spec["parameters"]} & {v.name for v in self.variables if v.variability == "fixed"}
+        self._settings = {}
         self._start = {f"y0.{c}": i for i, c in enumerate(self.coordinates)}
         self._start.update({f"yd0.{c}": self.npos + i for i, c in enumerate(self.velocity_coordinates)})
         self.time = spec["experiment"]["start"]
@@ -106,16 +103,32 @@ class Simulation:
     def set(self, name, value):
         """Set an input or parameter by FMU name; `y0.<coordinate>` / `yd0.<coordinate>` replace an initial
         value (before initialize)."""
+        if name in self._structural and not self.initialized:
+            self._recompile(name, float(value))
+            return
         if name in self._start:
             self.engine.set_start(self._start[name], float(value))
-            return
-        vr = self._vr.get(name)
-        if vr is None or self.variables[vr].causality == "output":
-            raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
-        if self.variables[vr].type == "String":
-            self.engine.set_string(vr, value)
         else:
-            self.engine.set_real(vr, float(value))
+            vr = self._vr.get(name)
+            if vr is None or self.variables[vr].causality == "output":
+                raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
+            if self.variables[vr].type == "String":
+                self.engine.set_string(vr, value)
+            else:
+                self.engine.set_real(vr, float(value))
+        if not self.initialized:
+            self._settings[name] = value
+
+    def _recompile(self, name, value):
+        spec = json.loads(json.dumps(self.spec))
+        for p in spec["parameters"]:
+            if p["name"] == name:
+                p["value"] = value
+        settings, time = self._settings, self.time
+        self.__init__(spec)
+        self.time = time
+        for k, v in settings.items():
+            self.set(k, v)
 
     def get(self, name):
         vr = self._vr.get(name)
@@ -200,13 +213,9 @@ class Simulation:
     def reset(self):
         """Back to the state after instantiation (fmi2Reset)."""
         self.engine.reset()
+        self._settings = {}
         self.time = self.spec["experiment"]["start"]
         self.initialized = False
-
-
-def _engine_has_elastic():
-    from .engine.build import HERE
-    return (HERE / "elastic.c").exists()
 
 
 def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):

@@ -274,11 +274,22 @@ int mbs_set_real(MbsInstance *s, int vr, double value)
 {
     int idx = 0, kind = var(s, vr, &idx);
     switch (kind) {
-    case MBS_V_PARAM:
+    case MBS_V_PARAM: {
+#ifdef MBS_WITH_ELASTIC
+        if (s->initialized && (s->m->hdr[H_FEATURES] & F_ELASTIC)) {  /* structural ones are fixed parameters */
+            char err[512];
+            double old = s->D[idx];
+            s->D[idx] = value;
+            int bad = mbs_elastic_bind(s->m, s->D, err, sizeof err);
+            s->D[idx] = old;
+            if (bad) return report(s, MBS_ERROR, "%s; it is a fixed parameter after initialization", err);
+        }
+#endif
         s->D[idx] = value;
         s->initial_valid = 0;
         if (s->initialized) s->params_dirty = 1;
         return MBS_OK;
+    }
     case MBS_V_RTOL: case MBS_V_ATOL: case MBS_V_MAX_STEP: case MBS_V_STEP:
         if (s->initialized) return report(s, MBS_ERROR, "integrator settings are fixed parameters: set them before initialization");
         *(kind == MBS_V_RTOL ? &s->rtol : kind == MBS_V_ATOL ? &s->atol : kind == MBS_V_MAX_STEP ? &s->max_step : &s->step) = value;

@@ -30,12 +30,10 @@ from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 KINDS = ("pythonfmu", "native")
-SPEC_FILE = "mbsfmu_spec.json"      # legacy (elastic) FMUs only
 SCENE_FILE = "mbsfmu_scene.bin"
 META_FILE = "mbsfmu_meta.json"
 PYTHON_FILE = "mbsfmu_python.json"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
-LEGACY_TEMPLATE = Path(__file__).with_name("slave_legacy.py.in")
 PYTHONFMU_INIT = (b"# pythonfmu's run-time part (the FMU builder is left out by mbsfmu)\n"
                   b"from ._version import __version__\nfrom .enums import Fmi2Causality, Fmi2Initial, Fmi2Variability\n"
                   b"from .fmi2slave import Fmi2Slave\nfrom .variables import Boolean, Integer, Real, String\n"
@@ -45,9 +43,6 @@ PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
 
 # Runtime parts of the package copied into every FMU (missing optional entries are skipped).
 RUNTIME_ENGINE = ("errors.py", "engine/__init__.py", "engine/api.py", "engine/build.py")
-# transition: elastic scenes run on the Python reference until their terms are in the engine
-RUNTIME_LEGACY = ("errors.py", "expr.py", "simulation.py", "legacy_simulation.py", "kinematics", "equations",
-                  "integrators", "bodies", "engine")
 # Never needed at FMU run time.
 FORBIDDEN_IMPORTS = ("yaml", "sympy", "matplotlib", "tqdm")
 
@@ -90,20 +85,10 @@ def _version() -> str:
         return "0.1"
 
 
-def _has_elastic(obj) -> bool:
-    if isinstance(obj, dict):
-        if obj.get("elastic"):
-            return True
-        return any(_has_elastic(v) for v in obj.values())
-    if isinstance(obj, (list, tuple)):
-        return any(_has_elastic(v) for v in obj)
-    return False
-
-
-def _runtime_files(root: Path, legacy: bool) -> dict[str, bytes]:
+def _runtime_files(root: Path) -> dict[str, bytes]:
     """{relative posix path: content} of the run-time part copied into the FMU."""
     files: dict[str, bytes] = {}
-    for entry in RUNTIME_LEGACY if legacy else RUNTIME_ENGINE:
+    for entry in RUNTIME_ENGINE:
         p = root / entry
         if p.is_file():
             files[entry] = p.read_bytes()
@@ -113,8 +98,7 @@ def _runtime_files(root: Path, legacy: bool) -> dict[str, bytes]:
                     files[f.relative_to(root).as_posix()] = f.read_bytes()
             if not (p / "__init__.py").exists():
                 files[f"{entry}/__init__.py"] = b""
-    if not legacy:
-        files.update(_engine_files(root))
+    files.update(_engine_files(root))
     files["__init__.py"] = b'"""mbsfmu run-time (copied into an FMU by mbsfmu.fmu.build)."""\n'
     return files
 
@@ -133,11 +117,6 @@ def _engine_files(root: Path) -> dict[str, bytes]:
         return out
     out[f"engine/{lib.name}"] = lib.read_bytes()
     return out
-
-
-def _engine_has_elastic() -> bool:
-    from ..simulation import _engine_has_elastic as has
-    return has()
 
 
 def forbidden_imports(files: dict[str, bytes]) -> list[str]:
@@ -208,9 +187,8 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     name = getattr(scene, "name", None) or spec["name"]
     if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
         raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
-    legacy = _has_elastic(spec.get("bodies")) and not _engine_has_elastic()
     root = Path(runtime_root) if runtime_root is not None else PACKAGE_ROOT
-    files = _runtime_files(root, legacy)
+    files = _runtime_files(root)
     bad = forbidden_imports(files)
     if bad:
         warnings.warn("mbsfmu runtime imports modules not available/wanted at FMU run time: "
@@ -221,12 +199,11 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     rt_hash = _hash(*[p.encode() + b"\0" + c for p, c in sorted(files.items())])
     rt_package = f"mbsfmu_rt_{rt_hash[:16]}"
     files = _rename_absolute_imports(files, rt_package)
-    template = (LEGACY_TEMPLATE if legacy else TEMPLATE).read_text(encoding="utf-8")
+    template = TEMPLATE.read_text(encoding="utf-8")
     fmu_hash = _hash(rt_hash.encode(), spec_bytes, template.encode(), version.encode())
     guid = "{" + str(uuid.UUID(fmu_hash[:32])) + "}"
     module_name = f"mbsfmu_{name}_{fmu_hash[:12]}"
     script = (template.replace("@RUNTIME_PACKAGE@", rt_package)
-              .replace("@SPEC_FILE@", SPEC_FILE)
               .replace("@SCENE_FILE@", SCENE_FILE)
               .replace("@META_FILE@", META_FILE)
               .replace("@PYTHON_FILE@", PYTHON_FILE)
@@ -245,38 +222,31 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
             f = pkg / rel
             f.parent.mkdir(parents=True, exist_ok=True)
             f.write_bytes(content)
-        if legacy:
-            data_files = [stage / SPEC_FILE]
-            (stage / SPEC_FILE).write_bytes(spec_bytes)
-        else:
-            from ..simulation import compiled
-            blob, var, model = compiled(spec, guid)
-            meta = {"npos": model.npos, "nvel": model.nvel, "start": spec["experiment"]["start"],
-                    "description": spec.get("description") or "",
-                    "variables": [{k: getattr(v, k) for k in ("name", "causality", "variability", "type", "description")}
-                                  for v in var]}
-            (stage / SCENE_FILE).write_bytes(blob)
-            (stage / META_FILE).write_text(json.dumps(meta, indent=1), encoding="utf-8")
-            data_files = [stage / SCENE_FILE, stage / META_FILE]
+        from ..simulation import compiled
+        blob, variables, model = compiled(spec, guid)
+        meta = {"npos": model.npos, "nvel": model.nvel, "start": spec["experiment"]["start"],
+                "description": spec.get("description") or "",
+                "variables": [{k: getattr(v, k) for k in ("name", "causality", "variability", "type", "description")}
+                              for v in variables]}
+        (stage / SCENE_FILE).write_bytes(blob)
+        (stage / META_FILE).write_text(json.dumps(meta, indent=1), encoding="utf-8")
         (stage / PYTHON_FILE).write_text(json.dumps(python_runtime(), indent=1), encoding="utf-8")
         script_file = stage / f"{module_name}.py"
         script_file.write_text(script, encoding="utf-8")
 
-        variables = _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package,
-                                          data_files, legacy)
-        if not legacy:
-            variables = var
+        _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package,
+                              [stage / SCENE_FILE, stage / META_FILE])
 
     xml = model_description(spec, name, variables, version, guid=guid)
     _replace_in_zip(dest, "modelDescription.xml", xml)
-    if not legacy:  # pythonfmu's __init__ imports its builder (and certifi): ~15 ms at every load, never used there
-        _replace_in_zip(dest, "resources/pythonfmu/__init__.py", PYTHONFMU_INIT)
+    # pythonfmu's __init__ imports its builder (and certifi): ~15 ms at every load, never used there
+    _replace_in_zip(dest, "resources/pythonfmu/__init__.py", PYTHONFMU_INIT)
     if shim:
         _attach_shim(dest, name)
     return dest
 
 
-def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package, data_files, legacy):
+def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package, data_files):
     from pythonfmu.builder import FmuBuilder
 
     path_before = list(sys.path)
@@ -285,8 +255,7 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
         # Instantiate the slave once here to learn the variables (and check that it loads).
         sys.path.insert(0, str(stage))
         mod = importlib.import_module(module_name)
-        inst = mod.MbsfmuSlave(instance_name="mbsfmu_build", resources=str(stage))
-        variables = list(inst._sim.variables) if legacy else None
+        mod.MbsfmuSlave(instance_name="mbsfmu_build", resources=str(stage))  # it loads
         FmuBuilder.build_FMU(
             script_file, dest=dest, project_files=[pkg, *data_files, stage / PYTHON_FILE],
             needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
@@ -298,7 +267,6 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
         for key in set(sys.modules) - modules_before:
             if key == module_name or key == rt_package or key.startswith(rt_package + "."):
                 del sys.modules[key]
-    return variables
 
 
 def python_runtime() -> dict:
