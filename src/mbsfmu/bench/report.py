@@ -1,4 +1,4 @@
-"""Regenerate reports/: work-precision for the shipped rigid models, stress suite, equation timings.
+"""Regenerate reports/: work-precision for the shipped models (rigid and elastic), stress suite, equation timings.
 
     python -m mbsfmu.bench.report [--out reports] [--stop 2] [--skip-stress]
 """
@@ -7,8 +7,8 @@ import argparse
 import os
 from pathlib import Path
 
-RIGID_MODELS = ("pendulum", "double_pendulum", "cart_pole", "robot_arm_6dof", "spinning_top", "driven_crank",
-                "spring_damper", "free_body", "crane")
+MODELS = ("pendulum", "double_pendulum", "cart_pole", "robot_arm_6dof", "spinning_top", "driven_crank",
+          "spring_damper", "free_body", "crane", "flexible_pendulum", "spinup_beam", "robot_arm_elastic")
 
 
 def main(argv=None):
@@ -17,7 +17,7 @@ def main(argv=None):
     p.add_argument("--out", default="reports")
     p.add_argument("--stop", type=float, default=2.0)
     p.add_argument("--budget", type=float, default=20.0)
-    p.add_argument("--models", nargs="+", default=RIGID_MODELS)
+    p.add_argument("--models", nargs="+", default=MODELS)
     p.add_argument("--skip-stress", action="store_true")
     p.add_argument("--skip-wp", action="store_true")
     a = p.parse_args(argv)
