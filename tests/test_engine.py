@@ -210,3 +210,12 @@ def test_simulate_input_function_is_held_between_points():
         sim.set(name, 1.0 if t[k] < 0.2 else 0.0)
         sim.do_step(t[k], t[k + 1] - t[k])
     assert np.array_equal(sim.y, Y[-1])
+
+
+def test_a_chain_too_large_for_the_dense_workspace_is_refused_with_its_size():
+    """A 6,000-body chain would need 1.9 GiB of per-body Jacobian rows: refused before allocating anything."""
+    body = lambda i: (f"  b{i}: {{parent: {'world' if i == 0 else f'b{i - 1}'}, joint: {{type: revolute, axis: [0, 1, 0], "  # noqa: E731
+                      f"at: [0, 0, -0.1]}}, mass: 1, inertia: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}}")
+    scene = mbsfmu.loads("mbsfmu: 1\nname: chain\nbodies:\n" + "\n".join(body(i) for i in range(6000)))
+    with pytest.raises(ValueError, match=r"6000 bodies with 6000 velocity coordinates need 1\.6 GiB"):
+        Simulation(scene.spec)

@@ -37,6 +37,7 @@ FN2 = {"atan2": 0, "min": 1, "max": 2}
 V_KINDS = {n: i for i, n in enumerate("PARAM METHOD RTOL ATOL MAX_STEP STEP QIN FIN Y YD OUT".split())}
 METHODS = ("rk4", "dopri5", "dop853", "radau5", "gen_alpha", "auto")
 MAXSTACK = 64
+MAX_WORKSPACE = 2 ** 30  # bytes of per-instance workspace
 
 
 class _Programs:
@@ -109,6 +110,12 @@ def compile_scene(spec, variables, guid=""):
     value-reference order). Returns bytes."""
     model = Model(spec)
     m, env = model, dict(model.env)
+    # the engine keeps per body dense Jacobian rows (6 f doubles): refuse what it could not allocate
+    need = 8 * len(m.bodies) * (26 + 6 * m.nvel) + 8 * m.nvel ** 2
+    if need > MAX_WORKSPACE:
+        raise ValueError(f"scene too large for the engine: {len(m.bodies)} bodies with {m.nvel} velocity coordinates "
+                         f"need {need / 2**30:.1f} GiB of workspace (limit {MAX_WORKSPACE / 2**30:.0f} GiB); the "
+                         "engine's dense per-body Jacobians suit tens to a few hundred coordinates")
     params = [p["name"] for p in spec["parameters"]]
     P = _Programs(params)
     nb, f, npos = len(m.bodies), m.nvel, m.npos
