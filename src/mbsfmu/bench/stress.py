@@ -76,6 +76,11 @@ def cases():
         Case("comm_step_1e6_x_tau", "heavy_damping",
              "heavy damping with a 0.5 s communication step (fastest time constant ~1e-4 s)", stop=2.0, step=0.5,
              reference="radau5", budget=20.0, quick_stop=1.0, tol_error=1e-4),
+        Case("stiff_elastic_beam", "stiff_beam", "flexible pendulum with a 1e4 times stiffer beam (4 modes, bending "
+             "frequencies 100 times higher): elastic and stiff", reference="radau5", budget=40.0, quick_stop=0.2, tol_error=1e-4,
+             stop=1.0),
+        Case("spinup_beam_stiffening", "spinup_beam", "driven spin-up of a beam with dynamic stiffening (rheonomic, "
+             "elastic)", reference="radau5", budget=40.0, quick_stop=0.5, tol_error=1e-4),
         Case("nan_input", "double_pendulum", "input q.phi1 = NaN", expect="fail", expect_message="not finite",
              inputs={"q.phi1": nan}, reference=None, stop=0.1, methods=("auto", "dopri5", "radau5", "rk4", "gen_alpha")),
         Case("inf_input", "double_pendulum", "input q.phi2 = +Inf", expect="fail", expect_message="not finite",
