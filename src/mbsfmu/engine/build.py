@@ -17,7 +17,7 @@ from pathlib import Path
 HERE = Path(__file__).parent
 CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "integ_base.c", "integ_erk.c", "integ_radau5.c",
         "integ_gen_alpha.c", "integ_auto.c")
-HEADERS = ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "integ_internal.h", "linalg.h")
+HEADERS = ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "mbs_vec3.h", "integ_internal.h", "linalg.h")
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
 

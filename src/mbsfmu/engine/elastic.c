@@ -14,6 +14,7 @@
 #include <string.h>
 
 #include "mbs_model.h"
+#include "mbs_vec3.h"
 
 /* S_ELASTIC_I layout (elastic_tables.py) */
 enum { EH_NE, EH_NFIX, EH };
@@ -78,20 +79,6 @@ size_t mbs_elastic_work_size(const MbsModel *m)
 }
 
 /* ---- small helpers (row-major 3×3, 3-vectors) ---- */
-static void cross(const double *a, const double *b, double *c)
-{
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-static void mv(const double *A, const double *x, double *y)
-{
-    for (int r = 0; r < 3; r++) y[r] = A[3 * r] * x[0] + A[3 * r + 1] * x[1] + A[3 * r + 2] * x[2];
-}
-static void mtv(const double *A, const double *x, double *y)  /* y = Aᵀ x */
-{
-    for (int r = 0; r < 3; r++) y[r] = A[r] * x[0] + A[3 + r] * x[1] + A[6 + r] * x[2];
-}
 static double dot(const double *a, const double *b, int n)
 {
     double s = 0.0;

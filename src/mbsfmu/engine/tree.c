@@ -11,24 +11,8 @@
 
 #include "mbs_integrator.h"
 #include "mbs_model.h"
+#include "mbs_vec3.h"
 
-/* ---- small 3-vector / 3×3 helpers (row-major) ---- */
-static void cross(const double *a, const double *b, double *c)
-{
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-static void mv(const double *A, const double *x, double *y)
-{
-    for (int r = 0; r < 3; r++) y[r] = A[3 * r] * x[0] + A[3 * r + 1] * x[1] + A[3 * r + 2] * x[2];
-}
-static void mm(const double *A, const double *B, double *C)
-{
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++)
-            C[3 * r + c] = A[3 * r] * B[c] + A[3 * r + 1] * B[3 + c] + A[3 * r + 2] * B[6 + c];
-}
 static void axis_angle(const double *a, double ang, double *R)
 {
     double x = a[0], y = a[1], z = a[2], c = cos(ang), s = sin(ang), C = 1.0 - c;
