@@ -1,4 +1,4 @@
-"""Cost of one evaluation of the equations: mbsfmu (compiled kernel and numpy reference path) vs Pinocchio crba + nonLinearEffects,
+"""Cost of one evaluation of the equations: mbsfmu (C engine and numpy reference) vs Pinocchio crba + nonLinearEffects,
 plus a full fmpy run of the built FMU versus the same run in process (when build_fmu works).
 """
 
@@ -27,7 +27,7 @@ def _time_per_call(fn, args_list, min_time=0.5):
 
 
 def benchmark_equations(scene_path, out_dir=None, n_states=20, fmu=True, stop=None):
-    """Time Evaluator.equations, Problem.f and Pinocchio crba+nonLinearEffects on random states; fmpy run."""
+    """Time Evaluator.equations, the engine (equations, Simulation.f) and Pinocchio crba+nonLinearEffects on random states; fmpy run."""
     import mbsfmu
     from mbsfmu.simulation import Simulation
     scene = mbsfmu.load(scene_path)
@@ -129,8 +129,8 @@ def markdown(r):
     def ratio(x):
         return f"{x / p:.1f}" if p else "—"
     if "mbsfmu_native_us" in r:
-        L.append(f"| mbsfmu compiled kernel `native.equations` (M, k, q; ctypes call included) | {r['mbsfmu_native_us']:.1f} | {ratio(r['mbsfmu_native_us'])} |")
-    L.append(f"| mbsfmu `Problem.f` (equations + solve M ÿ = q − k, what the integrators call) | {r['mbsfmu_rhs_us']:.1f} | {ratio(r['mbsfmu_rhs_us'])} |")
+        L.append(f"| mbsfmu engine `mbs_equations` (M, k, q; from Python: ctypes call and three numpy arrays per call included) | {r['mbsfmu_native_us']:.1f} | {ratio(r['mbsfmu_native_us'])} |")
+    L.append(f"| mbsfmu engine right-hand side `Simulation.f` (equations + Cholesky solve of M ÿ = q − k; from Python) | {r['mbsfmu_rhs_us']:.1f} | {ratio(r['mbsfmu_rhs_us'])} |")
     L.append(f"| mbsfmu numpy reference path `Evaluator.equations` (tree.py) | {r['mbsfmu_equations_us']:.1f} | {ratio(r['mbsfmu_equations_us'])} |")
     if p:
         L.append(f"| Pinocchio `crba` + `nonLinearEffects` (Python bindings, C++) | {p:.1f} | 1.0 |")
