@@ -331,3 +331,123 @@ def test_radau5_dense_output_matches_closed_form(eng):
     exact = np.column_stack((np.cos(ts), -np.sin(ts)))
     assert np.max(np.abs(X - exact)) < 1e-8
     assert it.stats["steps"] < 300  # many points per step came from the polynomial
+
+
+# ---------------------------------------------------------------------------- gen_alpha
+def _ga_amplification(rho_inf, hw):
+    """Amplification matrix of generalized-α on y'' = −ω²y (ω = 1, h = hw) in the variables (y, v, a), from
+    the method's linear recurrence with Chung & Hulbert's parameters: closed-form analysis, not the C code."""
+    am, af = (2 * rho_inf - 1) / (rho_inf + 1), rho_inf / (rho_inf + 1)
+    g = 0.5 + af - am
+    b = 0.25 * (g + 0.5) ** 2
+    h, w2 = hw, 1.0
+    # unknowns (y₊, v₊, a₊): Newmark updates and the α-balance with ÿ = −ω²y
+    L = np.array([[1, 0, -h * h * b], [0, 1, -h * g], [(1 - af) * w2, 0, 1 - am]])
+    R = np.array([[1, h, h * h * (0.5 - b)], [0, 1, h * (1 - g)], [-af * w2, 0, -am]])
+    return np.linalg.solve(L, R)
+
+
+def test_gen_alpha_second_order(eng):
+    """Linear oscillator against cos(ωt): the error falls by ≈ 4 when h halves."""
+    w, T_end = 2.0, 2.0
+    errs = []
+    for h in (0.02, 0.01, 0.005):
+        it = Integ(eng, "osc", [w], "gen_alpha", [1.0, 0.0], h=h, rho_inf=0.8, rtol=1e-10, atol=1e-12)
+        y, v = it.advance(T_end)
+        errs.append(np.hypot(y - np.cos(w * T_end), (v + w * np.sin(w * T_end)) / w))
+        assert it.stats["steps"] == round(T_end / h)
+    ratios = [errs[0] / errs[1], errs[1] / errs[2]]
+    assert all(3.7 < r < 4.3 for r in ratios), ratios
+
+
+@pytest.mark.parametrize("rho_inf", [0.0, 0.5, 0.8])
+def test_gen_alpha_damps_stiff_mode_as_rho_inf(eng, rho_inf):
+    """Slow mode (h·ω = 0.01) and stiff mode (h·ω = 1000): the stiff mode follows, step by step, the
+    amplification matrix of the method, whose spectral radius is ρ∞ + O(1/(h·ω)); the slow mode is kept."""
+    h, w_stiff, nsteps = 0.01, 1e5, 20
+    it = Integ(eng, "osc", [1.0, w_stiff], "gen_alpha", [1.0, 1.0, 0.0, 0.0], h=h, rho_inf=rho_inf,
+               rtol=1e-10, atol=1e-14)
+    A = _ga_amplification(rho_inf, h * w_stiff)
+    assert abs(max(abs(np.linalg.eigvals(A))) - rho_inf) < 0.011
+    z = np.array([1.0, 0.0, -1.0])  # (y, v/ω, a/ω²) of the stiff mode; a starts as ÿ(0)
+    amp = [1.0]
+    for k in range(1, nsteps + 1):
+        x = it.advance(k * h)
+        z = A @ z
+        # the stiff mode follows the recurrence to the Newton tolerance (relative to the initial amplitude)
+        assert abs(x[1] - z[0]) < 1e-7 and abs(x[3] / w_stiff - z[1]) < 1e-7, (k, x[1], z[0])
+        amp.append(np.hypot(x[1], x[3] / w_stiff))
+    if rho_inf == 0.0:
+        assert amp[-1] < 1e-6
+    else:  # decay per step over the last 10 steps: ρ(A), times ≤ 2^(1/10) from the double root's k·ρ^k
+        rate = (amp[-1] / amp[-11]) ** 0.1
+        rho = max(abs(np.linalg.eigvals(A)))
+        assert rho * 0.99 < rate < rho * 1.08, (rate, rho)
+    t = nsteps * h
+    assert np.hypot(x[0] - np.cos(t), x[2] + np.sin(t)) < 1e-4  # slow mode follows the exact solution
+
+
+@pytest.mark.parametrize("hw", [0.3, 100.0])
+def test_gen_alpha_rho_inf_1_conserves_energy(eng, hw):
+    """ρ∞ = 1 (trapezoidal rule): no numerical damping, the energy of an undamped oscillator is kept over
+    500 steps, also for a stiff h·ω; ρ∞ = 0.8 visibly dissipates the stiff case."""
+    w = 10.0
+    h = hw / w
+    for rho_inf in (1.0, 0.8):
+        it = Integ(eng, "osc", [w], "gen_alpha", [1.0, 0.0], h=h, rho_inf=rho_inf, rtol=1e-10, atol=1e-14)
+        y, v = it.advance(500 * h)
+        energy = 0.5 * (v * v + w * w * y * y) / (0.5 * w * w)
+        if rho_inf == 1.0:
+            assert abs(energy - 1.0) < 1e-7, energy
+        elif hw > 1:
+            assert energy < 1e-6
+
+
+def test_gen_alpha_adaptive_meets_tolerance(eng):
+    """Step doubling: the global error of the nonlinear Van der Pol (μ = 5) follows the tolerance (scipy
+    reference; local error control of an order-2 method: global error a few dozen times rtol); a tighter
+    tolerance costs more steps."""
+    from scipy.integrate import solve_ivp
+    mu, ts = 5.0, [1.0, 3.0, 6.0]
+    ref = solve_ivp(_vdp(mu), (0, 6), [2.0, 0.0], method="Radau", rtol=1e-11, atol=1e-11, t_eval=ts).y.T
+    steps, errs = [], []
+    for rtol in (1e-4, 1e-6):
+        it = Integ(eng, "vdp", [mu], "gen_alpha", [2.0, 0.0], rtol=rtol, atol=rtol, rho_inf=0.8)
+        X = np.array([it.advance(t) for t in ts])
+        errs.append(np.max(np.abs(X - ref) / (1.0 + np.abs(ref))))
+        steps.append(it.stats["steps"])
+    assert errs[0] < 1e-2 and errs[1] < 3e-4 and errs[1] < errs[0] / 10, errs
+    assert steps[1] > 2 * steps[0]
+
+
+def _top_invariants(x, I, mgl):
+    """Energy and the vertical component of the world angular momentum of the heavy top."""
+    w0, x1, y1, z1 = x[:4]
+    R = np.array([[1 - 2 * (y1 * y1 + z1 * z1), 2 * (x1 * y1 - w0 * z1), 2 * (x1 * z1 + w0 * y1)],
+                  [2 * (x1 * y1 + w0 * z1), 1 - 2 * (x1 * x1 + z1 * z1), 2 * (y1 * z1 - w0 * x1)],
+                  [2 * (x1 * z1 - w0 * y1), 2 * (y1 * z1 + w0 * x1), 1 - 2 * (x1 * x1 + y1 * y1)]])
+    w = x[4:]
+    Iw = I * w
+    return 0.5 * w @ Iw + mgl * R[2, 2], (R @ Iw)[2], R @ Iw
+
+
+@pytest.mark.parametrize("method,kw", [("radau5", {"rtol": 1e-9, "atol": 1e-9}),
+                                       ("gen_alpha", {"rtol": 1e-7, "atol": 1e-7}),
+                                       ("gen_alpha", {"h": 1e-3})])
+def test_quaternion_top_unit_norm_and_invariants(eng, method, kw):
+    """Heavy top (unit quaternion + body rates, retract q ⊗ exp(δ/2)): |q| = 1 after every step; energy and
+    vertical angular momentum conserved; torque-free (m·g·l = 0) the whole angular momentum vector is."""
+    I = np.array([1.0, 2.0, 3.0])
+    q0 = np.array([np.cos(0.2), np.sin(0.2), 0.0, 0.0])  # tilted 0.4 rad about x
+    x0 = np.concatenate((q0, [0.3, 0.2, 5.0]))
+    tol = 1e-6 if "h" in kw else 3e-6
+    for mgl in (2.0, 0.0):
+        it = Integ(eng, "top", [*I, mgl], method, x0, rho_inf=0.8, **kw)
+        E0, Lz0, L0 = _top_invariants(x0, I, mgl)
+        for t in np.linspace(0.1, 2.0, 20):
+            x = it.advance(t)
+            assert abs(np.linalg.norm(x[:4]) - 1.0) < 1e-14
+            E, Lz, L = _top_invariants(x, I, mgl)
+            assert abs(E - E0) < tol * abs(E0) and abs(Lz - Lz0) < tol * np.linalg.norm(L0), (t, E - E0, Lz - Lz0)
+            if mgl == 0.0:
+                assert np.linalg.norm(L - L0) < tol * np.linalg.norm(L0)
