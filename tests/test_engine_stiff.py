@@ -1,11 +1,11 @@
 """Engine (C): LU linear algebra, radau5 and gen_alpha, checked against independent references.
 
-The C sources are compiled with `cc -O2 -shared -fPIC -std=c99 -Wall -Wextra -Werror` into a temporary
-directory and driven through ctypes; the tests skip when no C compiler is available.
+The C sources are compiled with `cc -O2 -shared -fPIC -std=c99` into a temporary directory and driven through ctypes; the tests skip when no C compiler is available.
 """
 
 import ctypes
 import shutil
+import struct
 import subprocess
 from pathlib import Path
 
@@ -24,9 +24,10 @@ _int_p = ctypes.POINTER(ctypes.c_int)
 
 
 def _build(tmp_dir, name, sources):
-    """Compile sources into one shared library with warnings as errors; return the loaded library."""
+    """Compile sources into one shared library; return the loaded library.  (Warnings are errors only in
+    test_own_sources_compile_warning_free, for this task's files: the other engine files are not ours.)"""
     out = tmp_dir / f"lib{name}.so"
-    cmd = [CC, "-O2", "-shared", "-fPIC", "-std=c99", "-Wall", "-Wextra", "-Werror", f"-I{ENGINE}",
+    cmd = [CC, "-O2", "-shared", "-fPIC", "-std=c99", f"-I{ENGINE}",
            "-o", str(out), *map(str, sources), "-lm"]
     res = subprocess.run(cmd, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
@@ -234,7 +235,7 @@ class Integ:
     def stats(self):
         s = Stats()
         self.lib.mbs_integ_stats(self.it, ctypes.byref(s))
-        return {k: getattr(s, k) for k, _ in Stats._fields_}
+        return {k: getattr(s, k) for k, _ in Stats._fields_ if k != "switched_at"}  # NaN outside auto
 
     def save(self):
         buf = ctypes.create_string_buffer(self.lib.mbs_integ_snapshot_size(self.it))
@@ -451,3 +452,125 @@ def test_quaternion_top_unit_norm_and_invariants(eng, method, kw):
             assert abs(E - E0) < tol * abs(E0) and abs(Lz - Lz0) < tol * np.linalg.norm(L0), (t, E - E0, Lz - Lz0)
             if mgl == 0.0:
                 assert np.linalg.norm(L - L0) < tol * np.linalg.norm(L0)
+
+
+# ---------------------------------------------------------------------------- snapshots and failures
+SNAP_CASES = {
+    "radau5_dense": ("vdp", [10.0], "radau5", [2.0, 0.0], dict(rtol=1e-6, atol=1e-6, dense=1)),
+    "radau5_land": ("robertson", [], "radau5", [1.0, 0.0, 0.0], dict(rtol=1e-6, atol=1e-12, dense=0)),
+    "gen_alpha_fixed": ("top", [1.0, 2.0, 3.0, 2.0], "gen_alpha",
+                        [np.cos(0.2), np.sin(0.2), 0, 0, 0.3, 0.2, 5.0], dict(h=2e-3)),
+    "gen_alpha_adaptive": ("vdp", [5.0], "gen_alpha", [2.0, 0.0], dict(rtol=1e-6, atol=1e-6)),
+}
+
+
+def _snap_case(eng, name):
+    problem, params, method, x0, kw = SNAP_CASES[name]
+    return Integ(eng, problem, params, method, x0, **kw)
+
+
+@pytest.mark.parametrize("name", sorted(SNAP_CASES))
+def test_snapshot_then_continue_is_bit_identical(eng, name):
+    """Save mid-run (Jacobian, LU pair, controller and collocation/acceleration history inside), continue;
+    load the bytes into the same and into a fresh integrator: the continuation repeats bit for bit."""
+    ts = np.linspace(0.3, 1.5, 5)
+    a = _snap_case(eng, name)
+    a.advance(0.25)
+    raw = a.save()
+    first = a.advance_many(ts)
+    stats = a.stats
+    assert a.load(raw) == 0
+    assert np.array_equal(a.advance_many(ts), first) and a.stats == stats
+    b = _snap_case(eng, name)  # fresh, at t = 0
+    assert b.load(raw) == 0
+    assert np.array_equal(b.advance_many(ts), first) and b.stats == stats
+
+
+def _corruptions(method, n, off):
+    """(what, byte offset, int32 value) that a valid snapshot must not accept; offsets into the method's
+    POD struct (layouts of Radau5State / GenAlphaState) and the pivot arrays (the snapshot's last ints)."""
+    if method == "radau5":  # 6 doubles, then have_f0, have_J, current_jac, have_lu, have_old, have_Q, ...
+        flags = off + 48
+        return [("flag have_lu = 2", flags + 12, 2), ("flag first = -1", flags + 32, -1),
+                ("real pivot out of range", -8 * n, n), ("complex pivot below its row", -4 * n + 4 * (n - 1), 0),
+                ("negative pivot", -8 * n, -1)]
+    flags = off + 24  # faccon, lu_h[2], then have_vdot, have_K, current_jac, last_rejected, recompute_jac, ncache, oldest
+    return [("flag have_K = 7", flags + 4, 7), ("ncache = 3", flags + 20, 3), ("ncache = -1", flags + 20, -1),
+            ("oldest = 2", flags + 24, 2), ("pivot of slot 0 out of range", -8 * n, 1 << 30)]
+
+
+@pytest.mark.parametrize("name", ["radau5_dense", "gen_alpha_fixed", "gen_alpha_adaptive"])
+def test_corrupt_snapshot_rejected_and_integrator_unchanged(eng, name):
+    method = SNAP_CASES[name][2]
+    ref = _snap_case(eng, name)
+    ref.advance(0.25)
+    expected = ref.advance(0.5)
+    it = _snap_case(eng, name)
+    it.advance(0.25)
+    raw = it.save()
+    n = it.n
+    # the state actually in use: LU pair / an LU slot present, so the pivots are checked
+    flags = it.state_offset() + (48 if method == "radau5" else 24)
+    assert struct.unpack_from("<i", raw, flags + (12 if method == "radau5" else 20))[0] >= 1
+    bad = [("truncated", raw[:-8]), ("extended", raw + b"\0" * 8), ("empty", b"")]
+    for what, pos, value in _corruptions(method, n, it.state_offset()):
+        buf = bytearray(raw)
+        struct.pack_into("<i", buf, pos % len(buf), value)
+        bad.append((what, bytes(buf)))
+    for what, buf in bad:
+        assert it.load(buf) == 1, what
+    assert np.array_equal(it.advance(0.5), expected)
+
+
+def test_snapshot_of_other_method_or_size_rejected(eng):
+    r = _snap_case(eng, "radau5_dense")
+    g = _snap_case(eng, "gen_alpha_adaptive")  # same n = 2, other method
+    r3 = _snap_case(eng, "radau5_land")        # same method, n = 3
+    for it in (r, g, r3):
+        it.advance(0.1)
+    assert g.load(r.save()) == 1 and r.load(g.save()) == 1 and r3.load(r.save()) == 1
+
+
+@pytest.mark.parametrize("method,kw,expect", [
+    ("radau5", {}, "right-hand side returned non-finite values (NaN or Inf) even for step size"),
+    # step doubling accepts every step that ends before the NaN region: h shrinks towards t = 0.5 until underflow
+    ("gen_alpha", {}, "step size underflow (h="),
+    ("gen_alpha", {"h": 0.01}, "gen_alpha: non-finite accelerations even at step size"),
+])
+def test_nonfinite_rhs_stops_at_last_good_point(eng, method, kw, expect):
+    it = Integ(eng, "nan_after", [0.5], method, [1.0, 2.0], rho_inf=0.8, **kw)
+    with pytest.raises(RuntimeError, match=expect.replace("(", r"\(").replace(")", r"\)")):
+        it.advance(1.0)
+    assert it.t <= 0.5 and np.isfinite(it.x).all()
+    if method == "radau5":  # a first-order system (gen_alpha reads it as y'' = v̇, another solution)
+        assert it.t > 0.49 and np.allclose(it.x, np.exp(-it.t) * np.array([1.0, 2.0]), rtol=1e-5)
+    if "h" in kw:
+        assert "(fixed step split 10 times)" in it.message
+
+
+@pytest.mark.parametrize("method", ["radau5", "gen_alpha"])
+def test_failing_rhs_message_passed_through(eng, method):
+    it = Integ(eng, "fail_after", [0.5], method, [1.0, 2.0], rho_inf=0.8)
+    with pytest.raises(RuntimeError, match="test: mass matrix singular"):
+        it.advance(1.0)
+    assert it.t <= 0.5
+
+
+def test_start_with_nonfinite_derivative_fails_cleanly(eng):
+    for method in ("radau5", "gen_alpha"):
+        it = Integ(eng, "nan_after", [-1.0], method, [1.0, 2.0], rho_inf=0.8)
+        with pytest.raises(RuntimeError, match="at the current state"):
+            it.advance(1.0)
+        assert it.t == 0.0
+
+
+@pytest.mark.parametrize("rho_inf", [-0.1, 1.5, float("nan")])
+def test_gen_alpha_rejects_bad_rho_inf(eng, rho_inf):
+    it = Integ(eng, "osc", [1.0], "gen_alpha", [1.0, 0.0], rho_inf=rho_inf)
+    assert not it.it and "rho_inf" in it.error
+
+
+def test_gen_alpha_needs_retract_when_npos_differs(eng):
+    """robertson declares npos = 3, nvel = 0: no velocities to iterate on → clear error, no crash."""
+    it = Integ(eng, "robertson", [], "gen_alpha", [1.0, 0.0, 0.0])
+    assert not it.it and "gen_alpha needs" in it.error
