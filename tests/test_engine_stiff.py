@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_engine_integrators import METHODS, Options, Stats
+from test_engine_integrators import Integ as IntegBase  # the ctypes wrapper of one MbsIntegrator
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINE = ROOT / "src" / "mbsfmu" / "engine"
@@ -128,21 +130,6 @@ def test_lu_pivot_validation(linalg):
 
 
 # ---------------------------------------------------------------------------- integrators
-class Options(ctypes.Structure):
-    _fields_ = [("rtol", ctypes.c_double), ("atol", ctypes.c_double), ("max_step", ctypes.c_double),
-                ("h", ctypes.c_double), ("rho_inf", ctypes.c_double), ("max_steps", ctypes.c_long),
-                ("dense", ctypes.c_int)]
-
-
-class Stats(ctypes.Structure):
-    _fields_ = [("steps", ctypes.c_long), ("rejected", ctypes.c_long), ("rhs_evaluations", ctypes.c_long),
-                ("jac_evaluations", ctypes.c_long), ("lu_decompositions", ctypes.c_long),
-                ("switched", ctypes.c_int), ("switched_at", ctypes.c_double)]
-
-
-METHOD = {"radau5": 3, "gen_alpha": 4}  # mbs_integrator.h's enum
-
-
 def _engine_sources():
     """Integrator sources of the engine (the driver needs every method's class) and the test systems."""
     return sorted(ENGINE.glob("integ_*.c")) + [ENGINE / "linalg.c", CDIR / "stiff_odes.c"]
@@ -154,12 +141,12 @@ def eng(tmp_path_factory):
 
 
 def _declare(lib):
-    """ctypes signatures of the integrator API and the test systems."""
+    """ctypes signatures of the integrator API (as test_engine_integrators.Integ calls it) and the test systems."""
     vp = ctypes.c_void_p
     sigs = {
         "stiff_problem_new": (vp, [ctypes.c_char_p, _dbl_p, ctypes.c_int]),
         "stiff_problem_free": (None, [vp]),
-        "stiff_problem_calls": (ctypes.c_long, [vp]),
+        "stiff_method_state_offset": (ctypes.c_size_t, [vp]),
         "mbs_integ_new": (vp, [ctypes.c_int, vp, ctypes.POINTER(Options), ctypes.c_char_p, ctypes.c_size_t]),
         "mbs_integ_free": (None, [vp]),
         "mbs_integ_reset": (ctypes.c_int, [vp, ctypes.c_double, _dbl_p]),
@@ -174,80 +161,37 @@ def _declare(lib):
         "mbs_integ_snapshot_size": (ctypes.c_size_t, [vp]),
         "mbs_integ_snapshot_save": (None, [vp, ctypes.c_char_p]),
         "mbs_integ_snapshot_load": (ctypes.c_int, [vp, ctypes.c_char_p, ctypes.c_size_t]),
-        "stiff_method_state_offset": (ctypes.c_size_t, [vp]),
     }
     for name, (res, args) in sigs.items():
         fn = getattr(lib, name)
         fn.restype, fn.argtypes = res, args
+    lib.have = {m: True for m in METHODS}
     return lib
 
 
-class Integ:
-    """One C integrator on one test system (stiff_odes.c), freed with the object."""
+class StiffProblem:
+    """A system of stiff_odes.c, owned by the C library."""
 
-    def __init__(self, lib, problem, params, method, x0, t0=0.0, rtol=1e-6, atol=1e-8, h=0.0, rho_inf=0.8,
-                 max_step=0.0, dense=-1, max_steps=0):
+    def __init__(self, lib, name, params):
         self.lib = lib
         p = np.array(params, dtype=float).reshape(-1)
-        self.ode = lib.stiff_problem_new(problem.encode(), _ptr(p), p.size)
-        assert self.ode
-        self.n = len(x0)
-        opt = Options(rtol, atol, max_step, h, rho_inf, max_steps, dense)
-        err = ctypes.create_string_buffer(256)
-        self.it = lib.mbs_integ_new(METHOD[method], self.ode, ctypes.byref(opt), err, 256)
-        self.error = err.value.decode()
-        if self.it:
-            x0 = np.array(x0, dtype=float)
-            assert lib.mbs_integ_reset(self.it, t0, _ptr(x0)) == 0
+        self.ptr = lib.stiff_problem_new(name.encode(), _ptr(p), p.size)
+        assert self.ptr
 
     def __del__(self):
-        if getattr(self, "it", None):
-            self.lib.mbs_integ_free(self.it)
-        if getattr(self, "ode", None):
-            self.lib.stiff_problem_free(self.ode)
+        self.lib.stiff_problem_free(self.ptr)
 
-    def advance(self, t):
-        """x(t) as a copy; RuntimeError with the integrator's message on failure."""
-        if self.lib.mbs_integ_advance(self.it, t):
-            raise RuntimeError(self.message)
-        return self.x
 
-    def advance_many(self, ts):
-        ts = np.ascontiguousarray(ts, dtype=float)
-        X = np.empty((ts.size, self.n))
-        if self.lib.mbs_integ_advance_many(self.it, _ptr(ts), ts.size, _ptr(X)):
-            raise RuntimeError(self.message)
-        return X
+class Integ(IntegBase):
+    """One C integrator on one stiff_odes.c system, started at (t0, x0)."""
 
-    @property
-    def x(self):
-        return np.ctypeslib.as_array(self.lib.mbs_integ_x(self.it), (self.n,)).copy()
-
-    @property
-    def t(self):
-        return self.lib.mbs_integ_t(self.it)
-
-    @property
-    def message(self):
-        return self.lib.mbs_integ_message(self.it).decode()
-
-    @property
-    def stats(self):
-        s = Stats()
-        self.lib.mbs_integ_stats(self.it, ctypes.byref(s))
-        return {k: getattr(s, k) for k, _ in Stats._fields_ if k != "switched_at"}  # NaN outside auto
-
-    def save(self):
-        buf = ctypes.create_string_buffer(self.lib.mbs_integ_snapshot_size(self.it))
-        self.lib.mbs_integ_snapshot_save(self.it, buf)
-        return buf.raw
-
-    def load(self, raw):
-        return self.lib.mbs_integ_snapshot_load(self.it, raw, len(raw))
+    def __init__(self, lib, problem, params, method, x0, t0=0.0, **kw):
+        super().__init__(lib, method, StiffProblem(lib, problem, params), len(x0), **kw)
+        assert self.reset(t0, x0) == 0
 
     def state_offset(self):
         """Byte offset of the method's POD struct (Radau5State / GenAlphaState) in a snapshot."""
-        return self.lib.stiff_method_state_offset(self.it)
+        return self.lib.stiff_method_state_offset(self.ptr)
 
 
 def test_own_sources_compile_warning_free(tmp_path):
@@ -566,11 +510,11 @@ def test_start_with_nonfinite_derivative_fails_cleanly(eng):
 
 @pytest.mark.parametrize("rho_inf", [-0.1, 1.5, float("nan")])
 def test_gen_alpha_rejects_bad_rho_inf(eng, rho_inf):
-    it = Integ(eng, "osc", [1.0], "gen_alpha", [1.0, 0.0], rho_inf=rho_inf)
-    assert not it.it and "rho_inf" in it.error
+    with pytest.raises(ValueError, match="rho_inf must lie in"):
+        Integ(eng, "osc", [1.0], "gen_alpha", [1.0, 0.0], rho_inf=rho_inf)
 
 
 def test_gen_alpha_needs_retract_when_npos_differs(eng):
     """robertson declares npos = 3, nvel = 0: no velocities to iterate on → clear error, no crash."""
-    it = Integ(eng, "robertson", [], "gen_alpha", [1.0, 0.0, 0.0])
-    assert not it.it and "gen_alpha needs" in it.error
+    with pytest.raises(ValueError, match="gen_alpha needs"):
+        Integ(eng, "robertson", [], "gen_alpha", [1.0, 0.0, 0.0])
