@@ -117,10 +117,7 @@ class Instance:
         out, sw = (ctypes.c_long * 6)(), ctypes.c_double()
         self.lib.mbs_stats(self.ptr, out, ctypes.byref(sw))
         keys = ("steps", "rejected", "rhs_evaluations", "jac_evaluations", "lu_decompositions")
-        s = dict(zip(keys, out[:5]))
-        if out[5] or sw.value == sw.value:
-            s.update(switched=bool(out[5]), switched_at=sw.value if out[5] else None)
-        return s
+        return dict(zip(keys, out[:5]), switched=bool(out[5]), switched_at=sw.value if out[5] else None)
 
     # -- state bytes (fixed layout: version, GUID, length, checksum)
     def save_state(self):
