@@ -20,7 +20,6 @@ models exactly the same equations. Exudyn receives the beam's Gauss mass points 
 """
 
 import argparse
-import ctypes
 import math
 import os
 import time
@@ -152,7 +151,7 @@ def evaluation_cost(modes, rounds=5, seconds=0.2):
     sim = Simulation(spec)
     sim.initialize(0.0)
     rng = np.random.default_rng(modes)
-    f, n = sim.nvel, sim.npos + sim.nvel
+    f = sim.nvel
     x = np.r_[rng.normal(size=sim.npos) * 0.01, rng.normal(size=f)]
     x[0], x[sim.npos] = 0.7, 2.0    # a swinging pendulum with some elastic motion
     M, k, q = np.empty((f, f)), np.empty(f), np.empty(f)

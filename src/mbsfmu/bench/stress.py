@@ -12,7 +12,6 @@ wall_seconds, steps, rhs_evaluations, message.
 """
 
 import argparse
-import math
 import os
 import time
 from pathlib import Path

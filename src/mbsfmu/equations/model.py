@@ -74,7 +74,6 @@ class Model:
         self.spec = spec
         self.name = spec["name"]
         self.parameters = {p["name"]: p["value"] for p in spec["parameters"]}
-        by_name = {b["name"]: b for b in spec["bodies"]}
         order, placed = [], {"world": -1}
         while len(order) < len(spec["bodies"]):  # parents first, otherwise file order
             for b in spec["bodies"]:
