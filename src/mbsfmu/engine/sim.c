@@ -27,6 +27,7 @@ struct MbsInstance {
     int method;
     double rtol, atol, max_step, step;
     int initialized, params_dirty, inputs_dirty, initial_valid, q_in_active;
+    int out_valid;        /* out holds the output points of the current state (a master reads them one by one) */
     double time;
     MbsIntegrator *integ;
     char msg[1024];
@@ -194,7 +195,7 @@ int mbs_reset(MbsInstance *s)
     s->atol = di[DI_ATOL];
     s->max_step = di[DI_MAX_STEP];
     s->step = di[DI_STEP];
-    s->initialized = s->params_dirty = s->inputs_dirty = s->initial_valid = s->q_in_active = 0;
+    s->initialized = s->params_dirty = s->inputs_dirty = s->initial_valid = s->q_in_active = s->out_valid = 0;
     s->time = 0.0;
     s->msg[0] = 0;
     mbs_integ_free(s->integ);
@@ -233,6 +234,7 @@ static int initial_state(MbsInstance *s)
     int rc = bind(s);
     if (rc) return rc;
     mbs_initial_state(s->m, s->D, s->x);
+    s->out_valid = 0;
     for (int i = 0; i < s->n; i++) if (!isnan(s->start[i])) s->x[i] = s->start[i];
     for (int i = 0; i < s->n; i++)
         if (!isfinite(s->x[i])) return report(s, MBS_ERROR, "initial value of %s is not finite", i < NPOS(s->m) ? s->m->coord_name[i] : "a velocity");
@@ -286,7 +288,7 @@ int mbs_set_real(MbsInstance *s, int vr, double value)
         }
 #endif
         s->D[idx] = value;
-        s->initial_valid = 0;
+        s->initial_valid = s->out_valid = 0;
         if (s->initialized) s->params_dirty = 1;
         return MBS_OK;
     }
@@ -306,25 +308,28 @@ int mbs_set_real(MbsInstance *s, int vr, double value)
     }
 }
 
-static int output_point(MbsInstance *s, int o, const double *x, double t, double *r)
+/* World position and velocity (6 numbers each) of the output points o0 .. o1-1 at state x: one kinematics pass. */
+static void output_points(MbsInstance *s, const double *x, double t, int o0, int o1, double *r)
 {
     const MbsModel *m = s->m;
-    const int *oi = m->out + 3 * o;
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, s->xdot);
     mbs_kinematics(&e);
+    for (int o = o0; o < o1; o++, r += 6) {
+        const int *oi = m->out + 3 * o;
 #ifdef MBS_WITH_ELASTIC
-    if (oi[1] >= 0) { mbs_elastic_node_point(&e, oi[0], oi[1], r, r + 3, NULL); return MBS_OK; }
+        if (oi[1] >= 0) { mbs_elastic_node_point(&e, oi[0], oi[1], r, r + 3, NULL); continue; }
 #endif
-    mbs_point(&e, oi[0], s->D + m->hdr[H_D_OUT] + 3 * o, r, r + 3, NULL);
-    return MBS_OK;
+        mbs_point(&e, oi[0], s->D + m->hdr[H_D_OUT] + 3 * o, r, r + 3, NULL);
+    }
 }
 
 int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double out[6])
 {
     if (o < 0 || o >= s->m->hdr[H_NOUT]) return report(s, MBS_ERROR, "no output point %d", o);
     if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;  /* numbers bound first */
-    return output_point(s, o, x, t, out);
+    output_points(s, x, t, o, o + 1, out);
+    return MBS_OK;
 }
 
 int mbs_get_real(MbsInstance *s, int vr, double *value)
@@ -343,12 +348,13 @@ int mbs_get_real(MbsInstance *s, int vr, double *value)
     case MBS_V_FIN: *value = s->u[NVEL(s->m) + idx]; return MBS_OK;
     case MBS_V_Y: *value = s->x[idx]; return MBS_OK;
     case MBS_V_YD: *value = s->x[NPOS(s->m) + idx]; return MBS_OK;
-    case MBS_V_OUT: {
-        double r[6];
-        output_point(s, idx / 6, s->x, s->time, r);
-        *value = r[idx % 6];
+    case MBS_V_OUT:
+        if (!s->out_valid) {  /* all points at once: one kinematics pass per state, not one per variable */
+            output_points(s, s->x, s->time, 0, s->m->hdr[H_NOUT], s->out);
+            s->out_valid = 1;
+        }
+        *value = s->out[idx];
         return MBS_OK;
-    }
     case -1: return report(s, MBS_ERROR, "unknown value reference %d", vr);
     default: return report(s, MBS_ERROR, "value reference %d is a String", vr);
     }
@@ -445,6 +451,7 @@ static int failed(MbsInstance *s)
 
 int mbs_do_step(MbsInstance *s, double t, double h)
 {
+    s->out_valid = 0;
     int rc = prepare(s, t);
     if (rc) return rc;
     if (!(h >= 0) || !isfinite(h)) return report(s, MBS_ERROR, "communication step size %g is not a non-negative number", h);
@@ -459,6 +466,7 @@ int mbs_do_step(MbsInstance *s, double t, double h)
 
 int mbs_run(MbsInstance *s, const double *ts, int n, double *X)
 {
+    s->out_valid = 0;
     if (n < 1) return report(s, MBS_ERROR, "no time points");
     int rc = prepare(s, ts[0]);
     if (rc) return rc;
@@ -607,6 +615,7 @@ int mbs_state_load(MbsInstance *s, const void *buf, size_t len)
     memcpy(s->u, r, sizeof(double) * s->nu);             r += sizeof(double) * s->nu;
     memcpy(s->u_applied, r, sizeof(double) * s->nu);     r += sizeof(double) * s->nu;
     memcpy(s->x, r, sizeof(double) * s->n);
+    s->out_valid = 0;
     s->time = h.time; s->rtol = h.rtol; s->atol = h.atol; s->max_step = h.max_step; s->step = h.step;
     s->method = h.method;
     s->q_in_active = h.q_in_active;
