@@ -278,9 +278,13 @@ class _Checker:
             self.name(Map({name: name}), name, path, what="a parameter name")
             if name in RESERVED or name in FUNCTIONS:
                 self.fail(node, name, path, f"'{name}' is reserved", "choose another parameter name")
-            desc = ""
+            desc, unit = "", None
             if isinstance(v, Map):
-                self.keys(v, path, ("value", "description"), required=("value",))
+                self.keys(v, path, ("value", "description", "unit"), required=("value",))
+                if "unit" in v:
+                    unit = v["unit"]
+                    if not isinstance(unit, str) or not re.fullmatch(r"[A-Za-z0-9_.*/^()+-]{1,32}", unit):
+                        self.fail(v, "unit", path + ".unit", f"a unit is a short name such as N/m, kg.m2 or rad/s, got {unit!r}")
                 desc, v = str(v.get("description", "")), v["value"]
             if isinstance(v, str):  # YAML 1.1 reads 1.0e8 or 1e8 as a string
                 try:
@@ -290,7 +294,7 @@ class _Checker:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 self.fail(node, name, path, f"a parameter value must be a finite number, got {v!r}")
             self.params[name] = float(v)
-            out.append({"name": name, "value": float(v), "description": desc})
+            out.append({"name": name, "value": float(v), "description": desc, **({"unit": unit} if unit else {})})
         return out
 
     def bodies(self, root):
