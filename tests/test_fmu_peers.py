@@ -20,7 +20,7 @@ CLAIMS = [("fmu", "dop853", {"rtol": 1e-10, "atol": 1e-12}, 1e-6),
           ("mbsfmu", "rk4", {"h": 0.1}, 1e-6),   # h as a fraction of the communication step (below)
           ("exudyn", "RK44", {"h": 0.25}, 1e-6),
           ("exudyn", "RK67", {"h": 1.0}, 1e-6),
-          ("exudyn", "DOPRI5", {"rtol": 1e-10}, 1e-6),
+          ("exudyn", "DOPRI5", {"rtol": 1e-10, "atol": 1e-12}, 1e-6),
           ("exudyn", "GeneralizedAlpha", {"h": 0.05}, 1e-3),
           ("mujoco", "RK4", {"h": 0.1}, 1e-6),
           ("scipy", "DOP853", {"rtol": 1e-10, "atol": 1e-12}, 1e-6),
