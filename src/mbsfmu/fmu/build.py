@@ -301,11 +301,40 @@ def python_runtime() -> dict:
 
 
 def _c_string(s: str | None) -> str:
-    return json.dumps(s or "")  # a valid C string literal for ASCII/UTF-8 paths
+    """A C string literal of s's UTF-8 bytes (printable ASCII kept, everything else an octal escape)."""
+    out = []
+    for b in (s or "").encode("utf-8"):
+        ch = chr(b)
+        out.append(ch if 32 <= b < 127 and ch not in '"\\?' else f"\\{b:03o}")
+    return '"' + "".join(out) + '"'
 
 
-def compile_shim(out: Path, real_library: str, runtime: dict | None = None) -> Path | None:
-    """Compile the loader shim (``shim.c``) into ``out``; None (with a warning) without a C compiler."""
+_CAUSALITY = {"parameter": "p", "calculatedParameter": "c", "input": "i", "output": "o", "local": "l",
+              "independent": "x"}
+_VARIABILITY = {"constant": "k", "fixed": "f", "tunable": "t", "discrete": "d", "continuous": "c"}
+
+
+def shim_model_defines(model_description: bytes) -> str:
+    """The model's GUID, log categories and variable table (by value reference) as the C defines shim.c
+    checks every call against, read from the modelDescription.xml the host sees."""
+    from xml.etree.ElementTree import fromstring
+    root = fromstring(model_description)
+    table = {}
+    for sv in root.iter("ScalarVariable"):
+        kind = next(iter(sv))
+        table[int(sv.get("valueReference"))] = "{%s, '%s', '%s', '%s'}" % (
+            _c_string(sv.get("name")), kind.tag[0], _CAUSALITY[sv.get("causality", "local")],
+            _VARIABILITY[sv.get("variability", "continuous")])
+    rows = [table.get(vr, "{\"\", '-', 'l', 'c'}") for vr in range(max(table, default=-1) + 1)]
+    categories = [c.get("name") for c in root.iter("Category")]
+    return (f"#define MBSFMU_GUID {_c_string(root.get('guid'))}\n"
+            f"#define MBSFMU_LOG_CATEGORIES {', '.join(map(_c_string, categories)) or _c_string('')}\n"
+            f"#define MBSFMU_VARIABLES \\\n    " + ", \\\n    ".join(rows or ["{\"\", '-', 'l', 'c'}"]) + "\n")
+
+
+def compile_shim(out: Path, real_library: str, model_description: bytes, runtime: dict | None = None) -> Path | None:
+    """Compile the loader shim (``shim.c``) for the model of ``model_description`` into ``out``; None (with a
+    warning) without a C compiler."""
     import shutil
     import subprocess
     import sysconfig
@@ -328,8 +357,10 @@ def compile_shim(out: Path, real_library: str, runtime: dict | None = None) -> P
         f"#define MBSFMU_LIBPYTHON_SONAME {_c_string(runtime.get('libpython_soname'))}\n"
         f"#define MBSFMU_PYTHON_EXECUTABLE {_c_string(runtime.get('executable'))}\n"
         f"#define MBSFMU_REAL_LIBRARY {_c_string(real_library)}\n"
+        + shim_model_defines(model_description)
         + SHIM_SOURCE.read_text(encoding="utf-8"), encoding="utf-8")
-    cmd = [cc, "-shared", "-fPIC", "-O2", "-fvisibility=hidden", "-o", str(out), str(src), "-ldl", "-lpthread"]
+    cmd = [cc, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-fvisibility=hidden", "-o", str(out), str(src),
+           "-ldl", "-lpthread"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         warnings.warn(f"compiling the FMU loader shim failed ({' '.join(cmd)}): {r.stderr.strip()[:2000]}; "
@@ -348,8 +379,9 @@ def _attach_shim(dest: Path, name: str) -> bool:
         if member not in z.namelist():
             return False
         real_bytes = z.read(member)
+        model_description = z.read("modelDescription.xml")
     with tempfile.TemporaryDirectory(prefix="mbsfmu_shim_") as tmp:
-        so = compile_shim(Path(tmp) / "shim.so", real_name)
+        so = compile_shim(Path(tmp) / "shim.so", real_name, model_description)
         if so is None:
             return False
         _replace_in_zip(dest, member, so.read_bytes())

@@ -1,26 +1,46 @@
 /* mbsfmu FMI 2.0 loader shim (generated from src/mbsfmu/fmu/shim.c; do not edit in an FMU).
  *
- * This library is the FMU binary a host loads. It forwards every fmi2* function to the real
- * pythonfmu binary next to it (MBSFMU_REAL_LIBRARY, loaded RTLD_LOCAL), after making sure that
+ * This library is the FMU binary a host loads. It forwards the fmi2* functions to the real pythonfmu
+ * binary next to it (MBSFMU_REAL_LIBRARY, loaded RTLD_LOCAL), after making sure that
  *   1. a Python runtime is available with global symbols (pythonfmu's binary does not link
  *      libpython): the one already in the process, else the libpython recorded at build time
  *      (MBSFMU_LIBPYTHON), else its soname (MBSFMU_LIBPYTHON_SONAME) from the default search path;
  *   2. the interpreter is initialized by *this* shim (from the host's thread, signal handlers left
  *      alone) and never finalized: pythonfmu then skips its own Py_Initialize/Py_Finalize, whose
- *      finalization from a worker thread with numpy loaded aborts C hosts at exit.
- * When no Python can be loaded, fmi2Instantiate logs the reason through the FMI logger and
- * returns NULL.
+ *      finalization from a worker thread aborts C hosts at exit.
+ *
+ * It is also the FMU's guard. pythonfmu 0.7.0 turns any Python exception into fmi2Fatal and at the same
+ * time releases the instance's Python objects, so the next call on that instance crashes the host; it
+ * never checks value references, types, the calling sequence or pointers. So the shim answers fmi2Error
+ * itself, with a message through the host's logger, before pythonfmu sees a bad call:
+ *   - components: only live instances handed out here are used (a registry; a foreign pointer is never
+ *     dereferenced);
+ *   - value references, types, causality and variability from the model's variable table, compiled in at
+ *     build time (MBSFMU_VARIABLES, from modelDescription.xml);
+ *   - the FMI 2.0 co-simulation calling sequence (instantiated -> initialization mode -> step mode ->
+ *     terminated; error state; fmi2Reset back to instantiated);
+ *   - FMU states: only handles handed out here are accepted; serialized bytes must carry the engine's
+ *     header (sim.c) with this model's GUID, a matching length and checksum;
+ *   - refusals the slave cannot report (pythonfmu has no fmi2Error): the slave keeps the reason of a failed
+ *     initialization, state restore or string set in a hidden String variable, value reference
+ *     MBSFMU_NVARS (not in modelDescription.xml), which the shim reads after those calls;
+ *   - after one fmi2Fatal from pythonfmu the instance is never passed to pythonfmu again.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
 #include <pthread.h>
+#include <stdarg.h>
 #include <stddef.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 #include <wchar.h>
 
+#ifndef MBSFMU_VARIABLES
+#error "compile with mbsfmu.fmu.build.compile_shim: it defines the model's GUID and variable table"
+#endif
 #ifndef MBSFMU_LIBPYTHON
 #define MBSFMU_LIBPYTHON ""
 #endif
@@ -46,7 +66,7 @@ typedef int fmi2Boolean;
 typedef char fmi2Char;
 typedef const fmi2Char* fmi2String;
 typedef char fmi2Byte;
-typedef int fmi2Status;   /* fmi2OK=0 Warning Discard Error Fatal Pending */
+typedef int fmi2Status;
 typedef int fmi2Type;
 typedef int fmi2StatusKind;
 typedef void (*fmi2CallbackLogger)(fmi2ComponentEnvironment, fmi2String, fmi2Status, fmi2String,
@@ -59,8 +79,22 @@ typedef struct {
     fmi2ComponentEnvironment componentEnvironment;
 } fmi2CallbackFunctions;
 
-#define fmi2Error 3
+enum { fmi2OK, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal };
+enum { fmi2CoSimulation = 1 };
 
+/* ------------------------------------------------------------------------------------ model table */
+typedef struct {
+    const char* name;
+    char type;         /* R Real, S String, I Integer, B Boolean, E Enumeration, - no such vr */
+    char causality;    /* p parameter, c calculatedParameter, i input, o output, l local, x independent */
+    char variability;  /* k constant, f fixed, t tunable, d discrete, c continuous */
+} Var;
+static const Var vars[] = {MBSFMU_VARIABLES};
+#define MBSFMU_NVARS ((fmi2ValueReference)(sizeof vars / sizeof vars[0]))
+static const char* const categories[] = {MBSFMU_LOG_CATEGORIES};
+#define NCATEGORIES (sizeof categories / sizeof categories[0])
+
+/* ----------------------------------------------------------------------------- Python and pythonfmu */
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 static void* real = NULL;
 static char error[4096];
@@ -87,8 +121,8 @@ static int ensure_python(void) {
             snprintf(error, sizeof error,
                      "mbsfmu: cannot load the Python runtime this FMU was built with "
                      "(%s: %s; %s: %s). The target machine needs that Python (same version, "
-                     "shared libpython, with numpy and scipy) at the same path as on the build "
-                     "machine (%s), or its libpython on the library search path.",
+                     "shared libpython) at the same path as on the build machine (%s), or its "
+                     "libpython on the library search path.",
                      MBSFMU_LIBPYTHON, why[0][0] ? why[0] : "not tried", MBSFMU_LIBPYTHON_SONAME,
                      why[1][0] ? why[1] : "not tried", MBSFMU_PYTHON_EXECUTABLE);
             return -1;
@@ -141,6 +175,33 @@ static void release_pystate(void) {
     if (real_finalize) real_finalize();
 }
 
+/* pythonfmu's functions the shim forwards to (Integer/Boolean access, derivatives and fmi2CancelStep are
+   answered here: the model has no such variables or capabilities). */
+static struct {
+    fmi2Component (*instantiate)(fmi2String, fmi2Type, fmi2String, fmi2String,
+                                 const fmi2CallbackFunctions*, fmi2Boolean, fmi2Boolean);
+    void (*free_instance)(fmi2Component);
+    fmi2Status (*set_debug_logging)(fmi2Component, fmi2Boolean, size_t, const fmi2String[]);
+    fmi2Status (*setup_experiment)(fmi2Component, fmi2Boolean, fmi2Real, fmi2Real, fmi2Boolean, fmi2Real);
+    fmi2Status (*enter_init)(fmi2Component), (*exit_init)(fmi2Component);
+    fmi2Status (*terminate)(fmi2Component), (*reset)(fmi2Component);
+    fmi2Status (*get_real)(fmi2Component, const fmi2ValueReference[], size_t, fmi2Real[]);
+    fmi2Status (*get_string)(fmi2Component, const fmi2ValueReference[], size_t, fmi2String[]);
+    fmi2Status (*set_real)(fmi2Component, const fmi2ValueReference[], size_t, const fmi2Real[]);
+    fmi2Status (*set_string)(fmi2Component, const fmi2ValueReference[], size_t, const fmi2String[]);
+    fmi2Status (*get_state)(fmi2Component, fmi2FMUstate*), (*set_state)(fmi2Component, fmi2FMUstate);
+    fmi2Status (*free_state)(fmi2Component, fmi2FMUstate*);
+    fmi2Status (*state_size)(fmi2Component, fmi2FMUstate, size_t*);
+    fmi2Status (*serialize)(fmi2Component, fmi2FMUstate, fmi2Byte[], size_t);
+    fmi2Status (*deserialize)(fmi2Component, const fmi2Byte[], size_t, fmi2FMUstate*);
+    fmi2Status (*do_step)(fmi2Component, fmi2Real, fmi2Real, fmi2Boolean);
+    fmi2Status (*get_status)(fmi2Component, fmi2StatusKind, fmi2Status*);
+    fmi2Status (*get_real_status)(fmi2Component, fmi2StatusKind, fmi2Real*);
+    fmi2Status (*get_integer_status)(fmi2Component, fmi2StatusKind, fmi2Integer*);
+    fmi2Status (*get_boolean_status)(fmi2Component, fmi2StatusKind, fmi2Boolean*);
+    fmi2Status (*get_string_status)(fmi2Component, fmi2StatusKind, fmi2String*);
+} R;
+
 static int load_real(void) {
     if (real) return 0;
     Dl_info info;
@@ -153,90 +214,560 @@ static int load_real(void) {
     char* slash = strrchr(path, '/');
     size_t dir = slash ? (size_t)(slash - path + 1) : 0;
     snprintf(path + dir, sizeof path - dir, "%s", MBSFMU_REAL_LIBRARY);
-    real = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!real) {
+    void* lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!lib) {
         snprintf(error, sizeof error, "mbsfmu: cannot load %s: %s", path, dlerror());
         return -1;
     }
+    const char* missing = NULL;
+#define LOAD(field, name) \
+    if (!(*(void**)&R.field = dlsym(lib, name))) missing = name;
+    LOAD(instantiate, "fmi2Instantiate") LOAD(free_instance, "fmi2FreeInstance")
+    LOAD(set_debug_logging, "fmi2SetDebugLogging") LOAD(setup_experiment, "fmi2SetupExperiment")
+    LOAD(enter_init, "fmi2EnterInitializationMode") LOAD(exit_init, "fmi2ExitInitializationMode")
+    LOAD(terminate, "fmi2Terminate") LOAD(reset, "fmi2Reset")
+    LOAD(get_real, "fmi2GetReal") LOAD(get_string, "fmi2GetString")
+    LOAD(set_real, "fmi2SetReal") LOAD(set_string, "fmi2SetString")
+    LOAD(get_state, "fmi2GetFMUstate") LOAD(set_state, "fmi2SetFMUstate") LOAD(free_state, "fmi2FreeFMUstate")
+    LOAD(state_size, "fmi2SerializedFMUstateSize") LOAD(serialize, "fmi2SerializeFMUstate")
+    LOAD(deserialize, "fmi2DeSerializeFMUstate") LOAD(do_step, "fmi2DoStep")
+    LOAD(get_status, "fmi2GetStatus") LOAD(get_real_status, "fmi2GetRealStatus")
+    LOAD(get_integer_status, "fmi2GetIntegerStatus") LOAD(get_boolean_status, "fmi2GetBooleanStatus")
+    LOAD(get_string_status, "fmi2GetStringStatus")
+#undef LOAD
+    if (missing) {
+        snprintf(error, sizeof error, "mbsfmu: %s lacks %s", path, missing);
+        return -1;   /* lib stays loaded: its constructors ran (see release_pystate) */
+    }
+    real = lib;
     real_finalize = (void (*)(void))dlsym(real, "finalizePythonInterpreter");
     if (real_finalize) atexit(release_pystate);   /* see release_pystate */
     return 0;
 }
 
-static void* sym(const char* name) {
-    void* f = real ? dlsym(real, name) : NULL;
-    if (!f) {
-        fprintf(stderr, "mbsfmu: %s missing in the pythonfmu binary\n", name);
-        abort();
-    }
-    return f;
+/* ------------------------------------------------------------------------- instances and messages */
+enum Phase { INSTANTIATED, INIT_MODE, STEP, TERMINATED, FAILED, BROKEN };
+#define P(phase) (1u << (phase))
+#define LIVE (P(INSTANTIATED) | P(INIT_MODE) | P(STEP) | P(TERMINATED) | P(FAILED))
+static const char* const phase_text[] = {
+    "before fmi2EnterInitializationMode", "in initialization mode", "in step mode",
+    "after fmi2Terminate", "after a failed call (only fmi2Reset, fmi2SetFMUstate, getters, fmi2FreeInstance)",
+    "after a fatal error"};
+
+typedef struct {
+    fmi2FMUstate handle;  /* pythonfmu's */
+    int phase;            /* the instance's phase the state restores */
+} State;
+
+typedef struct {
+    fmi2Component real;        /* pythonfmu's component */
+    int phase;
+    fmi2CallbackFunctions cb;  /* a copy: the logger for the shim's own messages */
+    char name[256];
+    State* states;             /* FMU states handed out for this instance */
+    size_t nstates, capacity;
+} Inst;
+
+static Inst** live = NULL;     /* the registry of instances handed out and not yet freed */
+static size_t nlive = 0, live_capacity = 0;
+
+static Inst* find(fmi2Component c) {
+    Inst* in = NULL;
+    pthread_mutex_lock(&lock);
+    for (size_t i = 0; i < nlive && !in; i++)
+        if (live[i] == c) in = live[i];
+    pthread_mutex_unlock(&lock);
+    return in;
 }
 
-#define FWD(ret, name, params, args)                                   \
-    EXPORT ret name params {                                           \
-        static ret(*f) params = NULL;                                  \
-        if (!f) f = (ret(*) params)sym(#name);                         \
-        return f args;                                                 \
+static int add_live(Inst* in) {
+    int ok = 1;
+    pthread_mutex_lock(&lock);
+    if (nlive == live_capacity) {
+        size_t cap = live_capacity ? 2 * live_capacity : 8;
+        Inst** grown = realloc(live, cap * sizeof *grown);
+        if (grown) live = grown, live_capacity = cap;
+        else ok = 0;
     }
+    if (ok) live[nlive++] = in;
+    pthread_mutex_unlock(&lock);
+    return ok;
+}
 
+static void drop_live(Inst* in) {
+    pthread_mutex_lock(&lock);
+    for (size_t i = 0; i < nlive; i++)
+        if (live[i] == in) live[i] = live[--nlive];
+    pthread_mutex_unlock(&lock);
+}
+
+/* Log through the host's logger (stderr without one). The text is passed as the format with no
+   arguments, so any '%' in it (a variable name, a string value) is doubled. */
+static void say_cb(const fmi2CallbackFunctions* cb, const char* inst, fmi2Status status, const char* fmt, ...) {
+    char msg[1536], esc[3072];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    size_t j = 0;
+    for (const char* p = msg; *p && j + 3 < sizeof esc; p++) {
+        if (*p == '%') esc[j++] = '%';
+        esc[j++] = *p;
+    }
+    esc[j] = 0;
+    if (cb && cb->logger)
+        cb->logger(cb->componentEnvironment, inst, status,
+                   status == fmi2Fatal ? "logStatusFatal" : "logStatusError", esc);
+    else
+        fprintf(stderr, "%s: %s\n", inst, msg);
+}
+#define say(in, status, ...) say_cb(&(in)->cb, (in)->name, status, __VA_ARGS__)
+
+/* The live instance behind c if fn may be called in its phase (fmi2OK), else why not (fmi2Error). */
+static fmi2Status enter(fmi2Component c, const char* fn, unsigned allowed, Inst** out) {
+    Inst* in = c ? find(c) : NULL;
+    *out = NULL;
+    if (!in) {   /* no logger to use: never dereference a pointer the shim did not hand out */
+        fprintf(stderr, "mbsfmu: %s: %s\n", fn,
+                c ? "not a live instance of this FMU (freed, or another FMU's)" : "NULL component");
+        return fmi2Error;
+    }
+    if (in->phase == BROKEN) {
+        say(in, fmi2Error, "%s: pythonfmu reported a fatal error before; this instance is unusable, free it", fn);
+        return fmi2Error;
+    }
+    if (!(allowed & P(in->phase))) {
+        say(in, fmi2Error, "%s is not allowed %s (FMI 2.0 co-simulation calling sequence)", fn,
+            phase_text[in->phase]);
+        return fmi2Error;
+    }
+    *out = in;
+    return fmi2OK;
+}
+
+/* pythonfmu's answer; after a fmi2Fatal it has released the instance's Python objects, so the
+   instance is never handed to it again. */
+static fmi2Status done(Inst* in, const char* fn, fmi2Status status) {
+    if (status == fmi2Fatal || status < fmi2OK || status > fmi2Fatal) {
+        in->phase = BROKEN;
+        say(in, fmi2Fatal, "%s: pythonfmu reported a fatal error; this instance is unusable, free it", fn);
+        return fmi2Fatal;
+    }
+    return status;
+}
+
+/* The reason the slave refused the last initialization, state restore or string set ("" if none),
+   read from the hidden String variable MBSFMU_NVARS; reading clears it. NULL if pythonfmu failed. */
+static const char* refusal(Inst* in, const char* fn) {
+    fmi2ValueReference vr = MBSFMU_NVARS;
+    fmi2String text = NULL;
+    if (done(in, fn, R.get_string(in->real, &vr, 1, &text)) != fmi2OK) return NULL;
+    return text ? text : "";
+}
+
+/* fmi2Error with the slave's reason after a forwarded call, else the call's status. */
+static fmi2Status checked(Inst* in, const char* fn, fmi2Status status) {
+    if ((status = done(in, fn, status)) > fmi2Warning) return status;
+    const char* why = refusal(in, fn);
+    if (!why) return fmi2Fatal;
+    if (!*why) return status;
+    say(in, fmi2Error, "%s: %s", fn, why);
+    return fmi2Error;
+}
+
+/* ----------------------------------------------------------------------------------- life cycle */
 EXPORT const char* fmi2GetTypesPlatform(void) { return "default"; }
 EXPORT const char* fmi2GetVersion(void) { return "2.0"; }
 
 EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String guid,
                                      fmi2String resources, const fmi2CallbackFunctions* cb,
                                      fmi2Boolean visible, fmi2Boolean loggingOn) {
+    const char* name = instanceName ? instanceName : "";
+    const char* why = !cb || !cb->logger ? "no callback functions or no logger"
+                      : !cb->allocateMemory || !cb->freeMemory ? "no allocateMemory/freeMemory callbacks"
+                      : !instanceName || !*instanceName ? "no instance name"
+                      : fmuType != fmi2CoSimulation ? "this FMU supports co-simulation only"
+                      : !resources ? "no fmuResourceLocation"
+                      : guid && *guid && strcmp(guid, MBSFMU_GUID) ? "GUID differs from this FMU's " MBSFMU_GUID
+                      : NULL;
+    if (why) {
+        say_cb(cb, name, fmi2Error, "fmi2Instantiate: %s", why);
+        return NULL;
+    }
     pthread_mutex_lock(&lock);
     int ok = ensure_python() == 0 && load_real() == 0;
     pthread_mutex_unlock(&lock);
     if (!ok) {
-        if (cb && cb->logger)
-            cb->logger(cb->componentEnvironment, instanceName ? instanceName : "", fmi2Error,
-                       "logStatusError", "%s", error);
-        else
-            fprintf(stderr, "%s\n", error);
+        say_cb(cb, name, fmi2Error, "%s", error);
         return NULL;
     }
-    fmi2Component (*f)(fmi2String, fmi2Type, fmi2String, fmi2String, const fmi2CallbackFunctions*,
-                       fmi2Boolean, fmi2Boolean) =
-        (fmi2Component(*)(fmi2String, fmi2Type, fmi2String, fmi2String,
-                          const fmi2CallbackFunctions*, fmi2Boolean, fmi2Boolean))sym("fmi2Instantiate");
-    return f(instanceName, fmuType, guid, resources, cb, visible, loggingOn);
+    Inst* in = calloc(1, sizeof *in);
+    if (!in || !add_live(in)) {
+        free(in);
+        say_cb(cb, name, fmi2Error, "fmi2Instantiate: out of memory");
+        return NULL;
+    }
+    in->cb = *cb;
+    snprintf(in->name, sizeof in->name, "%s", name);
+    in->real = R.instantiate(instanceName, fmuType, guid, resources, cb, visible, loggingOn);
+    if (!in->real) {
+        say_cb(cb, name, fmi2Error, "fmi2Instantiate: the Python slave could not be created from %s "
+               "(pythonfmu's reason is logged before this message)", resources);
+        drop_live(in);
+        free(in);
+        return NULL;
+    }
+    return in;
 }
 
 EXPORT void fmi2FreeInstance(fmi2Component c) {
-    static void (*f)(fmi2Component) = NULL;
-    if (!c) return;
-    if (!f) f = (void (*)(fmi2Component))sym("fmi2FreeInstance");
-    f(c);
+    Inst* in = c ? find(c) : NULL;
+    if (!in) {
+        if (c) fprintf(stderr, "mbsfmu: %s: not a live instance of this FMU (freed, or another FMU's)\n", __func__);
+        return;
+    }
+    drop_live(in);
+    if (in->phase != BROKEN) {   /* a broken instance is leaked: pythonfmu already released part of it */
+        for (size_t i = 0; i < in->nstates; i++) R.free_state(in->real, &in->states[i].handle);
+        R.free_instance(in->real);
+    }
+    free(in->states);
+    free(in);
 }
 
-FWD(fmi2Status, fmi2SetDebugLogging, (fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[]), (c, on, n, cats))
-FWD(fmi2Status, fmi2SetupExperiment, (fmi2Component c, fmi2Boolean td, fmi2Real tol, fmi2Real t0, fmi2Boolean sd, fmi2Real t1), (c, td, tol, t0, sd, t1))
-FWD(fmi2Status, fmi2EnterInitializationMode, (fmi2Component c), (c))
-FWD(fmi2Status, fmi2ExitInitializationMode, (fmi2Component c), (c))
-FWD(fmi2Status, fmi2Terminate, (fmi2Component c), (c))
-FWD(fmi2Status, fmi2Reset, (fmi2Component c), (c))
-FWD(fmi2Status, fmi2GetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2GetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2GetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2GetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2SetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2SetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2SetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2SetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]), (c, vr, n, v))
-FWD(fmi2Status, fmi2GetFMUstate, (fmi2Component c, fmi2FMUstate* s), (c, s))
-FWD(fmi2Status, fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate s), (c, s))
-FWD(fmi2Status, fmi2FreeFMUstate, (fmi2Component c, fmi2FMUstate* s), (c, s))
-FWD(fmi2Status, fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate s, size_t* n), (c, s, n))
-FWD(fmi2Status, fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t n), (c, s, b, n))
-FWD(fmi2Status, fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate* s), (c, b, n, s))
-FWD(fmi2Status, fmi2GetDirectionalDerivative, (fmi2Component c, const fmi2ValueReference u[], size_t nu, const fmi2ValueReference z[], size_t nz, const fmi2Real dv[], fmi2Real dz[]), (c, u, nu, z, nz, dv, dz))
-FWD(fmi2Status, fmi2SetRealInputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[], const fmi2Real v[]), (c, vr, n, o, v))
-FWD(fmi2Status, fmi2GetRealOutputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer o[], fmi2Real v[]), (c, vr, n, o, v))
-FWD(fmi2Status, fmi2DoStep, (fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean nsp), (c, t, h, nsp))
-FWD(fmi2Status, fmi2CancelStep, (fmi2Component c), (c))
-FWD(fmi2Status, fmi2GetStatus, (fmi2Component c, fmi2StatusKind k, fmi2Status* v), (c, k, v))
-FWD(fmi2Status, fmi2GetRealStatus, (fmi2Component c, fmi2StatusKind k, fmi2Real* v), (c, k, v))
-FWD(fmi2Status, fmi2GetIntegerStatus, (fmi2Component c, fmi2StatusKind k, fmi2Integer* v), (c, k, v))
-FWD(fmi2Status, fmi2GetBooleanStatus, (fmi2Component c, fmi2StatusKind k, fmi2Boolean* v), (c, k, v))
-FWD(fmi2Status, fmi2GetStringStatus, (fmi2Component c, fmi2StatusKind k, fmi2String* v), (c, k, v))
+EXPORT fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cats[]) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    if (n && !cats) return say(in, fmi2Error, "%s: NULL categories", __func__), fmi2Error;
+    for (size_t i = 0; i < n; i++) {
+        size_t k = 0;
+        while (k < NCATEGORIES && !(cats[i] && !strcmp(cats[i], categories[k]))) k++;
+        if (k == NCATEGORIES)
+            return say(in, fmi2Error, "%s: unknown log category %.80s", __func__, cats[i] ? cats[i] : "(NULL)"),
+                   fmi2Error;
+    }
+    return done(in, __func__, R.set_debug_logging(in->real, on, n, cats));
+}
+
+EXPORT fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean td, fmi2Real tol, fmi2Real t0,
+                                      fmi2Boolean sd, fmi2Real t1) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, P(INSTANTIATED), &in);
+    return st ? st : done(in, __func__, R.setup_experiment(in->real, td, tol, t0, sd, t1));
+}
+
+EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, P(INSTANTIATED), &in);
+    if (st || (st = done(in, __func__, R.enter_init(in->real))) > fmi2Warning) return st;
+    in->phase = INIT_MODE;
+    return st;
+}
+
+EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, P(INIT_MODE), &in);
+    if (st) return st;
+    st = checked(in, __func__, R.exit_init(in->real));
+    if (in->phase != BROKEN) in->phase = st > fmi2Warning ? FAILED : STEP;
+    return st;
+}
+
+EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean no_rollback) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, P(STEP), &in);
+    /* fmi2Discard (the engine refused the step, logged; the state stays at t) keeps step mode: the
+       master may roll back, change inputs, retry or terminate */
+    return st ? st : done(in, __func__, R.do_step(in->real, t, h, no_rollback));
+}
+
+EXPORT fmi2Status fmi2Terminate(fmi2Component c) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, P(STEP), &in);
+    if (st || (st = done(in, __func__, R.terminate(in->real))) > fmi2Warning) return st;
+    in->phase = TERMINATED;
+    return st;
+}
+
+EXPORT fmi2Status fmi2Reset(fmi2Component c) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st || (st = done(in, __func__, R.reset(in->real))) > fmi2Warning) return st;
+    in->phase = INSTANTIATED;
+    return st;
+}
+
+/* ------------------------------------------------------------------------------- variable access */
+static const char* type_name(char t) {
+    return t == 'R' ? "Real" : t == 'S' ? "String" : t == 'I' ? "Integer" : t == 'B' ? "Boolean" : "Enumeration";
+}
+
+/* fmi2OK if every vr[i] is a variable of `type` that may be read (set = 0) or set now, else fmi2Error
+   with the first offending reference named in the message. */
+static fmi2Status check_refs(Inst* in, const char* fn, const fmi2ValueReference vr[], size_t n,
+                             const void* values, char type, int set) {
+    if (n && (!vr || !values)) return say(in, fmi2Error, "%s: NULL %s array", fn, vr ? "value" : "value reference"), fmi2Error;
+    for (size_t i = 0; i < n; i++) {
+        if (vr[i] >= MBSFMU_NVARS || vars[vr[i]].type == '-')
+            return say(in, fmi2Error, "%s: unknown value reference %u (this model has %u variables)", fn, vr[i],
+                       MBSFMU_NVARS), fmi2Error;
+        const Var* v = &vars[vr[i]];
+        if (v->type != type)
+            return say(in, fmi2Error, "%s: %s (value reference %u) is a %s variable, not %s", fn, v->name, vr[i],
+                       type_name(v->type), type_name(type)), fmi2Error;
+        if (!set) continue;
+        if (v->causality != 'p' && v->causality != 'i')
+            return say(in, fmi2Error, "%s: %s (value reference %u) is not an input or parameter; it cannot be set",
+                       fn, v->name, vr[i]), fmi2Error;
+        if (in->phase == STEP && v->variability != 't' && v->causality == 'p')
+            return say(in, fmi2Error, "%s: %s (value reference %u) is a fixed parameter: set it before "
+                       "fmi2ExitInitializationMode", fn, v->name, vr[i]), fmi2Error;
+    }
+    return fmi2OK;
+}
+
+#define GET_OK (LIVE)
+#define SET_OK (P(INSTANTIATED) | P(INIT_MODE) | P(STEP))
+
+EXPORT fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, GET_OK, &in);
+    if (st || (st = check_refs(in, __func__, vr, n, v, 'R', 0)) || !n) return st;
+    return done(in, __func__, R.get_real(in->real, vr, n, v));
+}
+
+EXPORT fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, GET_OK, &in);
+    if (st || (st = check_refs(in, __func__, vr, n, v, 'S', 0)) || !n) return st;
+    return done(in, __func__, R.get_string(in->real, vr, n, v));
+}
+
+EXPORT fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, SET_OK, &in);
+    if (st || (st = check_refs(in, __func__, vr, n, v, 'R', 1)) || !n) return st;
+    return done(in, __func__, R.set_real(in->real, vr, n, v));
+}
+
+/* 1 if s is valid UTF-8 (pythonfmu's conversion of anything else fails fatally) */
+static int utf8(const unsigned char* s) {
+    while (*s) {
+        int extra = *s < 0x80 ? 0 : (*s & 0xE0) == 0xC0 && *s >= 0xC2 ? 1 : (*s & 0xF0) == 0xE0 ? 2
+                    : (*s & 0xF8) == 0xF0 && *s <= 0xF4 ? 3 : -1;
+        if (extra < 0) return 0;
+        for (s++; extra--; s++)
+            if ((*s & 0xC0) != 0x80) return 0;   /* also stops at the terminating 0 */
+    }
+    return 1;
+}
+
+EXPORT fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, SET_OK, &in);
+    if (st || (st = check_refs(in, __func__, vr, n, v, 'S', 1)) || !n) return st;
+    for (size_t i = 0; i < n; i++)
+        if (!v[i] || !utf8((const unsigned char*)v[i]))
+            return say(in, fmi2Error, "%s: the value for %s is %s", __func__, vars[vr[i]].name,
+                       v[i] ? "not UTF-8" : "NULL"), fmi2Error;
+    return checked(in, __func__, R.set_string(in->real, vr, n, v));
+}
+
+/* The model has no Integer or Boolean variables: every reference is refused with its real type. */
+#define NO_SUCH_TYPE(fn, T, type, set, allowed)                                                  \
+    EXPORT fmi2Status fn(fmi2Component c, const fmi2ValueReference vr[], size_t n, T v) {        \
+        Inst* in;                                                                                \
+        fmi2Status st = enter(c, __func__, allowed, &in);                                        \
+        return st ? st : check_refs(in, __func__, vr, n, v, type, set);                          \
+    }
+NO_SUCH_TYPE(fmi2GetInteger, fmi2Integer*, 'I', 0, GET_OK)
+NO_SUCH_TYPE(fmi2GetBoolean, fmi2Boolean*, 'B', 0, GET_OK)
+NO_SUCH_TYPE(fmi2SetInteger, const fmi2Integer*, 'I', 1, SET_OK)
+NO_SUCH_TYPE(fmi2SetBoolean, const fmi2Boolean*, 'B', 1, SET_OK)
+
+static fmi2Status unsupported(fmi2Component c, const char* fn, const char* why) {
+    Inst* in;
+    fmi2Status st = enter(c, fn, LIVE, &in);
+    return st ? st : (say(in, fmi2Error, "%s: not supported (%s)", fn, why), fmi2Error);
+}
+
+EXPORT fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
+                                               const fmi2ValueReference z[], size_t nz, const fmi2Real du[],
+                                               fmi2Real dz[]) {
+    (void)u, (void)nu, (void)z, (void)nz, (void)du, (void)dz;
+    return unsupported(c, __func__, "providesDirectionalDerivative=false");
+}
+
+EXPORT fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                              const fmi2Integer order[], const fmi2Real v[]) {
+    (void)vr, (void)n, (void)order, (void)v;
+    return unsupported(c, __func__, "canInterpolateInputs=false");
+}
+
+EXPORT fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
+                                               const fmi2Integer order[], fmi2Real v[]) {
+    (void)vr, (void)n, (void)order, (void)v;
+    return unsupported(c, __func__, "maxOutputDerivativeOrder=0");
+}
+
+EXPORT fmi2Status fmi2CancelStep(fmi2Component c) {
+    return unsupported(c, __func__, "fmi2DoStep is synchronous; there is no step to cancel");
+}
+
+/* Status inquiries touch no Python in pythonfmu; only the output pointer needs checking. */
+#define STATUS(fn, T, field)                                                                     \
+    EXPORT fmi2Status fn(fmi2Component c, fmi2StatusKind kind, T* value) {                       \
+        Inst* in;                                                                                \
+        fmi2Status st = enter(c, __func__, P(STEP) | P(TERMINATED) | P(FAILED), &in);            \
+        if (st) return st;                                                                       \
+        if (!value) return say(in, fmi2Error, "%s: NULL value pointer", __func__), fmi2Error;    \
+        return done(in, __func__, R.field(in->real, kind, value));                               \
+    }
+STATUS(fmi2GetStatus, fmi2Status, get_status)
+STATUS(fmi2GetRealStatus, fmi2Real, get_real_status)
+STATUS(fmi2GetIntegerStatus, fmi2Integer, get_integer_status)
+STATUS(fmi2GetBooleanStatus, fmi2Boolean, get_boolean_status)
+STATUS(fmi2GetStringStatus, fmi2String, get_string_status)
+
+/* ------------------------------------------------------------------------------------ FMU states */
+static State* find_state(Inst* in, fmi2FMUstate s) {
+    for (size_t i = 0; s && i < in->nstates; i++)
+        if (in->states[i].handle == s) return &in->states[i];
+    return NULL;
+}
+
+static fmi2Status keep_state(Inst* in, const char* fn, fmi2FMUstate s, int phase) {
+    if (in->nstates == in->capacity) {
+        size_t cap = in->capacity ? 2 * in->capacity : 4;
+        State* grown = realloc(in->states, cap * sizeof *grown);
+        if (!grown) {
+            R.free_state(in->real, &s);
+            return say(in, fmi2Error, "%s: out of memory", fn), fmi2Error;
+        }
+        in->states = grown, in->capacity = cap;
+    }
+    in->states[in->nstates++] = (State){s, phase};
+    return fmi2OK;
+}
+
+static fmi2Status unknown_state(Inst* in, const char* fn) {
+    say(in, fmi2Error, "%s: not an FMU state of this instance (never handed out, or freed)", fn);
+    return fmi2Error;
+}
+
+EXPORT fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* s) {
+    Inst* in;
+    fmi2FMUstate got = NULL;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    if (!s) return say(in, fmi2Error, "%s: NULL state pointer", __func__), fmi2Error;
+    if (*s && !find_state(in, *s)) return unknown_state(in, __func__);
+    if ((st = done(in, __func__, R.get_state(in->real, &got))) > fmi2Warning) return st;
+    if (!got) return say(in, fmi2Error, "%s: pythonfmu returned no state", __func__), fmi2Error;
+    if (*s) {  /* FMI: a state passed in is overwritten; pythonfmu would leak it */
+        State* old = find_state(in, *s);
+        old->handle = got, old->phase = in->phase;
+        R.free_state(in->real, s);
+        *s = got;
+        return st;
+    }
+    if (keep_state(in, __func__, got, in->phase)) return fmi2Error;
+    *s = got;
+    return st;
+}
+
+EXPORT fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    State* state = find_state(in, s);
+    if (!state) return unknown_state(in, __func__);
+    int phase = state->phase;
+    /* the engine checks the payload once more and restores all or nothing: a refusal leaves the phase */
+    if ((st = checked(in, __func__, R.set_state(in->real, s))) <= fmi2Warning) in->phase = phase;
+    return st;
+}
+
+EXPORT fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate* s) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    if (!s) return say(in, fmi2Error, "%s: NULL state pointer", __func__), fmi2Error;
+    if (!*s) return fmi2OK;
+    State* state = find_state(in, *s);
+    if (!state) return unknown_state(in, __func__);
+    *state = in->states[--in->nstates];
+    st = done(in, __func__, R.free_state(in->real, s));
+    *s = NULL;
+    return st;
+}
+
+EXPORT fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t* n) {
+    Inst* in;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    if (!find_state(in, s)) return unknown_state(in, __func__);
+    if (!n) return say(in, fmi2Error, "%s: NULL size pointer", __func__), fmi2Error;
+    return done(in, __func__, R.state_size(in->real, s, n));
+}
+
+EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte bytes[], size_t n) {
+    Inst* in;
+    size_t need = 0;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    if (!find_state(in, s)) return unknown_state(in, __func__);
+    if (!bytes) return say(in, fmi2Error, "%s: NULL buffer", __func__), fmi2Error;
+    if ((st = done(in, __func__, R.state_size(in->real, s, &need))) > fmi2Warning) return st;
+    if (n < need)
+        return say(in, fmi2Error, "%s: buffer of %zu bytes, the state needs %zu", __func__, n, need), fmi2Error;
+    return done(in, __func__, R.serialize(in->real, s, bytes, need));  /* pythonfmu copies n bytes */
+}
+
+/* The engine's state bytes (sim.c, mbs_state_save): "MBSS", uint32 format version, char guid[64],
+   uint64 payload length, uint64 FNV-1a-64 of the payload; the payload starts with its Head
+   {double time, rtol, atol, max_step, step; int32 initialized, method, q_in_active, params_dirty}. */
+#define STATE_VERSION 1u
+#define STATE_HEADER (4 + 4 + 64 + 8 + 8)
+#define STATE_HEAD (5 * 8 + 4 * 4)
+
+static uint64_t fnv1a(const unsigned char* p, size_t n) {
+    uint64_t h = 1469598103934665603ull;
+    for (size_t i = 0; i < n; i++) h = (h ^ p[i]) * 1099511628211ull;
+    return h;
+}
+
+/* NULL if b[0..n) has this model's state header, a matching length and checksum; else why not. */
+static const char* bad_state(const unsigned char* b, size_t n) {
+    uint32_t version;
+    uint64_t length, sum;
+    if (n < STATE_HEADER + STATE_HEAD) return "too short for an mbsfmu FMU state";
+    if (memcmp(b, "MBSS", 4)) return "not an mbsfmu FMU state (bad magic)";
+    memcpy(&version, b + 4, 4);
+    memcpy(&length, b + 72, 8);
+    memcpy(&sum, b + 80, 8);
+    if (version != STATE_VERSION) return "unsupported FMU state format version";
+    if (!memchr(b + 8, 0, 64) || strcmp((const char*)b + 8, MBSFMU_GUID))
+        return "the state belongs to another model (GUID differs)";
+    if (length != n - STATE_HEADER) return "truncated, or trailing bytes (length field disagrees)";
+    if (fnv1a(b + STATE_HEADER, n - STATE_HEADER) != sum) return "checksum mismatch (corrupt bytes)";
+    return NULL;
+}
+
+EXPORT fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t n, fmi2FMUstate* s) {
+    Inst* in;
+    fmi2FMUstate got = NULL;
+    int32_t initialized;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    if (!s || (n && !bytes)) return say(in, fmi2Error, "%s: NULL %s", __func__, s ? "bytes" : "state pointer"), fmi2Error;
+    const char* why = bad_state((const unsigned char*)bytes, n);
+    if (why) return say(in, fmi2Error, "%s: %zu bytes refused: %s; instance unchanged", __func__, n, why), fmi2Error;
+    if ((st = done(in, __func__, R.deserialize(in->real, bytes, n, &got))) > fmi2Warning) return st;
+    if (!got) return say(in, fmi2Error, "%s: pythonfmu returned no state", __func__), fmi2Error;
+    memcpy(&initialized, bytes + STATE_HEADER + 5 * 8, 4);
+    if (keep_state(in, __func__, got, initialized == 1 ? STEP : INSTANTIATED)) return fmi2Error;
+    *s = got;
+    return st;
+}
