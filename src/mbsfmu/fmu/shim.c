@@ -375,6 +375,33 @@ static fmi2Status checked(Inst* in, const char* fn, fmi2Status status) {
     return fmi2Error;
 }
 
+/* pythonfmu 0.7.0 calls a NULL class object (segfault) when the resources folder lacks its slave script. Its
+   path is found as pythonfmu does (every "%20" a space, the first "file://" removed); NULL if it is there. */
+static const char* no_slave_script(const char* uri, char* why, size_t size) {
+    char path[4096], line[512];
+    size_t j = 0;
+    for (const char* p = uri; *p && j + 1 < sizeof path; p++) {
+        if (!strncmp(p, "%20", 3)) path[j++] = ' ', p += 2;
+        else path[j++] = *p;
+    }
+    path[j] = 0;
+    char* scheme = strstr(path, "file://");
+    if (scheme) memmove(scheme, scheme + 7, strlen(scheme + 7) + 1);
+    char file[sizeof path + sizeof line + 32];
+    line[0] = 0;
+    snprintf(file, sizeof file, "%s/slavemodule.txt", path);
+    FILE* f = fopen(file, "r");
+    if (f) {
+        if (!fgets(line, sizeof line, f)) line[0] = 0;
+        fclose(f);
+        line[strcspn(line, "\r\n")] = 0;
+        snprintf(file, sizeof file, "%s/%s.py", path, line);
+    }
+    if (f && line[0] && access(file, R_OK) == 0) return NULL;
+    snprintf(why, size, "%s is not this FMU's resources folder (no %s)", path, file);
+    return why;
+}
+
 /* ----------------------------------------------------------------------------------- life cycle */
 EXPORT const char* fmi2GetTypesPlatform(void) { return "default"; }
 EXPORT const char* fmi2GetVersion(void) { return "2.0"; }
@@ -383,13 +410,14 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
                                      fmi2String resources, const fmi2CallbackFunctions* cb,
                                      fmi2Boolean visible, fmi2Boolean loggingOn) {
     const char* name = instanceName ? instanceName : "";
+    char text[8192];
     const char* why = !cb || !cb->logger ? "no callback functions or no logger"
                       : !cb->allocateMemory || !cb->freeMemory ? "no allocateMemory/freeMemory callbacks"
                       : !instanceName || !*instanceName ? "no instance name"
                       : fmuType != fmi2CoSimulation ? "this FMU supports co-simulation only"
                       : !resources ? "no fmuResourceLocation"
                       : guid && *guid && strcmp(guid, MBSFMU_GUID) ? "GUID differs from this FMU's " MBSFMU_GUID
-                      : NULL;
+                      : no_slave_script(resources, text, sizeof text);
     if (why) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: %s", why);
         return NULL;
@@ -412,7 +440,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     in->real = R.instantiate(instanceName, fmuType, guid, resources, cb, visible, loggingOn);
     if (!in->real) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: the Python slave could not be created from %s "
-               "(pythonfmu's reason is logged before this message)", resources);
+               "(pythonfmu logs the Python error with loggingOn)", resources);
         drop_live(in);
         free(in);
         return NULL;
@@ -540,8 +568,11 @@ EXPORT fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], si
 EXPORT fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]) {
     Inst* in;
     fmi2Status st = enter(c, __func__, GET_OK, &in);
-    if (st || (st = check_refs(in, __func__, vr, n, v, 'S', 0)) || !n) return st;
-    return done(in, __func__, R.get_string(in->real, vr, n, v));
+    if (!st && !(st = check_refs(in, __func__, vr, n, v, 'S', 0)) && n)
+        st = done(in, __func__, R.get_string(in->real, vr, n, v));
+    /* hosts that ignore the status (ecos after a failed fmi2Instantiate) would follow garbage pointers */
+    for (size_t i = 0; st > fmi2Warning && v && i < n; i++) v[i] = "";
+    return st;
 }
 
 EXPORT fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]) {
