@@ -424,9 +424,10 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     }
     pthread_mutex_lock(&lock);
     int ok = ensure_python() == 0 && load_real() == 0;
+    if (!ok) snprintf(text, sizeof text, "%s", error);
     pthread_mutex_unlock(&lock);
     if (!ok) {
-        say_cb(cb, name, fmi2Error, "%s", error);
+        say_cb(cb, name, fmi2Error, "%s", text);
         return NULL;
     }
     Inst* in = calloc(1, sizeof *in);
@@ -485,12 +486,18 @@ EXPORT fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean td, fmi2Real 
     return st ? st : done(in, __func__, R.setup_experiment(in->real, td, tol, t0, sd, t1));
 }
 
-EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+/* A call without arguments that moves the instance from an `allowed` phase to `next` when pythonfmu agrees. */
+static fmi2Status transition(fmi2Component c, const char* fn, unsigned allowed, fmi2Status (*f)(fmi2Component),
+                             int next) {
     Inst* in;
-    fmi2Status st = enter(c, __func__, P(INSTANTIATED), &in);
-    if (st || (st = done(in, __func__, R.enter_init(in->real))) > fmi2Warning) return st;
-    in->phase = INIT_MODE;
+    fmi2Status st = enter(c, fn, allowed, &in);
+    if (st || (st = done(in, fn, f(in->real))) > fmi2Warning) return st;
+    in->phase = next;
     return st;
+}
+
+EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+    return transition(c, __func__, P(INSTANTIATED), R.enter_init, INIT_MODE);
 }
 
 EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
@@ -511,19 +518,11 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolea
 }
 
 EXPORT fmi2Status fmi2Terminate(fmi2Component c) {
-    Inst* in;
-    fmi2Status st = enter(c, __func__, P(STEP), &in);
-    if (st || (st = done(in, __func__, R.terminate(in->real))) > fmi2Warning) return st;
-    in->phase = TERMINATED;
-    return st;
+    return transition(c, __func__, P(STEP), R.terminate, TERMINATED);
 }
 
 EXPORT fmi2Status fmi2Reset(fmi2Component c) {
-    Inst* in;
-    fmi2Status st = enter(c, __func__, LIVE, &in);
-    if (st || (st = done(in, __func__, R.reset(in->real))) > fmi2Warning) return st;
-    in->phase = INSTANTIATED;
-    return st;
+    return transition(c, __func__, LIVE, R.reset, INSTANTIATED);   /* pythonfmu re-creates the slave */
 }
 
 /* ------------------------------------------------------------------------------- variable access */
