@@ -268,6 +268,21 @@ def test_rk4_fourth_order(lib):
 
 # ------------------------------------------------------------------ driver behaviour
 
+@pytest.mark.parametrize("method", ["rk4", "gen_alpha"])
+def test_fixed_step_one_substep_per_point_when_the_master_accumulates_time(lib, method):
+    """A fixed-step master (ecos, a C host) accumulates t += h, so at t = 50 s the span it asks for differs
+    from h by ulps of t (≈ 1e-11 of a 1 ms step): that must still be one internal step, not two half steps."""
+    ode = Ode(lib, "harmonic", 1.0)
+    h, n = 1e-3, 50_000
+    integ = Integ(lib, method, ode, 2, h=h)
+    integ.reset(0.0, [1.0, 0.0])
+    t = 0.0
+    for _ in range(n):
+        t += h
+        integ.advance(t)
+    assert integ.t == t
+    assert integ.stats["steps"] == n
+
 @pytest.mark.parametrize("method", ["dopri5", "dop853", "radau5"])
 def test_dense_output_agrees_with_landing_and_saves_steps(lib, method):
     ode = Ode(lib, "vdp", 1.0)

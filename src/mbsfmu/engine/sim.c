@@ -314,7 +314,7 @@ static void output_points(MbsInstance *s, const double *x, double t, int o0, int
     const MbsModel *m = s->m;
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, s->xdot);
-    mbs_kinematics(&e);
+    mbs_kinematics(&e, (m->hdr[H_FEATURES] & F_ELASTIC) != 0);  /* positions and velocities, no Jacobians */
     for (int o = o0; o < o1; o++, r += 6) {
         const int *oi = m->out + 3 * o;
 #ifdef MBS_WITH_ELASTIC
@@ -455,12 +455,14 @@ int mbs_do_step(MbsInstance *s, double t, double h)
     int rc = prepare(s, t);
     if (rc) return rc;
     if (!(h >= 0) || !isfinite(h)) return report(s, MBS_ERROR, "communication step size %g is not a non-negative number", h);
-    memcpy(s->x_before, s->x, (size_t)s->n * sizeof(double));
+    const int cardan = s->m->hdr[H_NCARDAN] > 0;
+    if (cardan) memcpy(s->x_before, s->x, (size_t)s->n * sizeof(double));
     if (mbs_integ_advance(s->integ, t + h)) return failed(s);
     s->time = mbs_integ_t(s->integ);
     memcpy(s->x, mbs_integ_x(s->integ), (size_t)s->n * sizeof(double));
     /* a coarse step may jump across b = ±90° without landing near it */
-    if (gimbal(s, s->x, s->x_before, s->msg, sizeof s->msg)) return report(s, MBS_DISCARD, "t = %.9g: %s", s->time, s->msg);
+    if (cardan && gimbal(s, s->x, s->x_before, s->msg, sizeof s->msg))
+        return report(s, MBS_DISCARD, "t = %.9g: %s", s->time, s->msg);
     return MBS_OK;
 }
 
@@ -508,7 +510,7 @@ int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, s->xdot);
     e.M = M; e.k = k; e.q = q;
-    mbs_kinematics(&e);
+    mbs_kinematics(&e, 1);
     mbs_mass_matrix_and_bias(&e);
     mbs_applied_forces(&e);
     return MBS_OK;

@@ -49,17 +49,18 @@ static void cardan(const double *p, const double *v, double *R, double *H, doubl
     for (int r = 0; r < 3; r++) b_R[r] = c1[r] * v[1] + c2[r] * v[2];
 }
 
-static void joint_motion(int type, const double *db, const double *p, const double *v,
+static void zero3(double *a) { a[0] = a[1] = a[2] = 0.0; }
+
+static void joint_motion(int type, int nv, const double *db, const double *p, const double *v,
                          double *R, double *d, double *H_R, double *H_T, double *b_R, double *b_T)
 {
-    static const double E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     const double *a = db + DB_A1, *a2 = db + DB_A2;
+    static const double E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(R, E, sizeof E);
-    memset(d, 0, 3 * sizeof(double));
-    memset(H_R, 0, 18 * sizeof(double));
-    memset(H_T, 0, 18 * sizeof(double));
-    memset(b_R, 0, 3 * sizeof(double));
-    memset(b_T, 0, 3 * sizeof(double));
+    /* three at a time, only the joint's columns: a memset of these small arrays compiles to `rep stos`,
+     * whose start-up cost was a third of the kinematics */
+    zero3(d), zero3(b_R), zero3(b_T);
+    for (int k = 0; k < nv; k++) zero3(H_R + 3 * k), zero3(H_T + 3 * k);
     switch (type) {
     case J_REVOLUTE:
         axis_angle(a, p[0], R);
@@ -132,9 +133,9 @@ const double *mbs_body_d(const MbsEval *e, int i) { return e->D + e->m->hdr[H_D_
 
 /* Joint frame of body i's parent side: S_p, o_p, ω_p, v_p, ā_p, ᾱ_p, J_Rp, J_Tp, the offset ρ and S_J
  * (tree.py: attachment). J_R, J_T of the body start as the parent's; [lo, hi) their nonzero columns. */
-static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const double **o_p, const double **w_p,
-                       const double **v_p, const double **a_p, const double **al_p, double *J_R, int *lo, int *hi,
-                       double *node_buf)
+static void attachment(const MbsEval *e, int i, int full, double *S_J, double *rho, const double **o_p,
+                       const double **w_p, const double **v_p, const double **a_p, const double **al_p, double *J_R,
+                       int *lo, int *hi, double *node_buf)
 {
     static const double Z[3] = {0, 0, 0};
     const MbsModel *m = e->m;
@@ -142,7 +143,7 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
     const double *db = mbs_body_d(e, i);
     if (par < 0) {
         *o_p = *w_p = *v_p = *a_p = *al_p = Z;
-        memset(J_R, 0, 6 * (size_t)f * sizeof(double));
+        if (full) memset(J_R, 0, 6 * (size_t)f * sizeof(double));
         memcpy(S_J, db + DB_R0, 9 * sizeof(double));
         memcpy(rho, db + DB_AT, 3 * sizeof(double));
         *lo = f;
@@ -168,13 +169,14 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
 #endif
     const double *S_p = pw + W_S;
     *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
-    memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
+    if (full) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
     mm(S_p, db + DB_R0, S_J);
     mv(S_p, db + DB_AT, rho);
 }
 
-/* Recursive kinematics of all body origins (tree.py: kinematics). */
-void mbs_kinematics(const MbsEval *e)
+/* Recursive kinematics of all body origins (tree.py: kinematics). full = 0: S, o, ω, v only (what output
+ * points need), without accelerations and Jacobians; rigid scenes only. */
+void mbs_kinematics(const MbsEval *e, int full)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
@@ -188,7 +190,7 @@ void mbs_kinematics(const MbsEval *e)
         const double *o_p, *w_p, *v_p, *a_p, *al_p;
         double S_J[9], rho[3], node_buf[15];
         int lo, hi;
-        attachment(e, i, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
+        attachment(e, i, full, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
         double p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
         for (int k = 0; k < np; k++) {
             int pi = ib[IB_POS + k], s = ib[IB_DRV + k];
@@ -199,36 +201,43 @@ void mbs_kinematics(const MbsEval *e)
             if (vi >= 0) v[k] = yd[vi];
             else { v[k] = e->td[3 * s + 1]; acc[k] = e->td[3 * s + 2]; }
         }
-        joint_motion(ib[IB_JTYPE], db, p, v, R, d, H_R, H_T, b_R, b_T);
-        double w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0};
+        joint_motion(ib[IB_JTYPE], nv, db, p, v, R, d, H_R, H_T, b_R, b_T);
+        double w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0}, dd[3], w_rel[3], v_rel[3], wxr[3];
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 3; r++) {
                 w_rel_j[r] += H_R[3 * k + r] * v[k];
                 v_rel_j[r] += H_T[3 * k + r] * v[k];
-                /* prescribed accelerations of driven coordinates join the bias terms */
-                b_R[r] += H_R[3 * k + r] * acc[k];
-                b_T[r] += H_T[3 * k + r] * acc[k];
             }
-        double dd[3], w_rel[3], v_rel[3], SbR[3], SbT[3], t1[3], t2[3];
         mv(S_J, d, dd);
         mv(S_J, w_rel_j, w_rel);
         mv(S_J, v_rel_j, v_rel);
-        mv(S_J, b_R, SbR);
-        mv(S_J, b_T, SbT);
         for (int r = 0; r < 3; r++) rho[r] += dd[r];
         double *w = wk + W_W, *al = wk + W_AL, *o = wk + W_O, *vv = wk + W_V, *a = wk + W_A;
-        /* ω = ω_p + ω_rel;  ᾱ = ᾱ_p + ω_p × ω_rel + S_J b_R */
-        cross(w_p, w_rel, t1);
-        for (int r = 0; r < 3; r++) { w[r] = w_p[r] + w_rel[r]; al[r] = al_p[r] + t1[r] + SbR[r]; }
-        /* v = v_p + ω_p × ρ + v_rel;  ā = ā_p + ᾱ_p × ρ + ω_p × (ω_p × ρ) + 2 ω_p × v_rel + S_J b_T */
-        double wxr[3], axr[3], wwxr[3];
+        /* ω = ω_p + ω_rel;  v = v_p + ω_p × ρ + v_rel */
         cross(w_p, rho, wxr);
+        for (int r = 0; r < 3; r++) {
+            w[r] = w_p[r] + w_rel[r];
+            o[r] = o_p[r] + rho[r];
+            vv[r] = v_p[r] + wxr[r] + v_rel[r];
+        }
+        mm(S_J, R, wk + W_S);
+        if (!full) continue;
+        /* prescribed accelerations of driven coordinates join the bias terms */
+        for (int k = 0; k < nv; k++)
+            for (int r = 0; r < 3; r++) {
+                b_R[r] += H_R[3 * k + r] * acc[k];
+                b_T[r] += H_T[3 * k + r] * acc[k];
+            }
+        double SbR[3], SbT[3], t1[3], t2[3], axr[3], wwxr[3];
+        mv(S_J, b_R, SbR);
+        mv(S_J, b_T, SbT);
+        /* ᾱ = ᾱ_p + ω_p × ω_rel + S_J b_R;  ā = ā_p + ᾱ_p × ρ + ω_p × (ω_p × ρ) + 2 ω_p × v_rel + S_J b_T */
+        cross(w_p, w_rel, t1);
         cross(al_p, rho, axr);
         cross(w_p, wxr, wwxr);
         cross(w_p, v_rel, t2);
         for (int r = 0; r < 3; r++) {
-            o[r] = o_p[r] + rho[r];
-            vv[r] = v_p[r] + wxr[r] + v_rel[r];
+            al[r] = al_p[r] + t1[r] + SbR[r];
             a[r] = a_p[r] + axr[r] + wwxr[r] + 2.0 * t2[r] + SbT[r];
         }
         /* J_T = J_Tp − ρ̃ J_Rp, then the joint's own columns */
@@ -247,7 +256,6 @@ void mbs_kinematics(const MbsEval *e)
             mv(S_J, H_T + 3 * k, ht);
             for (int r = 0; r < 3; r++) { J_R[r * f + col] += hr[r]; J_T[r * f + col] += ht[r]; }
         }
-        mm(S_J, R, wk + W_S);
         wk[W_LO] = lo;
         wk[W_HI] = hi;
 #ifdef MBS_WITH_ELASTIC
@@ -453,7 +461,7 @@ int mbs_eval_rhs(const MbsEval *e)
     const int f = NVEL(m), np = NPOS(m);
     const double *y = e->x, *yd = e->x + np;
     double *xd = e->xdot;
-    mbs_kinematics(e);
+    mbs_kinematics(e, 1);
     mbs_mass_matrix_and_bias(e);
     mbs_applied_forces(e);
     for (int c = 0; c < f; c++) xd[np + c] = e->q[c] - e->k[c];
