@@ -77,11 +77,11 @@ def _tag():
 
 def library_path():
     """The in-process engine library (compiled into the cache on first use; atomic for concurrent processes)."""
-    import sysconfig
-    import tempfile
     shipped = list(HERE.glob("libmbsfmu_engine_*"))  # a pythonfmu FMU carries its own copy (and nothing else does)
     if len(shipped) == 1:
         return shipped[0]
+    import sysconfig  # not before: an FMU's start-up does without them
+    import tempfile
     name = f"libmbsfmu_engine_{_tag()}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}.1"
     for cache in (Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu"),
                   Path(tempfile.gettempdir()) / f"mbsfmu-{os.getuid() if hasattr(os, 'getuid') else 0}"):

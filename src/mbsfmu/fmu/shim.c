@@ -151,6 +151,10 @@ static int ensure_python(void) {
         wchar_t* w = decode(MBSFMU_PYTHON_EXECUTABLE, NULL);
         if (w) set_program(w);
     }
+    /* No `site`: everything the FMU runs is in its resources and the standard library, and the
+       site-packages' .pth files cost 20-40 ms of start-up (and could shadow the FMU's modules). */
+    int* no_site = (int*)dlsym(scope, "Py_NoSiteFlag");
+    if (no_site) *no_site = 1;
     init_ex(0);               /* 0: keep the host's signal handlers */
     save_thread();            /* release the GIL; pythonfmu takes it with PyGILState_Ensure */
     return 0;                 /* never finalized: see the header comment */
