@@ -32,8 +32,8 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 KINDS = ("pythonfmu", "native")
 SCENE_FILE = "mbsfmu_scene.bin"
 META_FILE = "mbsfmu_meta.json"
-PYTHON_FILE = "mbsfmu_python.json"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
+PYTHONFMU_BUILD_ONLY = ("builder", "csvbuilder", "deploy", "__main__", "osutil")  # left out of the FMU
 PYTHONFMU_INIT = (b"# pythonfmu's run-time part (the FMU builder is left out by mbsfmu)\n"
                   b"from ._version import __version__\nfrom .enums import Fmi2Causality, Fmi2Initial, Fmi2Variability\n"
                   b"from .fmi2slave import Fmi2Slave\nfrom .variables import Boolean, Integer, Real, String\n"
@@ -206,7 +206,6 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     script = (template.replace("@RUNTIME_PACKAGE@", rt_package)
               .replace("@SCENE_FILE@", SCENE_FILE)
               .replace("@META_FILE@", META_FILE)
-              .replace("@PYTHON_FILE@", PYTHON_FILE)
               .replace("@MODEL_NAME@", name)
               .replace("@MBSFMU_VERSION@", version))
 
@@ -230,7 +229,6 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
                               for v in variables]}
         (stage / SCENE_FILE).write_bytes(blob)
         (stage / META_FILE).write_text(json.dumps(meta, indent=1), encoding="utf-8")
-        (stage / PYTHON_FILE).write_text(json.dumps(python_runtime(), indent=1), encoding="utf-8")
         script_file = stage / f"{module_name}.py"
         script_file.write_text(script, encoding="utf-8")
 
@@ -238,9 +236,10 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
                               [stage / SCENE_FILE, stage / META_FILE])
 
     xml = model_description(spec, name, variables, version, guid=guid)
-    _replace_in_zip(dest, "modelDescription.xml", xml)
-    # pythonfmu's __init__ imports its builder (and certifi): ~15 ms at every load, never used there
-    _replace_in_zip(dest, "resources/pythonfmu/__init__.py", PYTHONFMU_INIT)
+    # pythonfmu's __init__ imports its builder (and certifi): ~15 ms at every load, never used there; the
+    # builder's modules are left out of the FMU
+    _rewrite_zip(dest, {"modelDescription.xml": xml, "resources/pythonfmu/__init__.py": PYTHONFMU_INIT},
+                 drop={f"resources/pythonfmu/{m}.py" for m in PYTHONFMU_BUILD_ONLY})
     if shim:
         _attach_shim(dest, name)
     return dest
@@ -257,7 +256,7 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
         mod = importlib.import_module(module_name)
         mod.MbsfmuSlave(instance_name="mbsfmu_build", resources=str(stage))  # it loads
         FmuBuilder.build_FMU(
-            script_file, dest=dest, project_files=[pkg, *data_files, stage / PYTHON_FILE],
+            script_file, dest=dest, project_files=[pkg, *data_files],
             needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
             canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False,
             canGetAndSetFMUstate=True, canSerializeFMUstate=True)
@@ -270,24 +269,9 @@ def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package
 
 
 def python_runtime() -> dict:
-    """The build interpreter, recorded in the FMU (``resources/mbsfmu_python.json``).
-
-    The generated slave script appends ``site_packages`` to ``sys.path`` (hosts that start their own
-    interpreter do not see the build environment's packages); the linux64 shim loads ``libpython``.
-    """
-    import site
+    """The build interpreter, compiled into the linux64 loader shim: the libpython it loads in hosts without
+    Python and the executable it names as the program (from which Python finds its standard library)."""
     import sysconfig
-    paths = []
-    for p in [sysconfig.get_paths().get("purelib"), sysconfig.get_paths().get("platlib")] + list(
-            getattr(site, "getsitepackages", lambda: [])()):
-        if p and p not in paths and Path(p).is_dir():
-            paths.append(p)
-    try:
-        user = site.getusersitepackages()
-        if site.ENABLE_USER_SITE and user and Path(user).is_dir() and user not in paths:
-            paths.append(user)
-    except Exception:
-        pass
     libpython = soname = None
     if sysconfig.get_config_var("Py_ENABLE_SHARED"):
         soname = sysconfig.get_config_var("INSTSONAME") or sysconfig.get_config_var("LDLIBRARY")
@@ -296,8 +280,7 @@ def python_runtime() -> dict:
                 libpython = str(Path(sysconfig.get_config_var("LIBDIR")) / name)
                 break
     return {"version": list(sys.version_info[:3]), "executable": sys.executable, "prefix": sys.prefix,
-            "base_prefix": sys.base_prefix, "libpython": libpython, "libpython_soname": soname,
-            "site_packages": paths}
+            "base_prefix": sys.base_prefix, "libpython": libpython, "libpython_soname": soname}
 
 
 def _c_string(s: str | None) -> str:
@@ -384,8 +367,7 @@ def _attach_shim(dest: Path, name: str) -> bool:
         so = compile_shim(Path(tmp) / "shim.so", real_name, model_description)
         if so is None:
             return False
-        _replace_in_zip(dest, member, so.read_bytes())
-        _replace_in_zip(dest, f"binaries/linux64/{real_name}", real_bytes)
+        _rewrite_zip(dest, {member: so.read_bytes(), f"binaries/linux64/{real_name}": real_bytes})
     return True
 
 
@@ -507,12 +489,14 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
     return parseString(tostring(root, "UTF-8")).toprettyxml(indent="  ", encoding="UTF-8")
 
 
-def _replace_in_zip(path: Path, member: str, data: bytes) -> None:
+def _rewrite_zip(path: Path, replace: dict, drop=frozenset()) -> None:
+    """Rewrite the FMU archive with the members in `replace` (name → bytes) and without those in `drop`."""
     buf = io.BytesIO()
     with zipfile.ZipFile(path) as zin, zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zout:
         for item in zin.infolist():
-            if item.filename == member:
+            if item.filename in replace or item.filename in drop:
                 continue
             zout.writestr(item.filename, zin.read(item.filename), zipfile.ZIP_DEFLATED)
-        zout.writestr(member, data, zipfile.ZIP_DEFLATED)
+        for member, data in replace.items():
+            zout.writestr(member, data, zipfile.ZIP_DEFLATED)
     path.write_bytes(buf.getvalue())
