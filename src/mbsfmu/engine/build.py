@@ -20,6 +20,7 @@ CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "integ_base.c", "integ_erk.c",
 HEADERS = ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "mbs_vec3.h", "integ_internal.h", "linalg.h")
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
+LTO = ("-flto=auto",)  # the engine's small accessors inline across files into the per-step path (issue 10)
 
 
 class EngineUnavailable(RuntimeError):
@@ -55,12 +56,19 @@ def compiler():
     return cc
 
 
+def run_cc(cmd):
+    """Run a compile command [cc, args...] with link-time optimization, or without it where the compiler
+    lacks it; the CompletedProcess of the last try."""
+    import subprocess
+    res = subprocess.run([cmd[0], *LTO, *cmd[1:]], capture_output=True, text=True)
+    return subprocess.run(cmd, capture_output=True, text=True) if res.returncode else res
+
+
 def compile_shared(out, feats=("expr", "elastic"), extra=(), cc=None):
     """Compile the engine (and extra sources, e.g. the FMI layer) into the shared library `out`."""
-    import subprocess
     srcs, _, defs = sources(feats)
     cmd = [cc or compiler(), *CFLAGS, "-shared", *defs, f"-I{HERE}", "-o", str(out), *map(str, srcs), *map(str, extra), "-lm"]
-    res = subprocess.run(cmd, capture_output=True, text=True)
+    res = run_cc(cmd)
     if res.returncode:
         raise EngineUnavailable(f"compiling the engine failed: {res.stderr.strip()[:2000]}")
     return out
@@ -69,7 +77,7 @@ def compile_shared(out, feats=("expr", "elastic"), extra=(), cc=None):
 def _tag():
     import hashlib
     srcs, hdrs, defs = sources()
-    h = hashlib.sha256(" ".join(CFLAGS + tuple(defs)).encode() + sys.platform.encode())
+    h = hashlib.sha256(" ".join(CFLAGS + LTO + tuple(defs)).encode() + sys.platform.encode())
     for p in sorted(srcs + hdrs):
         h.update(p.name.encode() + p.read_bytes())
     return h.hexdigest()[:16]

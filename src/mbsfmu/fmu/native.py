@@ -18,7 +18,6 @@ import json
 import os
 import re
 import shutil
-import subprocess
 import tempfile
 import uuid
 import warnings
@@ -87,14 +86,14 @@ def compiler() -> str | None:
 def compile_library(src_dir: Path, out: Path, cc: str, windows: bool = False) -> Path:
     """Compile every ``*.c`` of src_dir into the shared library ``out`` (the FMI functions are the only
     exported symbols). Raises RuntimeError with the compiler's message."""
-    from ..engine.build import CFLAGS
+    from ..engine.build import CFLAGS, run_cc
     c_files = sorted(str(p) for p in Path(src_dir).glob("*.c"))
     if windows:  # no MinGW runtime DLL needed on the target
         flags = [f for f in CFLAGS if f != "-fPIC"]
         cmd = [cc, *flags, *SHARED, "-static-libgcc", "-I", str(src_dir), "-o", str(out), *c_files]
     else:  # -z defs: everything must resolve in libc/libm at link time, not at the user's dlopen
         cmd = [cc, *CFLAGS, *SHARED, "-I", str(src_dir), "-o", str(out), *c_files, "-lm", "-Wl,-z,defs"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
+    r = run_cc(cmd)
     if r.returncode != 0:
         raise RuntimeError(f"compiling the native FMU failed: {' '.join(cmd)}\n{r.stderr.strip()[:4000]}")
     return out
