@@ -24,3 +24,7 @@ class IntegrationError(RuntimeError):
     def __init__(self, message, t=None):
         self.t, self.message = t, message
         super().__init__(message if t is None else f"t={t:.9g}: {message}")
+
+
+class EngineUnavailable(RuntimeError):
+    """No compiled engine: no C compiler, or it failed."""

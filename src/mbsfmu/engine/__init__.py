@@ -5,12 +5,32 @@ the only place where Python talks to the engine; it imports no numpy, so that an
 """
 
 import ctypes
+import os
 
-from ..errors import IntegrationError
-from .build import EngineUnavailable, library
+from ..errors import EngineUnavailable, IntegrationError
 
 __all__ = ["Instance", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD", "ERROR"]
 OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
+
+
+_lib = None
+
+
+def library():
+    """The loaded engine (ctypes.CDLL with argument types declared): the copy a pythonfmu FMU carries next to
+    this file, else the one compiled into the cache (build.py, imported only then: an FMU starts without it)."""
+    global _lib
+    if _lib is None:
+        from .api import declare
+        here = os.path.dirname(os.path.abspath(__file__))
+        shipped = [f for f in os.listdir(here) if f.startswith("libmbsfmu_engine_")]
+        if len(shipped) == 1:
+            path = os.path.join(here, shipped[0])
+        else:
+            from .build import library_path
+            path = str(library_path())
+        _lib = declare(ctypes.CDLL(path))
+    return _lib
 
 
 class EngineError(ValueError):

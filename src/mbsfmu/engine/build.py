@@ -6,13 +6,14 @@ depends on parameters or time. The integrators always stay, since `integrator.me
 
 The library is compiled once per source version with the system C compiler (`$CC` or `cc`) into
 `$MBSFMU_CACHE` or `~/.cache/mbsfmu` (at install by `python -m mbsfmu.engine.build`, else on first use).
-Without a C compiler nothing can run in-process: `library()` raises EngineUnavailable saying so.
+Without a C compiler nothing can run in-process: `library_path()` raises EngineUnavailable saying so.
 """
 
-import ctypes
 import os
 import sys
 from pathlib import Path
+
+from ..errors import EngineUnavailable
 
 HERE = Path(__file__).parent
 CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "integ_base.c", "integ_erk.c", "integ_radau5.c",
@@ -21,10 +22,6 @@ HEADERS = ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "mbs_vec3.h", "int
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
 LTO = ("-flto=auto",)  # the engine's small accessors inline across files into the per-step path (issue 10)
-
-
-class EngineUnavailable(RuntimeError):
-    """No compiled engine: no C compiler, or it failed."""
 
 
 def features(blob):
@@ -85,10 +82,7 @@ def _tag():
 
 def library_path():
     """The in-process engine library (compiled into the cache on first use; atomic for concurrent processes)."""
-    shipped = list(HERE.glob("libmbsfmu_engine_*"))  # a pythonfmu FMU carries its own copy (and nothing else does)
-    if len(shipped) == 1:
-        return shipped[0]
-    import sysconfig  # not before: an FMU's start-up does without them
+    import sysconfig
     import tempfile
     name = f"libmbsfmu_engine_{_tag()}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}.1"
     for cache in (Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu"),
@@ -109,18 +103,6 @@ def library_path():
         except PermissionError:
             continue
     raise EngineUnavailable("no writable cache directory for the compiled engine (set $MBSFMU_CACHE)")
-
-
-_lib = None
-
-
-def library():
-    """The loaded engine (ctypes.CDLL with argument types declared)."""
-    global _lib
-    if _lib is None:
-        from .api import declare
-        _lib = declare(ctypes.CDLL(str(library_path())))
-    return _lib
 
 
 if __name__ == "__main__":  # python -m mbsfmu.engine.build: compile into the cache now (at install)

@@ -105,7 +105,7 @@ def _runtime_files(root: Path) -> dict[str, bytes]:
 
 def _engine_files(root: Path) -> dict[str, bytes]:
     """The engine's C sources and headers (to compile on a target where the library does not load) and the
-    compiled library for this platform (engine/build.py finds it by its source hash)."""
+    compiled library for this platform (engine/__init__.py loads the one next to it)."""
     from ..engine import build
     srcs, hdrs, _ = build.sources()
     out = {f"engine/{p.name}": p.read_bytes() for p in srcs + hdrs}
