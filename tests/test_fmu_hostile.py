@@ -288,7 +288,7 @@ def scenario_fatal():
     a, vr, md, d = open_fmu(fmu, "a")
     init(a)
     a.doStep(0.0, 0.01)
-    os.remove(os.path.join(d, "resources", "mbsfmu_meta.json"))   # pythonfmu's reset re-creates the slave: fails
+    os.remove(os.path.join(d, "resources", "mbsfmu_scene.bin"))   # pythonfmu's reset re-creates the slave: fails
     n = len(LOG)
     first = status(a.reset)
     first_logs = logged("a", n)
@@ -490,7 +490,7 @@ def test_failed_instantiation_in_a_c_host(fmus, c_host, tmp_path, case):
         (tmp_path / "empty").mkdir()
         resources = (tmp_path / "empty").as_uri()
     else:                   # the slave raises in its constructor
-        (tmp_path / "fmu" / "resources" / "mbsfmu_meta.json").unlink()
+        (tmp_path / "fmu" / "resources" / "mbsfmu_scene.bin").unlink()
     r = subprocess.run([str(c_host), str(lib), resources, guid], capture_output=True, text=True, timeout=60,
                        env=_host_env())
     assert r.returncode == 0 and "DONE" in r.stdout, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
@@ -509,7 +509,7 @@ def test_failed_instantiation_in_ecos(fmus, tmp_path):
     broken = tmp_path / "pendulum.fmu"
     with zipfile.ZipFile(fmus["pendulum"]) as zin, zipfile.ZipFile(broken, "w") as zout:
         for item in zin.infolist():
-            if not item.filename.endswith("mbsfmu_meta.json"):   # the slave cannot start without it
+            if not item.filename.endswith("mbsfmu_scene.bin"):   # the slave cannot start without it
                 zout.writestr(item, zin.read(item.filename))
     work = tmp_path / "run"
     work.mkdir()

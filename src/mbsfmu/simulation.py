@@ -88,7 +88,7 @@ class Simulation:
         self.blob, self.variables, model = compiled(spec)
         self.coordinates, self.velocity_coordinates = list(model.coordinates), list(model.velocity_coordinates)
         self.npos, self.nvel = model.npos, model.nvel
-        self.engine = Instance(self.blob, self.npos, self.nvel)
+        self.engine = Instance(self.blob)
         self._vr = {v.name: i for i, v in enumerate(self.variables)}
         # structural parameters (they shape the elastic bodies' FE data) are compiled in: changing one before
         # initialize compiles the scene again and replays what was set so far

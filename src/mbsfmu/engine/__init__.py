@@ -9,8 +9,9 @@ import os
 
 from ..errors import EngineUnavailable, IntegrationError
 
-__all__ = ["Instance", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD", "ERROR"]
+__all__ = ["Instance", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD", "ERROR", "V_METHOD"]
 OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
+V_METHOD = 1  # mbs_engine.h MBS_V_*: the kind of the one String variable, integrator.method
 
 
 _lib = None
@@ -47,6 +48,15 @@ class _Model:
         if not self.ptr:
             raise EngineError(err.value.decode(errors="replace"))
         self.guid = lib.mbs_model_guid(self.ptr).decode()
+        self.npos, self.nvel = lib.mbs_model_npos(self.ptr), lib.mbs_model_nvel(self.ptr)
+
+    def variable_names(self):
+        """FMU variable names by value reference."""
+        return [self.lib.mbs_model_var_name(self.ptr, vr).decode() for vr in range(self.lib.mbs_model_nvars(self.ptr))]
+
+    def variable_kinds(self):
+        """mbs_engine.h MBS_V_* kind of each variable, by value reference."""
+        return [self.lib.mbs_model_var_kind(self.ptr, vr) for vr in range(self.lib.mbs_model_nvars(self.ptr))]
 
     def __del__(self):
         if getattr(self, "ptr", None):
@@ -57,10 +67,11 @@ class _Model:
 class Instance:
     """One running instance: variables by value reference, initialize, steps, state bytes, evaluation."""
 
-    def __init__(self, blob, npos, nvel, logger=None):
+    def __init__(self, blob, logger=None):
         self.model = blob if isinstance(blob, _Model) else _Model(blob)
         self.lib = lib = self.model.lib
-        self.npos, self.nvel, self.n = npos, nvel, npos + nvel
+        self.npos, self.nvel = self.model.npos, self.model.nvel
+        self.n = self.npos + self.nvel
         # keep the callback object alive as long as the instance
         LOGGER = lib.mbs_instance_new.argtypes[1]
         self._logger = LOGGER() if logger is None else \

@@ -46,6 +46,7 @@ MBS_API void mbs_model_free(MbsModel *m);
 MBS_API const char *mbs_model_guid(const MbsModel *m);   /* the FMU's GUID, written by Python */
 MBS_API int mbs_model_nvars(const MbsModel *m);          /* rows of the variable table */
 MBS_API int mbs_model_var_kind(const MbsModel *m, int vr); /* MBS_V_*, -1 out of range */
+MBS_API const char *mbs_model_var_name(const MbsModel *m, int vr); /* the FMU variable's name, NULL out of range */
 MBS_API int mbs_model_npos(const MbsModel *m);
 MBS_API int mbs_model_nvel(const MbsModel *m);
 

@@ -1,15 +1,16 @@
 """Build an FMI 2.0 co-simulation FMU from a scene.
 
-The default kind is a pythonfmu FMU whose resources hold
+The default kind is a pythonfmu FMU: pythonfmu's prebuilt FMI binary (behind mbsfmu's loader shim on linux64,
+``shim.c``) and resources holding
 
-* ``mbsfmu_scene.bin`` - the compiled scene the engine reads, ``mbsfmu_meta.json`` - its FMU variables,
+* ``mbsfmu_scene.bin`` - the compiled scene the engine reads (variables and their names included),
 * ``mbsfmu_rt_<hash>/`` - a renamed copy of the run-time part of mbsfmu: the ctypes seam of the C engine
   (``engine/*.py``), the compiled engine library for this platform and its C sources (compiled on the
   target with ``cc`` if the library does not load there); no numpy, scipy, YAML or plotting,
-* ``mbsfmu_<name>_<hash>.py`` - the generated Fmi2Slave script (from ``slave.py.in``),
+* ``mbsfmu_<name>_<hash>.py`` - the generated slave script (from ``slave.py.in``), which implements the
+  slave protocol pythonfmu's binary calls (pythonfmu's Python package is not needed at run time),
 
-and whose ``modelDescription.xml`` is written here (pythonfmu's own one is incomplete: no units,
-no ModelStructure/InitialUnknowns, ...).
+and the ``modelDescription.xml`` written here (one writer for both kinds).
 """
 from __future__ import annotations
 
@@ -31,13 +32,7 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 
 KINDS = ("pythonfmu", "native")
 SCENE_FILE = "mbsfmu_scene.bin"
-META_FILE = "mbsfmu_meta.json"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
-PYTHONFMU_BUILD_ONLY = ("builder", "csvbuilder", "deploy", "__main__", "osutil")  # left out of the FMU
-PYTHONFMU_INIT = (b"# pythonfmu's run-time part (the FMU builder is left out by mbsfmu)\n"
-                  b"from ._version import __version__\nfrom .enums import Fmi2Causality, Fmi2Initial, Fmi2Variability\n"
-                  b"from .fmi2slave import Fmi2Slave\nfrom .variables import Boolean, Integer, Real, String\n"
-                  b"from .default_experiment import DefaultExperiment\n")
 SHIM_SOURCE = Path(__file__).with_name("shim.c")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
 
@@ -205,7 +200,6 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     module_name = f"mbsfmu_{name}_{fmu_hash[:12]}"
     script = (template.replace("@RUNTIME_PACKAGE@", rt_package)
               .replace("@SCENE_FILE@", SCENE_FILE)
-              .replace("@META_FILE@", META_FILE)
               .replace("@MODEL_NAME@", name)
               .replace("@MBSFMU_VERSION@", version))
 
@@ -213,59 +207,52 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     outdir.mkdir(parents=True, exist_ok=True)
     dest = outdir / f"{name}.fmu"
 
-    with tempfile.TemporaryDirectory(prefix="mbsfmu_build_") as tmp:
-        stage = Path(tmp) / "stage"
-        stage.mkdir()
-        pkg = stage / rt_package
-        for rel, content in files.items():
-            f = pkg / rel
-            f.parent.mkdir(parents=True, exist_ok=True)
-            f.write_bytes(content)
-        from ..simulation import compiled
-        blob, variables, model = compiled(spec, guid)
-        meta = {"npos": model.npos, "nvel": model.nvel, "start": spec["experiment"]["start"],
-                "description": spec.get("description") or "",
-                "variables": [{k: getattr(v, k) for k in ("name", "causality", "variability", "type", "description")}
-                              for v in variables]}
-        (stage / SCENE_FILE).write_bytes(blob)
-        (stage / META_FILE).write_text(json.dumps(meta, indent=1), encoding="utf-8")
-        script_file = stage / f"{module_name}.py"
-        script_file.write_text(script, encoding="utf-8")
-
-        _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package,
-                              [stage / SCENE_FILE, stage / META_FILE])
-
-    xml = model_description(spec, name, variables, version, guid=guid)
-    # pythonfmu's __init__ imports its builder (and certifi): ~15 ms at every load, never used there; the
-    # builder's modules are left out of the FMU
-    _rewrite_zip(dest, {"modelDescription.xml": xml, "resources/pythonfmu/__init__.py": PYTHONFMU_INIT},
-                 drop={f"resources/pythonfmu/{m}.py" for m in PYTHONFMU_BUILD_ONLY})
+    from ..simulation import compiled
+    blob, variables, _ = compiled(spec, guid)
+    members = {f"resources/{rt_package}/{rel}": content for rel, content in files.items()}
+    members.update({f"resources/{SCENE_FILE}": blob, f"resources/{module_name}.py": script.encode("utf-8"),
+                    "resources/slavemodule.txt": module_name.encode(),
+                    "modelDescription.xml": model_description(spec, name, variables, version, guid=guid)})
+    members.update(_pythonfmu_binaries(name))
+    _slave_loads(members, module_name, rt_package)
+    with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as z:
+        for member, data in members.items():
+            z.writestr(member, data)
     if shim:
         _attach_shim(dest, name)
     return dest
 
 
-def _build_with_pythonfmu(script_file, module_name, pkg, stage, dest, rt_package, data_files):
-    from pythonfmu.builder import FmuBuilder
+def _pythonfmu_binaries(name: str) -> dict[str, bytes]:
+    """pythonfmu's prebuilt FMI binaries, named for this model: the only part of pythonfmu an FMU carries (its
+    slave protocol is implemented by the slave script itself)."""
+    import pythonfmu
+    out = {}
+    for lib in (Path(pythonfmu.__file__).parent / "resources" / "binaries").glob("*/*"):
+        if lib.suffix in (".so", ".dll", ".dylib"):
+            out[f"binaries/{lib.parent.name}/{name}{lib.suffix}"] = lib.read_bytes()
+    if not out:
+        raise RuntimeError("pythonfmu's binaries are missing from its installation (pythonfmu/resources/binaries)")
+    return out
 
-    path_before = list(sys.path)
-    modules_before = set(sys.modules)
-    try:
-        # Instantiate the slave once here to learn the variables (and check that it loads).
-        sys.path.insert(0, str(stage))
-        mod = importlib.import_module(module_name)
-        mod.MbsfmuSlave(instance_name="mbsfmu_build", resources=str(stage))  # it loads
-        FmuBuilder.build_FMU(
-            script_file, dest=dest, project_files=[pkg, *data_files],
-            needsExecutionTool=True, canHandleVariableCommunicationStepSize=True,
-            canInterpolateInputs=False, canBeInstantiatedOnlyOncePerProcess=False,
-            canGetAndSetFMUstate=True, canSerializeFMUstate=True)
-    finally:
-        sys.path[:] = path_before
-        # Forget the modules imported from the (temporary) staging directory.
-        for key in set(sys.modules) - modules_before:
-            if key == module_name or key == rt_package or key.startswith(rt_package + "."):
-                del sys.modules[key]
+
+def _slave_loads(members: dict[str, bytes], module_name: str, rt_package: str) -> None:
+    """Instantiate the slave once from a staged copy of the resources: the FMU fails here, not in a host."""
+    path_before, modules_before = list(sys.path), set(sys.modules)
+    with tempfile.TemporaryDirectory(prefix="mbsfmu_build_") as stage:
+        for member, data in members.items():
+            if member.startswith("resources/"):
+                f = Path(stage) / member[len("resources/"):]
+                f.parent.mkdir(parents=True, exist_ok=True)
+                f.write_bytes(data)
+        try:
+            sys.path.insert(0, stage)
+            importlib.import_module(module_name).MbsfmuSlave(instance_name="mbsfmu_build", resources=stage)
+        finally:
+            sys.path[:] = path_before
+            for key in set(sys.modules) - modules_before:  # forget the staged modules
+                if key == module_name or key == rt_package or key.startswith(rt_package + "."):
+                    del sys.modules[key]
 
 
 def python_runtime() -> dict:
