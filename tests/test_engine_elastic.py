@@ -24,7 +24,7 @@ RTOL = 1e-12
 
 def engine(spec):
     blob, _, model = compiled(spec)
-    return Instance(blob, model.npos, model.nvel), model
+    return Instance(blob), model
 
 
 def random_state(ev, rng, scale=1.0):
@@ -215,7 +215,7 @@ def test_corrupt_elastic_section_refused(index, value):
     blob, _, model = compiled(mbsfmu.load(MODELS / "robot_arm_elastic.yaml").spec)
     bad = _patch(blob, S_ELASTIC_I, index, value)
     with pytest.raises(EngineError, match="corrupt"):
-        Instance(bad, model.npos, model.nvel)
+        Instance(bad)
 
 
 def test_truncated_elastic_data_and_bad_node_refused():
@@ -226,9 +226,9 @@ def test_truncated_elastic_data_and_bad_node_refused():
     rows = 76 + 24 * [sid for sid in _sections(blob)].index(S_ELASTIC_D)
     struct.pack_into("<q", short, rows + 16, cnt - 1)
     with pytest.raises(EngineError, match="corrupt"):
-        Instance(bytes(short), model.npos, model.nvel)
+        Instance(bytes(short))
     payload = model.index["payload"]
     with pytest.raises(EngineError, match="corrupt"):
-        Instance(_patch(blob, S_BODY_I, payload * IB + IB_NODE, 9), model.npos, model.nvel)
+        Instance(_patch(blob, S_BODY_I, payload * IB + IB_NODE, 9))
     with pytest.raises(EngineError, match="corrupt"):
-        Instance(_patch(blob, S_OUT_I, 3 * 1 + 1, 9), model.npos, model.nvel)
+        Instance(_patch(blob, S_OUT_I, 3 * 1 + 1, 9))
