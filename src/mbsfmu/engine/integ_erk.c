@@ -468,7 +468,7 @@ static int rk4_advance(MbsIntegrator *it, double t_end)
         c->t = t_new;
         c->steps++;
     }
-    c->h = span / (double)nsub;
+    c->h = nsub == 1 ? span : span / (double)nsub;
     c->has_h = 1;
     return 0;
 }

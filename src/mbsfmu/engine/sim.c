@@ -89,7 +89,7 @@ static void time_numbers(MbsInstance *s, double t)
 static int ode_f(void *ctx, double t, const double *x, double *xdot)
 {
     MbsInstance *s = ctx;
-    if (gimbal(s, x, NULL, s->msg, sizeof s->msg)) return MBS_F_GIMBAL;
+    if (s->m->hdr[H_NCARDAN] && gimbal(s, x, NULL, s->msg, sizeof s->msg)) return MBS_F_GIMBAL;
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, xdot);
     if (mbs_eval_rhs(&e)) {
