@@ -161,10 +161,10 @@ def write_report(walls, cold_wall, counts, stop, out, load_before, load_after, c
         f"import mbsfmu in 2 fresh processes, build the model there, run {first} cases) took {cold_wall:.2f} s.",
         "",
         "The plain loop is what a user writes by hand: one `Simulation`, then per case `reset`, `set`, `initialize`,"
-        " `run`, `get` of the four outputs. A sweep on a cluster adds: the model sent with the tasks and built once"
-        " per worker, a first wave of one case per worker that measures a case's cost, the rest in batches of"
-        " ≥ 0.05 s of work, results back as arrays, one DataFrame. Its results equal the plain loop's bit for bit"
-        " (checked before timing).",
+        " `run`, `get` of the four outputs. A sweep on a cluster adds: the first case run in the calling process"
+        " (its time sizes the batches), the rest in equal batches of ≥ 0.2 s of work sent at once with the model,"
+        " which each worker builds once in its life (the timed sweeps find it built: the cold sweep above includes"
+        " it), results back, one DataFrame. Its results equal the plain loop's bit for bit (checked before timing).",
         "",
         "![throughput](sweep.png)",
         "",

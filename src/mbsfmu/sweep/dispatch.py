@@ -12,14 +12,14 @@ import numpy as np
 from .runner import run_batch
 
 BATCHES_PER_SLOT = 8   # several batches per worker: load balance and progress steps
-BATCH_SECONDS = 0.05   # yet at least this much work per task: a task costs the scheduler a few ms
+BATCH_SECONDS = 0.2    # yet at least this much work per task: a task costs ~2 ms of scheduling, a round trip ~6
 MAX_BATCH = 256        # long sweeps still report progress and lose little to a dying worker
 WAIT_FOR_WORKERS = 60  # seconds an existing cluster may take to offer its first worker
 SCATTER_BYTES = 1 << 16  # larger models (FMUs) go to each worker once ahead; a scene's JSON rides with the tasks
 
 
 def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
-    """cases [(case number, {name: value})] → rows of run_batch, in completion order."""
+    """cases [(case number, {name: value})] → rows of run_batch (any order)."""
     if progress is None:
         progress = sys.stderr.isatty()
     with _bar(len(cases), progress) as bar:
@@ -34,34 +34,31 @@ def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
 
 
 def batches(cases, slots, cost=None):
-    """Split cases into batches: about BATCHES_PER_SLOT per slot, but (given the seconds one case costs)
+    """Split cases into equal batches: about BATCHES_PER_SLOT per slot, but (given the seconds one case costs)
     at least BATCH_SECONDS of work each, and never fewer batches than slots."""
     size = max(1, math.ceil(len(cases) / (slots * BATCHES_PER_SLOT)))
     if cost is not None and math.isfinite(cost) and cost > 0:
         size = max(size, min(math.ceil(BATCH_SECONDS / cost), math.ceil(len(cases) / slots)))
     size = min(size, max(MAX_BATCH, math.ceil(len(cases) / slots)))
+    size = math.ceil(len(cases) / max(1, math.ceil(len(cases) / size)))  # the same size for all: balance
     return [cases[k:k + size] for k in range(0, len(cases), size)]
 
 
 def _on_cluster(client, model, cases, setup, bar):
-    """A first wave of one case per slot measures what a case costs; the rest goes out in batches sized
-    from that."""
-    from dask.distributed import as_completed
+    """The first case runs here, in the calling process: its row counts and its time sizes the batches, which
+    then all go out at once (no wave of probes: one round trip to the cluster in all)."""
     slots = max(1, sum(client.nthreads().values()))
+    try:
+        rows, rest = run_batch(model, cases[:1], setup), cases[1:]
+        cost = rows[0][2]
+        bar.update(1)
+    except Exception:  # the model does not load here (e.g. an FMU for the workers' platform): the workers say why
+        rows, rest, cost = [], cases, None
     shared = model
     if len(model.data) > SCATTER_BYTES:
         [shared] = client.scatter([model], broadcast=True, hash=False)
-    pending = {}
-
-    def submit(batch):
-        fut = client.submit(run_batch, shared, batch, setup, pure=False)
-        pending[fut] = batch
-        return fut
-
-    waves = as_completed([submit([c]) for c in cases[:slots]])
-    rest, rows = cases[slots:], []
-    for fut in waves:
-        batch = pending.pop(fut)
+    pending = {client.submit(run_batch, shared, b, setup, pure=False): b for b in batches(rest, slots, cost)}
+    for fut, batch in pending.items():  # in order: the last batch ends the sweep anyway, and no watcher thread
         try:
             done = fut.result()
         except Exception as e:  # the worker died (e.g. killed): its cases fail, the sweep goes on
@@ -70,19 +67,17 @@ def _on_cluster(client, model, cases, setup, bar):
         rows += done
         fut.release()
         bar.update(len(batch))
-        if rest:
-            for b in batches(rest, slots, cost=done[0][2]):
-                waves.add(submit(b))
-            rest = []
     return rows
 
 
 def local_cluster(n):
     """The embedded cluster: n single-threaded worker processes; the scheduler hands every task to a
-    worker at once (no root-task queuing), so a worker never waits a round trip between batches."""
+    worker at once (no root-task queuing), so a worker never waits a round trip between batches; the workers'
+    statistical profiler is off (sampling every 10 ms, it cost a worker up to a third of its speed here)."""
     import dask
     from dask.distributed import LocalCluster
-    with dask.config.set({"distributed.scheduler.worker-saturation": math.inf}):
+    with dask.config.set({"distributed.scheduler.worker-saturation": math.inf,
+                          "distributed.worker.profile.enabled": False}):
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None, silence_logs=logging.ERROR)
 
