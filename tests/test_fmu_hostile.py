@@ -303,6 +303,21 @@ def scenario_fatal():
     return {"first": first, "first_logs": first_logs, "later": later, "b": outputs(b, md)}
 
 
+def scenario_steps():
+    a, vr, md, _ = open_fmu(fmu, "a")
+    b, _, _, _ = open_fmu(fmu, "b")
+    init(a), init(b)
+    t = steps(a, 0.0, 3)
+    steps(b, 0.0, 3)
+    seq = [("negative h", (t, -0.01)), ("NaN t", (float("nan"), 0.01)), ("infinite h", (t, float("inf"))),
+           ("t ahead", (t + 5.0, 0.01)), ("t behind", (0.0, 0.01))]
+    res = calls_with_messages("a", [(a.doStep, args) for _, args in seq])
+    steps(a, t, 3)   # the instance goes on from where it was, like its untouched twin
+    steps(b, t, 3)
+    return {"sequence": [[what, st, logs] for (what, _), (st, logs) in zip(seq, res)],
+            "same": outputs(a, md) == outputs(b, md)}
+
+
 print("RESULT " + json.dumps(globals()["scenario_" + scenario]()), flush=True)
 '''
 
@@ -376,6 +391,19 @@ def test_wrong_call_order(fmus, tmp_path):
     assert res["after_free"] == [3] * 7       # freed, NULL and foreign components: fmi2Error, nothing dereferenced
     assert "not a live instance" in stderr and "NULL component" in stderr
     assert len(res["b_alive"]) > 0
+
+
+@pytest.mark.parametrize("kind", ["pythonfmu", "native"])
+def test_bad_step_arguments_are_errors_and_change_nothing(fmus, tmp_path, kind):
+    """doStep with h < 0, a non-finite t or h, or t other than the current time: fmi2Error with a message
+    from both kinds, and the instance steps on exactly like an untouched twin."""
+    if kind == "native":
+        fmus = {m: mbsfmu.build_fmu(REPO / "models" / f"{m}.yaml", tmp_path / "native", kind="native")
+                for m in ("pendulum", "spring_damper")}
+    res, _ = drive("steps", fmus, tmp_path)
+    for what, st, logs in res["sequence"]:
+        assert refused(st, logs), (kind, what, st, logs)
+    assert res["same"]
 
 
 def test_hostile_state_bytes(fmus, tmp_path):

@@ -22,12 +22,13 @@
  *   - FMU states: only handles handed out here are accepted; serialized bytes must carry the engine's
  *     header (sim.c) with this model's GUID, a matching length and checksum;
  *   - refusals the slave cannot report (pythonfmu has no fmi2Error): the slave keeps the reason of a failed
- *     initialization, state restore or string set in a hidden String variable, value reference
- *     MBSFMU_NVARS (not in modelDescription.xml), which the shim reads after those calls;
+ *     initialization, state restore, string set or outright step refusal in a hidden String variable,
+ *     value reference MBSFMU_NVARS (not in modelDescription.xml), which the shim reads after those calls;
  *   - after one fmi2Fatal from pythonfmu the instance is never passed to pythonfmu again.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
+#include <math.h>
 #include <pthread.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -360,7 +361,7 @@ static fmi2Status done(Inst* in, const char* fn, fmi2Status status) {
     return status;
 }
 
-/* The reason the slave refused the last initialization, state restore or string set ("" if none),
+/* The reason the slave refused the last initialization, state restore, string set or step ("" if none),
    read from the hidden String variable MBSFMU_NVARS; reading clears it. NULL if pythonfmu failed. */
 static const char* refusal(Inst* in, const char* fn) {
     fmi2ValueReference vr = MBSFMU_NVARS;
@@ -516,9 +517,18 @@ EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
 EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean no_rollback) {
     Inst* in;
     fmi2Status st = enter(c, __func__, P(STEP), &in);
-    /* fmi2Discard (the engine refused the step, logged; the state stays at t) keeps step mode: the
-       master may roll back, change inputs, retry or terminate */
-    return st ? st : done(in, __func__, R.do_step(in->real, t, h, no_rollback));
+    if (st) return st;
+    if (!isfinite(t) || !isfinite(h) || h < 0)   /* as the native FMU (engine/fmi2.c) */
+        return say(in, fmi2Error, "%s: bad step t=%g, h=%g (need finite t and h >= 0)", __func__, t, h), fmi2Error;
+    /* fmi2Discard (the integration failed, logged; the state stays at t) keeps step mode: the master may roll
+       back, change inputs, retry or terminate. A step the engine refused outright (t is not the current
+       time) is fmi2Error with the slave's reason, the instance unchanged, as in the native FMU. */
+    if ((st = done(in, __func__, R.do_step(in->real, t, h, no_rollback))) != fmi2Discard) return st;
+    const char* why = refusal(in, __func__);
+    if (!why) return fmi2Fatal;
+    if (!*why) return fmi2Discard;
+    say(in, fmi2Error, "%s: %s", __func__, why);
+    return fmi2Error;
 }
 
 EXPORT fmi2Status fmi2Terminate(fmi2Component c) {
