@@ -153,10 +153,11 @@ def write_report(walls, cold_wall, counts, stop, out, load_before, load_after, c
         f"{best['sweep, in process'] / best['plain loop']:.2f}×.",
         "- time a sweep on a running 1-worker cluster adds to the plain loop: "
         + ", ".join(f"{(min(w[_name(1)]) - min(w['plain loop'])) * 1e3:.0f} ms with {n} cases" for n, w in walls.items())
-        + f". {first} cases of this model are only {min(walls[first]['plain loop']) * 1e3:.0f} ms of work, so the few "
-        "task round trips through the scheduler (a few ms each on this loaded machine) set the short sweep's ratios; "
-        "in the long sweep the batches run back to back and the rest is the worker's per-case time (the "
-        "`wall_time` column), a few % above the loop's.",
+        + f". {first} cases of this model are only {min(walls[first]['plain loop']) * 1e3:.0f} ms of work, so a "
+        "sweep's fixed cost sets the short sweep's ratios: one round trip through the scheduler (~6–8 ms here, "
+        "submit to result of a single task), the first case and the DataFrame in the calling process (~6 ms), and "
+        "with 2 workers on 2 cores the scheduler's and nannies' threads in the calling process (~20 ms of CPU per "
+        "sweep), which slow the busy workers. In the long sweep these are spread over 10× the work.",
         f"- one-time cost, not in the tables: a cold `mbsfmu.sweep(..., workers=2)` (start a LocalCluster, "
         f"import mbsfmu in 2 fresh processes, build the model there, run {first} cases) took {cold_wall:.2f} s.",
         "",

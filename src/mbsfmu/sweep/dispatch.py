@@ -40,7 +40,9 @@ def batches(cases, slots, cost=None):
     if cost is not None and math.isfinite(cost) and cost > 0:
         size = max(size, min(math.ceil(BATCH_SECONDS / cost), math.ceil(len(cases) / slots)))
     size = min(size, max(MAX_BATCH, math.ceil(len(cases) / slots)))
-    size = math.ceil(len(cases) / max(1, math.ceil(len(cases) / size)))  # the same size for all: balance
+    count = math.ceil(len(cases) / size)
+    count = math.ceil(count / slots) * slots if count > slots else count  # a whole number per slot: balance
+    size = math.ceil(len(cases) / count)
     return [cases[k:k + size] for k in range(0, len(cases), size)]
 
 
@@ -77,7 +79,9 @@ def local_cluster(n):
     import dask
     from dask.distributed import LocalCluster
     with dask.config.set({"distributed.scheduler.worker-saturation": math.inf,
-                          "distributed.worker.profile.enabled": False}):
+                          "distributed.worker.profile.enabled": False,
+                          "distributed.admin.tick.interval": "200ms",
+                          "distributed.admin.system-monitor.interval": "2s"}):
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                             dashboard_address=None, silence_logs=logging.ERROR)
 
