@@ -265,7 +265,7 @@ CASES = {
     # scale
     "cycle_of_10000": (chain(10_000, cycle=True), "parent: b9999", "bodies.b0.parent", ["cycle", "b0 -> b9999 -> b9998", "…", "b1 -> b0"]),
     # not a scene at all
-    "dev_zero": (lambda d: "/dev/zero", None, None, ["characters long"]),
+    "dev_zero": (lambda d: "/dev/zero", None, None, ["not a regular file"]),
     "directory": (lambda d: (d.mkdir(parents=True), str(d))[1], None, None, ["cannot read"]),
     "binary_noise": (lambda d: _write_bytes(d, np.random.default_rng(1).bytes(4000)), None, None, []),
     "empty_file": ("", None, None, ["mbsfmu"]),
@@ -280,9 +280,32 @@ CASES = {
                                      "coordinate:", "forces[0].coordinate", ["unknown coordinate"]),
     "list_as_description": (base("parameters:", "description: [a, b]\nparameters:"), "description", "description", ["text"]),
 }
+# not regular files: opening a FIFO waits for a writer forever, /dev/zero never ends
+CASES.update({
+    "scene_fifo": (lambda d: _special(d, "scene.yaml", "fifo"), None, None, ["not a regular file"]),
+    "scene_link_to_device": (lambda d: _special(d, "scene.yaml", "/dev/zero"), None, None, ["not a regular file"]),
+    "scene_folder": (lambda d: _special(d, "scene.yaml", "folder"), None, None, ["not a regular file"]),
+    "npz_fifo": (lambda d: _special(d, "data.npz", "fifo", BASE + NODAL_BODY % "{file: data.npz}"), "nodal:",
+                 "bodies.plate.elastic.nodal.file", ["not a regular file"]),
+})
 # valid neighbours of the name collisions (words None: must load)
 CASES["no_collision"] = (base("coordinates: [phi]", "coordinates: [r]") + "outputs:\n  - {body: arm, name: yd}\n"
                          + "forces:\n  - {type: force, body: arm, input: q_in}\n", None, None, None)
+
+
+def _special(d, name, kind, scene=None):
+    """`name` in d made a FIFO, a symlink to a device or a folder; with `scene`, a scene.yaml beside it."""
+    d.mkdir(parents=True, exist_ok=True)
+    if kind == "fifo":
+        os.mkfifo(d / name)
+    elif kind == "folder":
+        (d / name).mkdir()
+    else:
+        (d / name).symlink_to(kind)
+    if scene is None:
+        return d / name
+    (d / "scene.yaml").write_text(scene)
+    return d / "scene.yaml"
 
 
 def _write_bytes(d, data):

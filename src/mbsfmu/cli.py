@@ -55,7 +55,7 @@ def _is_fmu(path):
     """True for an FMU (a zip archive), False for anything else; the file must exist."""
     import zipfile
     if not os.path.isfile(path):
-        raise FileNotFoundError(f"no such file: {path}")
+        raise FileNotFoundError(f"{'not a regular file' if os.path.exists(path) else 'no such file'}: {path}")
     return zipfile.is_zipfile(path)
 
 

@@ -1,6 +1,7 @@
 """Nodal data files (`nodal: {file: data.npz}`): only inside the scene's folder, only the arrays a scene uses,
 sizes checked in the zip directory and the .npy headers before a byte is decompressed; never unpickled."""
 
+import os
 import zipfile
 from pathlib import Path
 
@@ -29,9 +30,10 @@ def resolve(base, name, allow_outside=False):
 def read_npz(path, names=NODAL_ARRAYS):
     """{name: array} for the members of `names` present in the .npz; other members are never read."""
     try:
-        if path.stat().st_size > limits.NPZ_BYTES:
-            raise ModelError(f"the data file is larger than {limits.NPZ_BYTES // 2**20} MiB")
-        with zipfile.ZipFile(path) as z:
+        with limits.open_regular(path) as f:
+            if os.fstat(f.fileno()).st_size > limits.NPZ_BYTES:
+                raise ModelError(f"the data file is larger than {limits.NPZ_BYTES // 2**20} MiB")
+            z = zipfile.ZipFile(f)
             infos = z.infolist()
             if len(infos) > limits.NPZ_ENTRIES:
                 raise ModelError(f"the data file has {len(infos)} members (at most {limits.NPZ_ENTRIES})")

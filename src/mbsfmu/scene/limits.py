@@ -19,3 +19,18 @@ RTOL = (1e-14, 1.0)             # integrator.rtol: below 1e-14 no double-precisi
 AXIS_LENGTH = (1e-9, 1e100)     # joint and rotation axes: a direction needs a length that squares safely
 COMMUNICATION_POINTS = 1e8      # (stop - start) / step of the experiment
 DOMAIN_SAMPLES = 257            # times in [start, stop] at which drives and forces (and derivatives) are evaluated
+
+
+def open_regular(path):
+    """A binary file object of `path`, which must be a regular file: a FIFO, a device (/dev/zero) or a folder
+    is refused before anything waits on it (opening a FIFO would block until a writer comes)."""
+    import os
+    import stat
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise IsADirectoryError(0, "not a regular file (a folder, FIFO or device)", str(path))
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise

@@ -46,8 +46,8 @@ def load(path, allow_outside=False):
     """
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            raw = f.read(limits.DOCUMENT_BYTES + 1)  # bounded: a FIFO or /dev/zero is not read forever
+        with limits.open_regular(path) as f:
+            raw = f.read(limits.DOCUMENT_BYTES + 1)  # bounded
     except OSError as e:
         raise ModelError(f"cannot read scene file: {e.strerror or e}", file=str(path)) from None
     try:
