@@ -211,6 +211,12 @@ def test_mesh_files_binary_ascii_stl_and_obj(tmp_path):
     broken.write_text("v 0 0 0\nf 1 2 3\n")
     with pytest.raises(mbsfmu.ModelError, match="b.obj.*vertex that does not exist"):
         read_mesh(broken)
+    fifo = tmp_path / "f.stl"   # opening a FIFO waits for a writer forever; /dev/zero never ends
+    os.mkfifo(fifo)
+    (tmp_path / "z.stl").symlink_to("/dev/zero")
+    for special in (fifo, tmp_path / "z.stl", tmp_path):
+        with pytest.raises(mbsfmu.ModelError, match="not a regular file"):
+            read_mesh(special)
 
 
 # -- in a real browser ---------------------------------------------------------------------------------------
