@@ -205,12 +205,14 @@ def test_sweep_of_a_built_fmu(tmp_path):
 
 
 @pytest.mark.parametrize("n, slots, cost", [(200, 1, 6.6e-4), (200, 2, 6.6e-4), (5, 4, 1.0), (10_000, 32, 0.2),
-                                            (7, 2, None), (1000, 3, math.nan)])
+                                            (7, 2, None), (1000, 3, math.nan), (0, 2, 1e-3), (1999, 2, 5e-4)])
 def test_batches_cover_every_case_once_and_feed_every_slot(n, slots, cost):
     from mbsfmu.sweep.dispatch import BATCH_SECONDS, batches
     cases = [(i, {}) for i in range(n)]
     bs = batches(cases, slots, cost)
     assert [c for b in bs for c in b] == cases
     assert len(bs) >= min(n, slots)
+    if (n, slots) == (1999, 2):  # 5 batches would leave one worker idle for the last fifth: 6 of equal size
+        assert [len(b) for b in bs] == [334] * 5 + [329]
     if cost and math.isfinite(cost) and len(bs) > slots:  # more batches than slots only with enough work each
         assert len(bs[0]) * cost >= BATCH_SECONDS or len(bs[0]) == 256

@@ -36,6 +36,8 @@ def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
 def batches(cases, slots, cost=None):
     """Split cases into equal batches: about BATCHES_PER_SLOT per slot, but (given the seconds one case costs)
     at least BATCH_SECONDS of work each, and never fewer batches than slots."""
+    if not cases:
+        return []
     size = max(1, math.ceil(len(cases) / (slots * BATCHES_PER_SLOT)))
     if cost is not None and math.isfinite(cost) and cost > 0:
         size = max(size, min(math.ceil(BATCH_SECONDS / cost), math.ceil(len(cases) / slots)))
