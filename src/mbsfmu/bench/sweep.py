@@ -163,7 +163,7 @@ def write_report(walls, cold_wall, counts, stop, out, load_before, load_after, c
         "",
         "The plain loop is what a user writes by hand: one `Simulation`, then per case `reset`, `set`, `initialize`,"
         " `run`, `get` of the four outputs. A sweep on a cluster adds: the first case run in the calling process"
-        " (its time sizes the batches), the rest in equal batches of ≥ 0.2 s of work sent at once with the model,"
+        " (its time sizes the batches), the rest in equal batches of about 0.2 s of work, a whole number per worker, sent at once with the model,"
         " which each worker builds once in its life (the timed sweeps find it built: the cold sweep above includes"
         " it), results back, one DataFrame. Its results equal the plain loop's bit for bit (checked before timing).",
         "",
