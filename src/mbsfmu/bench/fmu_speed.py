@@ -22,7 +22,6 @@ import statistics
 import subprocess
 import tempfile
 import uuid
-import zipfile
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
