@@ -149,8 +149,10 @@ def test_singular_mass_matrix_is_a_clean_integration_error():
 mbsfmu: 1
 name: massless
 bodies:
-  arm: {parent: world, joint: {type: revolute, axis: [0, 0, 1]}, mass: 0, inertia: [[0, 0, 0], [0, 0, 0], [0, 0, 0]]}
+  arm: {parent: world, joint: {type: revolute, axis: [0, 0, 1]}, mass: 1, inertia: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
 """)
+    arm = scene.spec["bodies"][0]   # load refuses a massless moving body; the engine must still fail cleanly on one
+    arm["mass"], arm["inertia"] = 0.0, [[0.0] * 3 for _ in range(3)]
     sim = Simulation(scene.spec)
     sim.initialize(0.0)
     with pytest.raises(IntegrationError, match="singular"):

@@ -5,6 +5,9 @@ Each limit is far above what a hand-written scene or a real elastic body needs.
 
 DOCUMENT_BYTES = 8 * 2**20      # a scene file; large nodal data belongs in an .npz beside it
 DEPTH = 64                      # nesting of mappings and lists, aliases expanded (nodal arrays need 3-4)
+NODES = 400_000                 # values in a document (a 10,000-body chain has 250,000): about 2 s to read
+ENTRIES = 10_000                # items of one list or mapping (bodies, forces, outputs, parameters, inline rows)
+NAME_CHARS = 200                # a model, body, parameter, input, output or coordinate name
 ALIAS_NODES = 1_000_000         # nodes that aliases may add to the document once expanded
 SCALAR_CHARS = 65_536           # one string (a description, an expression)
 INT_CHARS = 100                 # one integer literal (digits, sign, base prefix)
@@ -16,6 +19,7 @@ NPZ_ENTRIES = 64                # members of an .npz (zip) file
 BEAM_ELEMENTS = 200             # the beam generator's dense FE matrices grow as elements²
 
 RTOL = (1e-14, 1.0)             # integrator.rtol: below 1e-14 no double-precision step can meet it
+MAGNITUDE = (1e-100, 1e100)     # a nonzero constant (a mass, a length, a tolerance): its products stay finite and normal
 AXIS_LENGTH = (1e-9, 1e100)     # joint and rotation axes: a direction needs a length that squares safely
 COMMUNICATION_POINTS = 1e8      # (stop - start) / step of the experiment
 DOMAIN_SAMPLES = 257            # times in [start, stop] at which drives and forces (and derivatives) are evaluated

@@ -17,7 +17,7 @@ from ..errors import ModelError
 from ..expr import FUNCTIONS, ExprError, parse
 from . import datafile, domains, limits, names
 from .shapes import check_shapes
-from .yaml_lines import Map, Seq, read_yaml
+from .yaml_lines import Date, Map, Seq, read_yaml
 
 JOINT_TYPES = ("fixed", "revolute", "prismatic", "cylindrical", "universal", "planar", "spherical", "free")
 FORCE_TYPES = ("spring_damper", "joint_spring_damper", "force", "torque")
@@ -49,7 +49,8 @@ def load(path, allow_outside=False):
         with limits.open_regular(path) as f:
             raw = f.read(limits.DOCUMENT_BYTES + 1)  # bounded
     except OSError as e:
-        raise ModelError(f"cannot read scene file: {e.strerror or e}", file=str(path)) from None
+        raise ModelError(f"cannot read scene file: {e.strerror or e}", file=str(path),
+                         hint="give the path of a regular YAML file (not a folder, FIFO or device)") from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
@@ -67,7 +68,7 @@ def loads(text, file="<string>", base=None, allow_outside=False):
             json.dumps(spec)  # the run time gets the spec as JSON: it must stay plain data
     except ModelError as e:
         raise _short(e) from None
-    except (RecursionError, ArithmeticError, LookupError, TypeError, ValueError, AttributeError) as e:
+    except Exception as e:  # noqa: BLE001
         # a check this file slipped past: still a ModelError (the promise of `load`), naming what happened
         raise _short(ModelError(f"cannot read this scene ({type(e).__name__}: {e})", file=file)) from None
     return Scene(spec, file)
@@ -87,10 +88,15 @@ def _collector_paused():
 
 
 def _short(e):
-    """The same error with quoted input shortened: messages stay readable whatever the file holds."""
+    """The same error with quoted input shortened: messages stay readable whatever the file holds; every error
+    gets a hint (at least where the format of that part of the file is described)."""
     def cut(text, n=limits.MESSAGE_CHARS):
         return text if text is None or len(text) <= n else text[:n - 60] + " … " + text[-50:]
-    return ModelError(cut(e.message), file=e.file, line=e.line, key=cut(e.key, 120), hint=cut(e.hint))
+    hint = e.hint
+    if not hint:
+        section = re.match(r"[A-Za-z_]+", e.key or "")
+        hint = "see docs/scene-format.md" + (f", section '{section.group()}'" if section else "")
+    return ModelError(cut(e.message), file=e.file, line=e.line, key=cut(e.key, 120), hint=cut(hint))
 
 
 _EXPR_HINT = ("an expression may use numbers, parameters, pi, + - * / ^ ** and parentheses, and the functions "
@@ -147,7 +153,8 @@ class _Checker:
 
     def keys(self, node, path, allowed, required=()):
         if not isinstance(node, Map):
-            raise ModelError("expected a mapping", file=self.file, line=getattr(node, "line", None), key=path)
+            line = getattr(node, "line", None) or (self.line_of(path) if path and self.root is not None else None)
+            raise ModelError("expected a mapping", file=self.file, line=line, key=path, hint="key: value pairs, one per line or {key: value, ...}")
         for k in node:
             if k not in allowed:
                 self.fail(node, k, f"{path}.{k}" if path else k, f"unknown key '{k}'", _suggest(k, allowed))
@@ -157,11 +164,15 @@ class _Checker:
                 raise ModelError(f"missing required key '{k}'", file=self.file, line=node.line, key=path or None, hint=hint)
 
     # -- values ------------------------------------------------------------------------------------
-    def number(self, parent, key, path, allow_t=False, positive=False, nonneg=False):
+    def number(self, parent, key, path, allow_t=False, positive=False, nonneg=False, magnitude=True):
         """A numeric field: number or expression over parameters (and `t` where allowed) → JSON value."""
         value = parent[key]
+        if isinstance(value, Date):
+            self.fail(parent, key, path, f"'{value}' reads as a date, not a number", "write the number; quote an expression that looks like a date")
         if isinstance(value, str) and len(value) > limits.EXPRESSION_CHARS:
             self.fail(parent, key, path, f"an expression of {len(value):,} characters (at most {limits.EXPRESSION_CHARS})")
+        if isinstance(value, str) and not value.isascii():
+            self.fail(parent, key, path, f"the expression '{value}' holds characters other than ASCII", _EXPR_HINT)
         try:
             e = parse(value)
         except ExprError as err:
@@ -179,11 +190,15 @@ class _Checker:
         except (ValueError, ZeroDivisionError, OverflowError, TypeError) as err:
             self.fail(parent, key, path, f"cannot evaluate '{e.text}': {err}")
         if not math.isfinite(v):
-            self.fail(parent, key, path, f"'{e.text}' is not finite")
+            self.fail(parent, key, path, f"'{e.text}' is not finite", "give a finite number (.inf, .nan and overflowing expressions are refused)")
         if positive and not v > 0:
-            self.fail(parent, key, path, f"must be positive, got {v:g}")
+            self.fail(parent, key, path, f"must be positive, got {v:g}", "give a value > 0")
         if nonneg and v < 0:
             self.fail(parent, key, path, f"must not be negative, got {v:g}", "use 0 or a positive value")
+        lo, hi = limits.MAGNITUDE
+        if magnitude and v != 0 and not lo <= abs(v) <= hi:
+            self.fail(parent, key, path, f"{v:g} is outside the magnitudes a model can compute with ({lo:g} to {hi:g}, or 0)",
+                      "products of such numbers over- or underflow in double precision; check the units")
         return float(value) if isinstance(value, (int, float)) else value
 
     def value(self, spec_value):
@@ -194,7 +209,7 @@ class _Checker:
         v = parent[key]
         if not isinstance(v, list) or len(v) != n:
             self.fail(parent, key, path, f"expected a list of {n} numbers, got {v!r}")
-        out = [self.number(v, i, f"{path}[{i}]", allow_t=allow_t) for i in range(n)]
+        out = [self.number(v, i, f"{path}[{i}]", allow_t=allow_t, magnitude=not nonzero) for i in range(n)]
         if nonzero:  # a direction: normalized by the run time, so its length must square without under- or overflow
             length = math.hypot(*[self.value(x) for x in out])
             if length == 0:
@@ -231,6 +246,8 @@ class _Checker:
         v = parent[key]
         if not isinstance(v, str) or not pattern.fullmatch(v):
             self.fail(parent, key, path, f"{v!r} is not valid as {what}", "letters, digits, underscore; starts with a letter")
+        if len(v) > limits.NAME_CHARS:
+            self.fail(parent, key, path, f"{what} of {len(v):,} characters (at most {limits.NAME_CHARS})", "use a shorter name")
         return v
 
     def text(self, parent, key, path):
@@ -275,7 +292,9 @@ class _Checker:
             self.fail(root, "parameters", "parameters", "expected a mapping of name: value")
         for name, v in node.items():
             path = f"parameters.{name}"
-            self.name(Map({name: name}), name, path, what="a parameter name")
+            if not _NAME.fullmatch(name) or len(name) > limits.NAME_CHARS:
+                self.fail(node, name, path, f"{name[:limits.NAME_CHARS]!r} is not valid as a parameter name",
+                          f"letters, digits, underscore; starts with a letter; at most {limits.NAME_CHARS} characters")
             if name in RESERVED or name in FUNCTIONS:
                 self.fail(node, name, path, f"'{name}' is reserved", "choose another parameter name")
             desc, unit = "", None
@@ -285,14 +304,15 @@ class _Checker:
                     unit = v["unit"]
                     if not isinstance(unit, str) or not re.fullmatch(r"[A-Za-z0-9_.*/^()+-]{1,32}", unit):
                         self.fail(v, "unit", path + ".unit", f"a unit is a short name such as N/m, kg.m2 or rad/s, got {unit!r}")
-                desc, v = str(v.get("description", "")), v["value"]
-            if isinstance(v, str):  # YAML 1.1 reads 1.0e8 or 1e8 as a string
+                desc, v = self.text(v, "description", path + ".description"), v["value"]
+            if isinstance(v, str) and v.isascii() and not isinstance(v, Date):  # YAML 1.1 reads 1.0e8 or 1e8 as a string
                 try:
                     v = float(v)
                 except ValueError:
                     pass
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                self.fail(node, name, path, f"a parameter value must be a finite number, got {v!r}")
+                self.fail(node, name, path, f"a parameter value must be a finite number, got {v!r}",
+                          "a parameter is a plain number such as 1.5 or 2e-3; expressions belong in the fields that use it")
             self.params[name] = float(v)
             out.append({"name": name, "value": float(v), "description": desc, **({"unit": unit} if unit else {})})
         return out
@@ -303,10 +323,11 @@ class _Checker:
             self.fail(root, "bodies", "bodies", "expected a non-empty mapping of body name: body")
         names = list(node)
         for n in names:
-            if not _NAME.fullmatch(n) or n == "world":
+            if not _NAME.fullmatch(n) or n == "world" or len(n) > limits.NAME_CHARS:
                 self.fail(node, n, f"bodies.{n}", f"{n!r} is not valid as a body name", "letters, digits, underscore; starts with a letter; not 'world'")
         out = [self.body(node, n) for n in names]
         self.acyclic(node, {b["name"]: b["parent"] for b in out})
+        self.massless(node, out)
         for b in out:  # `node:` of a child joint, now that every elastic body knows its nodes
             if b["joint"]["node"] is not None:
                 self.node_index(node[b["name"]]["joint"], "node", f"bodies.{b['name']}.joint.node", b["parent"], b["joint"]["node"])
@@ -335,6 +356,26 @@ class _Checker:
                 on_chain.add(p)
                 p = parent[p]
             grounded.update(chain)
+
+    def massless(self, node, bodies):
+        """A joint that moves nothing with mass or inertia gives a singular mass matrix: every body whose joint has a
+        free (undriven) coordinate needs mass, inertia or an elastic body in its subtree. Linear: each loaded body
+        marks its chain of ancestors up to the first one already marked."""
+        parent = {b["name"]: b["parent"] for b in bodies}
+        loaded = set()
+        for b in bodies:
+            if b["elastic"] or self.value(b["mass"]) > 0 or any(self.value(b["inertia"][i][i]) > 0 for i in range(3)):
+                n = b["name"]
+                while n != "world" and n not in loaded:
+                    loaded.add(n)
+                    n = parent[n]
+        for b in bodies:
+            j = b["joint"]
+            if b["name"] not in loaded and any(c not in j["drive"] for c in j["coordinates"]):
+                where = node[b["name"]]
+                self.fail(where, "mass" if "mass" in where else "joint", f"bodies.{b['name']}.mass",
+                          f"body '{b['name']}' and the bodies it carries have no mass or inertia, so its joint's motion is undetermined (singular mass matrix)",
+                          "give the body (or one it carries) a mass and inertia, make the joint fixed, or drive its coordinates")
 
     def body(self, bodies, name):
         node, path = bodies[name], f"bodies.{name}"
@@ -718,7 +759,7 @@ class _Checker:
             self.fail(node, "method", "integrator.method", f"unknown method '{method}'", _suggest(method, METHODS))
         out = {"method": method}
         for k, default in (("rtol", 1e-6), ("atol", 1e-8), ("max_step", 0.0), ("step", 0.0), ("rho_inf", 0.8)):
-            out[k] = self.value(self.number(node, k, f"integrator.{k}", positive=k in ("rtol", "atol"), nonneg=True)) if k in node else default
+            out[k] = self.value(self.number(node, k, f"integrator.{k}", positive=k in ("rtol", "atol"), nonneg=True, magnitude=False)) if k in node else default
         if not 0 <= out["rho_inf"] <= 1:
             self.fail(node, "rho_inf", "integrator.rho_inf", "must lie in [0, 1]")
         lo, hi = limits.RTOL

@@ -60,7 +60,7 @@ class _Loader(SafeConstructor, Resolver, _Parser):
         _Parser.__init__(self, text)
         SafeConstructor.__init__(self)
         Resolver.__init__(self)
-        self.key_path, self.tags = [], {}
+        self.key_path, self.tags, self.nodes, self.open_ = [], {}, 0, []
 
     def get_single_node(self):
         """The document's node graph, as yaml.composer builds it, without recursion (so no depth can crash it)."""
@@ -77,6 +77,7 @@ class _Loader(SafeConstructor, Resolver, _Parser):
 
     def _compose(self):
         anchors, open_, root = {}, [], None  # open_: (node, its children so far) of unfinished collections
+        self.open_ = open_
         while True:
             event = self.get_event()
             if isinstance(event, AliasEvent):
@@ -102,17 +103,50 @@ class _Loader(SafeConstructor, Resolver, _Parser):
                 if not open_:
                     return node
                 continue
+            self.nodes += 1
+            if self.nodes > limits.NODES:
+                raise ModelError(f"more than {limits.NODES:,} values in one scene", line=_line(event),
+                                 hint="put large nodal data in an .npz file next to the scene")
             starts = isinstance(event, (SequenceStartEvent, MappingStartEvent))
             if event.anchor is not None and not isinstance(event, AliasEvent):
                 if event.anchor in anchors:
                     raise ComposerError(None, None, f"found duplicate anchor {event.anchor!r}", event.start_mark)
                 anchors[event.anchor] = node
             if open_:
-                open_[-1][1].append(node)
+                parent, children = open_[-1]
+                if len(children) >= limits.ENTRIES * (1 if isinstance(parent, SequenceNode) else 2):
+                    raise ModelError(f"a list or mapping of more than {limits.ENTRIES:,} entries", line=_line(event),
+                                     key=self.compose_path(len(open_) - 1),
+                                     hint="scenes hold at most that many bodies, forces, outputs or parameters; large nodal data belong in an .npz")
+                children.append(node)
             elif not starts:
                 return node
             if starts:
                 open_.append((node, node.value if isinstance(node, SequenceNode) else []))
+
+    def compose_path(self, levels=None):
+        """The key path (`bodies.arm.joint`, `forces[3]`) of the place the composer has reached, for errors met there
+        (of the collection at `levels` - 1 deep, when given)."""
+        parts = []
+        for level, (node, children) in enumerate(self.open_[:levels]):
+            last = level == len(self.open_) - 1
+            if isinstance(node, SequenceNode):
+                parts.append(f"[{len(children) if last else len(children) - 1}]")
+            elif children:
+                key = children[2 * ((len(children) - 1) // 2)]
+                parts.append(key.value if isinstance(key, ScalarNode) else "?")
+        return _join(parts) or None
+
+    def construct_object(self, node, deep=False):
+        """As SafeConstructor's, but a value its constructor cannot convert (`!!float abc`, `!!map [1]`) is a
+        ModelError at the node's line and key path."""
+        try:
+            return super().construct_object(node, deep)
+        except (ModelError, yaml.YAMLError):
+            raise
+        except (ValueError, TypeError, AttributeError, ArithmeticError) as e:
+            raise ModelError(f"the value cannot be read as {node.tag.rsplit(':', 1)[-1]} ({type(e).__name__})", line=_line(node),
+                             key=_join(self.key_path) or None, hint="use plain YAML values: numbers, text, lists and mappings") from None
 
     def _scalar_tag(self, event):
         if event.tag not in (None, "!"):
@@ -127,25 +161,39 @@ def _check_expansion(root):
     """Depth and size of the node graph with aliases expanded (each shared node counted once per use).
 
     Linear in the distinct nodes: the expanded size of a node is memoized; a recursive alias exceeds the depth.
+    Errors name the key path of the node (`stack`: the keys and indices walked down to it).
     """
-    size, distinct, open_ = {}, [0], set()
+    size, distinct, open_, stack = {}, [0], set(), []
+
+    def fail(message, node, hint=None):
+        raise ModelError(message, line=_line(node), key=_join(stack) or None, hint=hint)
 
     def walk(node, depth):
         if id(node) in open_:
-            raise ModelError("an alias refers to a node that contains it", line=_line(node), hint="recursive data cannot be a scene")
+            fail("an alias refers to a node that contains it", node, "recursive data cannot be a scene")
         if depth > limits.DEPTH:
-            raise ModelError(f"nested more than {limits.DEPTH} levels deep (aliases expanded)", line=_line(node))
+            fail(f"nested more than {limits.DEPTH} levels deep (aliases expanded)", node, "a scene needs a few levels; flatten the data")
         if id(node) in size:
             return size[id(node)]
         distinct[0] += 1
-        children = (node.value if isinstance(node, SequenceNode) else
-                    [n for pair in node.value for n in pair] if isinstance(node, MappingNode) else ())
+        if isinstance(node, SequenceNode):
+            children = [(f"[{i}]", c) for i, c in enumerate(node.value)]
+        elif isinstance(node, MappingNode):
+            children = [(c, n) for k, v in node.value for c, n in ((None, k), (k.value if isinstance(k, ScalarNode) else "?", v))]
+        else:
+            children = ()
         open_.add(id(node))
-        n = 1 + sum(walk(c, depth + 1) for c in children)
+        n = 1
+        for key, child in children:
+            if key is not None:
+                stack.append(key)
+            n += walk(child, depth + 1)
+            if key is not None:
+                stack.pop()
         open_.discard(id(node))
         if n > distinct[0] + limits.ALIAS_NODES:
-            raise ModelError(f"aliases expand this document beyond {limits.ALIAS_NODES:,} extra values", line=_line(node),
-                             hint="an alias bomb? use anchors and aliases only for small shared values")
+            fail(f"aliases expand this document beyond {limits.ALIAS_NODES:,} extra values", node,
+                 "an alias bomb? use anchors and aliases only for small shared values")
         size[id(node)] = n
         return n
 
@@ -201,11 +249,35 @@ def _construct_str(loader, node):
     return text
 
 
+class Date(str):
+    """A YAML 1.1 timestamp (`2024-01-01`), kept as the text it was written as; never a number (not 2024-1-1)."""
+
+
+def _construct_date(loader, node):
+    return Date(_construct_str(loader, node))
+
+
+# YAML 1.1 reads 1:30 as 90 (base 60) and 010 as 8 (octal): surprises, not numbers a scene means
+_SURPRISING_NUMBER = re.compile(r"[-+]?(?:[0-9][0-9_]*(?::[0-5]?[0-9])+(?:\.[0-9_]*)?|0[0-7_]+)")
+
+
+def _refuse_surprise(loader, node):
+    if not node.style and _SURPRISING_NUMBER.fullmatch(node.value):  # plain, not quoted
+        raise ModelError(f"'{node.value}' reads as a YAML 1.1 {'base-60' if ':' in node.value else 'octal'} number", line=_line(node),
+                         key=_join(loader.key_path) or None, hint=f"write it in decimal, or quote it if it is text: \"{node.value}\"")
+
+
 def _construct_int(loader, node):
     if len(node.value) > limits.INT_CHARS:
         raise ModelError(f"an integer of {len(node.value):,} characters (at most {limits.INT_CHARS})", line=_line(node),
                          key=_join(loader.key_path) or None, hint="write large numbers as floats, e.g. 1.0e30")
+    _refuse_surprise(loader, node)
     return SafeConstructor.construct_yaml_int(loader, node)
+
+
+def _construct_float(loader, node):
+    _refuse_surprise(loader, node)
+    return SafeConstructor.construct_yaml_float(loader, node)
 
 
 def _refuse_tag(loader, node):
@@ -216,8 +288,9 @@ def _refuse_tag(loader, node):
 _Loader.add_constructor(Resolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 _Loader.add_constructor(Resolver.DEFAULT_SEQUENCE_TAG, _construct_sequence)
 _Loader.add_constructor("tag:yaml.org,2002:str", _construct_str)
-_Loader.add_constructor("tag:yaml.org,2002:timestamp", _construct_str)  # a date stays the text it was written as
+_Loader.add_constructor("tag:yaml.org,2002:timestamp", _construct_date)  # a date stays the text it was written as
 _Loader.add_constructor("tag:yaml.org,2002:int", _construct_int)
+_Loader.add_constructor("tag:yaml.org,2002:float", _construct_float)
 for _tag in ("binary", "set", "omap", "pairs"):
     _Loader.add_constructor(f"tag:yaml.org,2002:{_tag}", _refuse_tag)
 
@@ -239,7 +312,7 @@ def read_yaml(text, file=None):
         _check_expansion(node)
         return loader.construct_document(node)
     except ModelError as e:
-        raise ModelError(e.message, file=file, line=e.line, key=e.key, hint=e.hint) from None
+        raise ModelError(e.message, file=file, line=e.line, key=e.key or loader.compose_path(), hint=e.hint) from None
     except yaml.constructor.ConstructorError as e:
         mark = e.problem_mark
         raise ModelError(f"{e.problem}", file=file, line=mark.line + 1 if mark else None,
@@ -248,6 +321,7 @@ def read_yaml(text, file=None):
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         problem = getattr(e, "problem", None) or str(e)
-        raise ModelError(f"invalid YAML: {problem}", file=file, line=mark.line + 1 if mark else None) from None
+        raise ModelError(f"invalid YAML: {problem}", file=file, line=mark.line + 1 if mark else None, key=loader.compose_path(),
+                         hint="check the indentation (spaces, not tabs), colons and brackets at this line") from None
     finally:
         loader.dispose()
