@@ -12,6 +12,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 import zipfile
 
 import numpy as np
@@ -20,7 +21,8 @@ import pytest
 from test_scene_hostile import BASE, ELASTIC, NODAL_BODY, base, bomb, chain, elastic, inline, nodal_arrays, run_bounded
 
 CPU_SECONDS = 1.0
-CPU_LARGE = {"star_10000_then_bad": 4.0}   # a 1.4 MB file: ~2 s of honest reading
+CPU_LARGE = {"star_10000_then_bad": 4.0,   # a 1.4 MB file: ~2 s of honest reading
+             "many_small_lists": 3.0}    # 400,000 values (the limit) read before the refusal: ~1-1.5 s
 
 
 # ---- makers of cases that need files beside the scene -----------------------------------------------------------
@@ -48,7 +50,8 @@ def _npz(members, *, file="data.npz"):
     """An .npz of raw members {name: bytes} (a list of pairs: duplicates allowed) beside a scene reading it."""
     def make(d):
         d.mkdir(parents=True, exist_ok=True)
-        with zipfile.ZipFile(d / "data.npz", "w") as z:
+        with zipfile.ZipFile(d / "data.npz", "w") as z, warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # "Duplicate name": on purpose in one case
             for k, v in (members.items() if isinstance(members, dict) else members):
                 z.writestr(k, v)
         return _scene(d, BASE + NODAL_BODY % f"{{file: {file}}}")
@@ -395,3 +398,614 @@ def test_cli_prints_one_line_without_traceback(results):
     assert len(lines) == len(names) and "Traceback" not in r.stderr, r.stderr
     for n, line in zip(names, lines):
         assert results["_paths"][n] in line, (n, line)
+
+
+# ==== hosts: both FMU kinds through fmpy's FMU2Slave, every hostile sequence in one child process per kind ========
+HOST_DRIVER = r'''
+import ctypes, json, math, os, sys
+import fmpy
+from fmpy import read_model_description, calloc, free
+from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE,
+                       fmi2CallbackFreeMemoryTYPE, fmi2FMUstate)
+from fmpy.fmi1 import FMICallException
+from fmpy.logging import addLoggerProxy
+
+fmu, other, work, only = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
+LOG = []
+cb = fmi2CallbackFunctions()
+cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, st, cat, msg: LOG.append((name.decode(errors="replace"), st, (cat or b"").decode(),
+                                                                              msg.decode(errors="replace"))))
+cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+addLoggerProxy(ctypes.byref(cb))
+MD = {p: read_model_description(p) for p in (fmu, other)}
+DIRS = {p: fmpy.extract(p, os.path.join(work, os.path.basename(p))) for p in (fmu, other)}
+md = MD[fmu]
+VR = {v.name: v.valueReference for v in md.modelVariables}
+OUT = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+INP = [v.valueReference for v in md.modelVariables if v.causality == "input"]
+TUNABLE = [v.valueReference for v in md.modelVariables if v.causality == "parameter" and v.variability == "tunable"]
+N = [0]
+
+
+def open_fmu(path=fmu, tag=None, instantiate=True):
+    N[0] += 1
+    tag = tag or f"i{N[0]}"
+    m = MD[path]
+    s = FMU2Slave(guid=m.guid, unzipDirectory=DIRS[path], modelIdentifier=m.coSimulation.modelIdentifier, instanceName=tag)
+    s.tag = tag
+    if instantiate:
+        s.instantiate(callbacks=cb)
+    return s
+
+
+def init(s):
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+
+
+def st(call, *args):
+    try:
+        r = call(*args)
+        return 0 if r is None or not isinstance(r, int) else r
+    except FMICallException as e:
+        return e.status
+    except OSError as e:  # access violation in ctypes: must never happen
+        return f"OSError {e}"
+
+
+def logged(tag, since):
+    return [m[1:] for m in LOG[since:] if m[0] == tag]
+
+
+def calls(s, seq):
+    """[(what, status, [(status, category, message)])] for seq = [(what, fn, args)]"""
+    out = []
+    for what, fn, args in seq:
+        n = len(LOG)
+        out.append((what, st(fn, *args), logged(s.tag, n)))
+    return out
+
+
+def steps(s, t, n, h=0.01):
+    for _ in range(n):
+        s.doStep(t, h)
+        t += h
+    return t
+
+
+def outs(s):
+    return list(s.getReal(OUT))
+
+
+def fresh_run():
+    """A fresh instance initializes and steps normally (after each hostile sequence)."""
+    s = open_fmu()
+    init(s)
+    steps(s, 0.0, 5)
+    r = outs(s)
+    s.fmi2FreeInstance(s.component)
+    return r
+
+
+def vrs(*v):
+    return (ctypes.c_uint * len(v))(*v)
+
+
+def reals(*v):
+    return (ctypes.c_double * len(v))(*v)
+
+
+# ---- scenarios: each returns JSON-able data ----------------------------------------------------------------------
+def sc_steps():
+    a, b = open_fmu(), open_fmu()
+    init(a), init(b)
+    t = steps(a, 0.0, 3)
+    steps(b, 0.0, 3)
+    inf, nan = float("inf"), float("nan")
+    seq = [("h zero", a.fmi2DoStep, (a.component, t, 0.0, 1)), ("h -0", a.fmi2DoStep, (a.component, t, -0.0, 1)),
+           ("h negative", a.fmi2DoStep, (a.component, t, -1e-300, 1)), ("h NaN", a.fmi2DoStep, (a.component, t, nan, 1)),
+           ("h inf", a.fmi2DoStep, (a.component, t, inf, 1)), ("h -inf", a.fmi2DoStep, (a.component, t, -inf, 1)),
+           ("t NaN", a.fmi2DoStep, (a.component, nan, 0.01, 1)), ("t inf", a.fmi2DoStep, (a.component, inf, 0.01, 1)),
+           ("t -inf", a.fmi2DoStep, (a.component, -inf, 0.01, 1)), ("t ahead 1e-3", a.fmi2DoStep, (a.component, t + 1e-3, 0.01, 1)),
+           ("t behind", a.fmi2DoStep, (a.component, t - 0.01, 0.01, 1)), ("t start", a.fmi2DoStep, (a.component, 0.0, 0.01, 1)),
+           ("t 1e300", a.fmi2DoStep, (a.component, 1e300, 0.01, 1))]
+    res = calls(a, seq)
+    steps(a, t, 3), steps(b, t, 3)
+    return {"sequence": res, "same": outs(a) == outs(b)}
+
+
+def sc_noset():
+    """noSetFMUStatePriorToCurrentPoint: any fmi2Boolean value (0, 1, 2, -1, 255); a rollback after 'true' works."""
+    a, b = open_fmu(), open_fmu()
+    init(a), init(b)
+    res, t = [], 0.0
+    for flag in (0, 1, 2, -1, 255):
+        n = len(LOG)
+        res.append((flag, st(a.fmi2DoStep, a.component, t, 0.01, flag), logged(a.tag, n)))
+        st(b.fmi2DoStep, b.component, t, 0.01, 0)
+        t += 0.01
+    s0 = a.getFMUstate()
+    o0 = outs(a)
+    st(a.fmi2DoStep, a.component, t, 0.01, 1)
+    back = st(a.fmi2SetFMUstate, a.component, s0)
+    a.freeFMUstate(s0)
+    return {"steps": res, "same": outs(a) == outs(b), "rollback": back, "rolled_back": outs(a) == o0}
+
+
+def sc_nan_sets():
+    """NaN and infinity set into inputs, parameters and integrator settings, in each phase."""
+    nan, inf = float("nan"), float("inf")
+    a, b = open_fmu(), open_fmu()
+    rtol, atol = VR["integrator.rtol"], VR["integrator.atol"]
+    res = {}
+    p = TUNABLE[0]
+    res["instantiated: parameter NaN"] = calls(a, [("set", a.setReal, ([p], [nan]))])
+    res["instantiated: parameter back"] = calls(a, [("set", a.setReal, ([p], [b.getReal([p])[0]]))])
+    res["instantiated: rtol NaN"] = calls(a, [("set", a.setReal, ([rtol], [nan]))])
+    res["instantiated: rtol back"] = calls(a, [("set", a.setReal, ([rtol], [b.getReal([rtol])[0]]))])
+    res["instantiated: atol -inf"] = calls(a, [("set", a.setReal, ([atol], [-inf]))])
+    res["instantiated: atol back"] = calls(a, [("set", a.setReal, ([atol], [b.getReal([atol])[0]]))])
+    a.setupExperiment(startTime=0.0), b.setupExperiment(startTime=0.0)
+    a.enterInitializationMode(), b.enterInitializationMode()
+    if INP:
+        res["init: input NaN"] = calls(a, [("set", a.setReal, ([INP[0]], [nan]))])
+        res["init: input back"] = calls(a, [("set", a.setReal, ([INP[0]], [0.0]))])
+    res["exit"] = calls(a, [("exit", a.exitInitializationMode, ())])
+    b.exitInitializationMode()
+    t = steps(a, 0.0, 2)
+    steps(b, 0.0, 2)
+    res["step: parameter NaN"] = calls(a, [("set", a.setReal, ([p], [nan])), ("doStep", a.doStep, (t, 0.01))])
+    res["step: parameter back"] = calls(a, [("set", a.setReal, ([p], [b.getReal([p])[0]]))])
+    b.setReal([p], [b.getReal([p])[0]])   # the twin gets the accepted sets (a parameter set restarts the integrator)
+    res["step: rtol NaN (fixed)"] = calls(a, [("set", a.setReal, ([rtol], [nan]))])
+    if INP:
+        res["step: input inf"] = calls(a, [("set", a.setReal, ([INP[0]], [inf])), ("doStep", a.doStep, (t, 0.01))])
+        flag = ctypes.c_int(7)
+        res["terminated after discard"] = [st(a.fmi2GetBooleanStatus, a.component, 3, ctypes.byref(flag)), flag.value]
+        res["step: input back"] = calls(a, [("set", a.setReal, ([INP[0]], [0.0]))])
+    steps(a, t, 3), steps(b, t, 3)
+    c = open_fmu()
+    c.setReal([rtol], [nan])
+    c.setupExperiment(startTime=0.0)
+    c.enterInitializationMode()
+    res["rtol NaN left: exit"] = calls(c, [("exit", c.exitInitializationMode, ()), ("doStep", c.doStep, (0.0, 0.01))])
+    return {"calls": res, "same": outs(a) == outs(b)}
+
+
+def sc_strings():
+    a, b = open_fmu(), open_fmu()
+    m = VR["integrator.method"]
+    default = b.getString([m])[0]
+    cstr = lambda *v: (ctypes.c_char_p * len(v))(*v)
+    seq = [("NULL string", a.fmi2SetString, (a.component, vrs(m), 1, cstr(None))),
+           ("NULL value array", a.fmi2SetString, (a.component, vrs(m), 1, None)),
+           ("NULL vr array", a.fmi2SetString, (a.component, None, 1, cstr(b"rk4"))),
+           ("very long", a.fmi2SetString, (a.component, vrs(m), 1, cstr(b"x" * 1_000_000))),
+           ("not UTF-8", a.fmi2SetString, (a.component, vrs(m), 1, cstr(b"dopri5\xff\xfe"))),
+           ("embedded format", a.fmi2SetString, (a.component, vrs(m), 1, cstr(b"%s%s%s%n%n"))),
+           ("empty", a.fmi2SetString, (a.component, vrs(m), 1, cstr(b""))),
+           ("good after", a.fmi2SetString, (a.component, vrs(m), 1, cstr(default))),
+           ("nvr 0 NULL arrays setString", a.fmi2SetString, (a.component, None, 0, None)),
+           ("nvr 0 NULL arrays setReal", a.fmi2SetReal, (a.component, None, 0, None)),
+           ("nvr 0 NULL arrays getReal", a.fmi2GetReal, (a.component, None, 0, None)),
+           ("nvr 0 NULL arrays getString", a.fmi2GetString, (a.component, None, 0, None)),
+           ("nvr 0 NULL arrays getInteger", a.fmi2GetInteger, (a.component, None, 0, None)),
+           ("nvr 0 NULL arrays setBoolean", a.fmi2SetBoolean, (a.component, None, 0, None)),
+           ("getString NULL out", a.fmi2GetString, (a.component, vrs(m), 1, None))]
+    res = calls(a, seq)
+    init(a), init(b)
+    steps(a, 0.0, 5), steps(b, 0.0, 5)
+    return {"sequence": res, "same": outs(a) == outs(b), "method_kept": a.getString([m]) == [default]}
+
+
+def sc_state_pointers():
+    a, b = open_fmu(), open_fmu()
+    init(a), init(b)
+    t = steps(a, 0.0, 3)
+    steps(b, 0.0, 3)
+    size = ctypes.c_size_t()
+    s = fmi2FMUstate()
+    res = calls(a, [("get NULL", a.fmi2GetFMUstate, (a.component, None)),
+                    ("set NULL", a.fmi2SetFMUstate, (a.component, None)),
+                    ("free NULL pointer", a.fmi2FreeFMUstate, (a.component, None)),
+                    ("free pointer to NULL", a.fmi2FreeFMUstate, (a.component, ctypes.byref(fmi2FMUstate()))),
+                    ("get", a.fmi2GetFMUstate, (a.component, ctypes.byref(s))),
+                    ("size NULL out", a.fmi2SerializedFMUstateSize, (a.component, s, None)),
+                    ("size NULL state", a.fmi2SerializedFMUstateSize, (a.component, None, ctypes.byref(size))),
+                    ("serialize NULL buffer", a.fmi2SerializeFMUstate, (a.component, s, None, 10**6)),
+                    ("deserialize NULL bytes", a.fmi2DeSerializeFMUstate, (a.component, None, 100, ctypes.byref(fmi2FMUstate()))),
+                    ("deserialize NULL out", a.fmi2DeSerializeFMUstate, (a.component, ctypes.create_string_buffer(200), 200, None))])
+    stale = fmi2FMUstate(s.value)
+    res += calls(a, [("free", a.fmi2FreeFMUstate, (a.component, ctypes.byref(s)))])
+    res += [("handle set to NULL by free", 0 if not s.value else 3, [])]
+    res += calls(a, [("free again (NULL now)", a.fmi2FreeFMUstate, (a.component, ctypes.byref(s))),
+                     ("free stale copy", a.fmi2FreeFMUstate, (a.component, ctypes.byref(fmi2FMUstate(stale.value)))),
+                     ("size of freed", a.fmi2SerializedFMUstateSize, (a.component, stale, ctypes.byref(size))),
+                     ("serialize freed", a.fmi2SerializeFMUstate, (a.component, stale, ctypes.create_string_buffer(10**5), 10**5)),
+                     ("set freed", a.fmi2SetFMUstate, (a.component, stale)),
+                     ("made-up handle", a.fmi2SetFMUstate, (a.component, fmi2FMUstate(0x1234560))),
+                     ("made-up handle size", a.fmi2SerializedFMUstateSize, (a.component, fmi2FMUstate(0x10), ctypes.byref(size)))])
+    steps(a, t, 3), steps(b, t, 3)
+    return {"sequence": res, "same": outs(a) == outs(b)}
+
+
+def sc_cross_states():
+    """A state of another instance of the same FMU works; one of another FMU is refused, the instance unchanged."""
+    a, b, twin = open_fmu(), open_fmu(), open_fmu()
+    c = open_fmu(other)
+    for s in (a, b, twin, c):
+        init(s)
+    steps(a, 0.0, 2), steps(twin, 0.0, 2)
+    t = steps(b, 0.0, 7)
+    steps(c, 0.0, 3)
+    sb, sc = b.getFMUstate(), c.getFMUstate()
+    size = ctypes.c_size_t()
+    oa = outs(a)
+    res = calls(a, [("other FMU's state", a.fmi2SetFMUstate, (a.component, sc)),
+                    ("other FMU's state size", a.fmi2SerializedFMUstateSize, (a.component, sc, ctypes.byref(size)))])
+    unchanged = outs(a) == oa
+    res += calls(a, [("same FMU, other instance", a.fmi2SetFMUstate, (a.component, sb))])
+    steps(a, t, 3), steps(b, t, 3)
+    same_as_b = outs(a) == outs(b)
+    b.freeFMUstate(sb)
+    res += calls(a, [("state of the other instance after its free", a.fmi2SetFMUstate, (a.component, sb))])
+    c.freeFMUstate(sc)
+    # a state survives nothing of its instance: after FreeInstance its handles are stale
+    d = open_fmu()
+    init(d)
+    sd = d.getFMUstate()
+    d.fmi2FreeInstance(d.component)
+    res += calls(a, [("state of a freed instance", a.fmi2SetFMUstate, (a.component, sd))])
+    return {"sequence": res, "unchanged_after_foreign": unchanged, "same_as_b": same_as_b}
+
+
+def sc_deserialize_sizes():
+    a, b = open_fmu(), open_fmu()
+    init(a), init(b)
+    t = steps(a, 0.0, 3)
+    steps(b, 0.0, 3)
+    good = bytes(a.serializeFMUstate(a.getFMUstate()))
+    buf = ctypes.create_string_buffer(good, len(good))
+    h = fmi2FMUstate()
+    res = calls(a, [("size 0", a.fmi2DeSerializeFMUstate, (a.component, buf, 0, ctypes.byref(h))),
+                    ("size 1", a.fmi2DeSerializeFMUstate, (a.component, buf, 1, ctypes.byref(h))),
+                    ("size 2^62 (header says less)", a.fmi2DeSerializeFMUstate, (a.component, buf, 2**62, ctypes.byref(h))),
+                    ("size 2^64-1", a.fmi2DeSerializeFMUstate, (a.component, buf, 2**64 - 1, ctypes.byref(h)))])
+    steps(a, t, 3), steps(b, t, 3)
+    return {"sequence": res, "same": outs(a) == outs(b), "handle": h.value}
+
+
+def sc_reset_everywhere():
+    """fmi2Reset in every phase, then a normal run: equal to a fresh instance."""
+    ref = fresh_run()
+    res = {}
+    def after_reset(s):
+        r = st(s.reset)
+        init(s)
+        steps(s, 0.0, 5)
+        return r, outs(s) == ref
+    s = open_fmu(); res["instantiated"] = after_reset(s)
+    s = open_fmu(); s.setupExperiment(startTime=0.0); res["after setup"] = after_reset(s)
+    s = open_fmu(); s.setupExperiment(startTime=0.0); s.enterInitializationMode(); res["initialization mode"] = after_reset(s)
+    s = open_fmu(); init(s); res["step mode at start"] = after_reset(s)
+    s = open_fmu(); init(s); steps(s, 0.0, 7); res["step mode later"] = after_reset(s)
+    s = open_fmu(); init(s); steps(s, 0.0, 7); s.terminate(); res["terminated"] = after_reset(s)
+    s = open_fmu(); s.setString([VR["integrator.method"]], ["rk4"]); s.setReal([VR["integrator.rtol"]], [1e-3])
+    res["after changed settings"] = after_reset(s)
+    s = open_fmu(); st(s.setString, [VR["integrator.method"]], ["bogus"]); s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode(); st(s.exitInitializationMode); res["error after failed initialization"] = after_reset(s)
+    if INP:
+        s = open_fmu(); init(s); s.setReal([INP[0]], [float("nan")]); st(s.doStep, 0.0, 0.01)
+        res["after a discarded step"] = after_reset(s)
+    s = open_fmu(); init(s); s.fmi2Reset(s.component); r = st(s.reset); init(s); steps(s, 0.0, 5)
+    res["reset twice"] = (r, outs(s) == ref)
+    s = open_fmu(); s.setupExperiment(startTime=1.0); s.enterInitializationMode(); s.exitInitializationMode()
+    res["start time 1 forgotten"] = after_reset(s)
+    return {"reset": res}
+
+
+def sc_lifecycle():
+    res = {}
+    a = open_fmu(); init(a); steps(a, 0.0, 3); a.terminate()
+    a.fmi2FreeInstance(a.component)
+    res["terminate then free"] = "ok"
+    b = open_fmu(); init(b)
+    b.fmi2FreeInstance(b.component)
+    b.fmi2FreeInstance(b.component)     # twice
+    b.fmi2FreeInstance(None)
+    res["free twice, NULL"] = "ok"
+    res["calls on freed"] = [st(b.fmi2DoStep, b.component, 0.0, 0.01, 1), st(b.fmi2GetReal, b.component, vrs(OUT[0]), 1, reals(0.0)),
+                             st(b.fmi2Terminate, b.component), st(b.fmi2Reset, b.component)]
+    # two instances with the same name
+    x, y = open_fmu(tag="same"), open_fmu(tag="same")
+    init(x), init(y)
+    steps(x, 0.0, 5)
+    if INP:
+        y.setReal([INP[0]], [1.0])
+    steps(y, 0.0, 5)
+    ox, oy = outs(x), outs(y)
+    y.fmi2FreeInstance(y.component)
+    steps(x, 0.05, 2)
+    res["same name independent"] = ox != oy if INP else True
+    ref = open_fmu(); init(ref); steps(ref, 0.0, 7)
+    res["same name: first unaffected by the second's free"] = outs(x) == outs(ref)
+    return res
+
+
+def sc_instantiate():
+    """fmi2Instantiate with bad arguments: NULL with a logged reason (NULL callbacks: no logger to tell)."""
+    s = open_fmu(instantiate=False)
+    uri = "file://" + str(DIRS[fmu]) + "/resources"
+    guid = md.guid.encode()
+    ok = s.fmi2Instantiate(b"ok", 1, guid, uri.encode(), ctypes.byref(cb), 0, 0)
+    res = {"good": bool(ok)}
+    nolog = fmi2CallbackFunctions()
+    nolog.allocateMemory = cb.allocateMemory
+    nolog.freeMemory = cb.freeMemory
+    cases = {"bad GUID": (b"bad", 1, b"{nope}", uri.encode(), ctypes.byref(cb)),
+             "NULL GUID": (b"nullguid", 1, None, uri.encode(), ctypes.byref(cb)),
+             "http URI": (b"http", 1, guid, b"http://example.com/resources", ctypes.byref(cb)),
+             "missing folder": (b"missing", 1, guid, b"file:///nonexistent/resources", ctypes.byref(cb)),
+             "NULL URI": (b"nulluri", 1, guid, None, ctypes.byref(cb)),
+             "empty URI": (b"emptyuri", 1, guid, b"", ctypes.byref(cb)),
+             "bad escapes": (b"escapes", 1, guid, b"file:///%zz%/%00/resources", ctypes.byref(cb)),
+             "huge URI": (b"huge", 1, guid, b"file:///" + b"a/" * 100_000, ctypes.byref(cb)),
+             "model exchange": (b"me", 0, guid, uri.encode(), ctypes.byref(cb)),
+             "fmuType 7": (b"t7", 7, guid, uri.encode(), ctypes.byref(cb)),
+             "NULL callbacks": (b"nocb", 1, guid, uri.encode(), None),
+             "NULL logger": (b"nolog", 1, guid, uri.encode(), ctypes.byref(nolog)),
+             "NULL name": (None, 1, guid, uri.encode(), ctypes.byref(cb))}
+    for what, args in cases.items():
+        n = len(LOG)
+        c = s.fmi2Instantiate(*args, 0, 0)
+        name = (args[0] or b"").decode()
+        res[what] = (bool(c), [m[1:] for m in LOG[n:]])
+        if c:
+            s.fmi2FreeInstance(c)
+    s.fmi2FreeInstance(ok)
+    return res
+
+
+def sc_unsupported():
+    a, b = open_fmu(), open_fmu()
+    init(a), init(b)
+    t = steps(a, 0.0, 3)
+    steps(b, 0.0, 3)
+    v = ctypes.c_double()
+    i = ctypes.c_int(7)
+    sptr = ctypes.c_char_p()
+    seq = [("getDirectionalDerivative", a.fmi2GetDirectionalDerivative, (a.component, vrs(OUT[0]), 1, vrs(OUT[0]), 1, reals(1.0), reals(0.0))),
+           ("getDirectionalDerivative NULL", a.fmi2GetDirectionalDerivative, (a.component, None, 1, None, 1, None, None)),
+           ("setRealInputDerivatives", a.fmi2SetRealInputDerivatives, (a.component, vrs(*(INP or OUT)[:1]), 1, (ctypes.c_int * 1)(1), reals(1.0))),
+           ("getRealOutputDerivatives", a.fmi2GetRealOutputDerivatives, (a.component, vrs(OUT[0]), 1, (ctypes.c_int * 1)(1), reals(0.0))),
+           ("cancelStep", a.fmi2CancelStep, (a.component,)),
+           ("getStatus doStep", a.fmi2GetStatus, (a.component, 0, ctypes.byref(i))),
+           ("getStatus NULL", a.fmi2GetStatus, (a.component, 0, None)),
+           ("getRealStatus lastSuccessfulTime", a.fmi2GetRealStatus, (a.component, 2, ctypes.byref(v))),
+           ("getRealStatus NULL", a.fmi2GetRealStatus, (a.component, 2, None)),
+           ("getRealStatus kind 99", a.fmi2GetRealStatus, (a.component, 99, ctypes.byref(v))),
+           ("getIntegerStatus", a.fmi2GetIntegerStatus, (a.component, 0, ctypes.byref(i))),
+           ("getBooleanStatus terminated", a.fmi2GetBooleanStatus, (a.component, 3, ctypes.byref(i))),
+           ("getBooleanStatus NULL", a.fmi2GetBooleanStatus, (a.component, 3, None)),
+           ("getStringStatus", a.fmi2GetStringStatus, (a.component, 1, ctypes.byref(sptr))),
+           ("setDebugLogging NULL categories", a.fmi2SetDebugLogging, (a.component, 1, 3, None)),
+           ("setDebugLogging unknown category", a.fmi2SetDebugLogging, (a.component, 1, 1, (ctypes.c_char_p * 1)(b"nope"))),
+           ("setDebugLogging NULL category", a.fmi2SetDebugLogging, (a.component, 1, 1, (ctypes.c_char_p * 1)(None)))]
+    res = calls(a, seq)
+    last, terminated = v.value, i.value
+    steps(a, t, 3), steps(b, t, 3)
+    return {"sequence": res, "last_time": last, "t": t, "terminated": terminated, "same": outs(a) == outs(b)}
+
+
+def sc_simulate_nan_input():
+    """fmpy's simulate_fmu retries a discarded step for as long as fmi2Terminated reads false: a NaN input must
+    end the run at the last good time (both kinds report fmi2Terminated after a discard), not loop forever."""
+    import numpy as np
+    name = [v.name for v in md.modelVariables if v.causality == "input"][0]
+    sig = np.array([(0.0, 0.0), (0.05, 0.0), (0.05, float("nan")), (1.0, float("nan"))],
+                   dtype=[("time", np.float64), (name, np.float64)])
+    res = fmpy.simulate_fmu(fmu, stop_time=1.0, step_size=0.01, input=sig)
+    return {"last_time": float(res["time"][-1]), "finite": bool(np.isfinite(res[md.modelVariables[OUT[0]].name]).all())}
+
+
+def sc_huge_step():
+    """One doStep over a huge span ends (integrator step budget) instead of running for hours."""
+    import time
+    a = open_fmu()
+    init(a)
+    t0 = time.process_time()
+    n = len(LOG)
+    r = st(a.doStep, 0.0, 1e9)
+    return {"status": r, "cpu": time.process_time() - t0, "logs": logged(a.tag, n)[:2], "time": a.getReal([OUT[0]])[0] == a.getReal([OUT[0]])[0]}
+
+
+print("BASELINE", json.dumps(fresh_run()), flush=True)
+for name in only or [k[3:] for k in list(globals()) if k.startswith("sc_")]:
+    print("START", name, flush=True)
+    try:
+        r = globals()["sc_" + name]()
+    except Exception as e:
+        r = {"exception": f"{type(e).__name__}: {e}"}
+    r["fresh_after"] = fresh_run()
+    print("RESULT", name, json.dumps(r), flush=True)
+'''
+
+KINDS = ("pythonfmu", "native")
+
+
+def _bounded():
+    import resource
+    resource.setrlimit(resource.RLIMIT_CPU, (90, 90))
+    resource.setrlimit(resource.RLIMIT_AS, (4 * 2**30, 4 * 2**30))
+
+
+@pytest.fixture(scope="module")
+def host_results(tmp_path_factory):
+    """{kind: {scenario: result}} from one child per kind (CPU and address space bounded); a crash shows as a
+    missing RESULT line after the START line of the sequence that crashed."""
+    import mbsfmu
+    from pathlib import Path
+    repo = Path(__file__).resolve().parents[1]
+    out = {}
+    for kind in KINDS:
+        d = tmp_path_factory.mktemp(kind)
+        opts = {"kind": "native"} if kind == "native" else {}
+        fmus = [mbsfmu.build_fmu(repo / "models" / f"{m}.yaml", d, **opts) for m in ("spring_damper", "pendulum")]
+        (d / "driver.py").write_text(HOST_DRIVER)
+        r = subprocess.run([sys.executable, str(d / "driver.py"), str(fmus[0]), str(fmus[1]), str(d / "work")],
+                           capture_output=True, text=True, timeout=180, preexec_fn=_bounded,
+                           env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
+        results = {"returncode": r.returncode, "stderr": r.stderr[-3000:], "started": []}
+        for line in r.stdout.splitlines():
+            word, _, rest = line.partition(" ")
+            if word == "START":
+                results["started"].append(rest)
+            elif word == "BASELINE":
+                results["baseline"] = json.loads(rest)
+            elif word == "RESULT":
+                name, _, data = rest.partition(" ")
+                results[name] = json.loads(data)
+        out[kind] = results
+    return out
+
+
+def _refused(status, logs, category="logStatusError"):
+    """The FMI status 3 (fmi2Error; 2 with category logStatusDiscard) and at least one message of it logged."""
+    want = {"logStatusError": 3, "logStatusDiscard": 2}[category]
+    return status == want and any(m[0] == want and m[1] == category and m[2] for m in logs)
+
+
+@pytest.fixture(params=KINDS)
+def host(request, host_results):
+    res = host_results[request.param]
+    assert res["returncode"] == 0, (request.param, res["started"][-1:], res["stderr"])
+    return res
+
+
+SCENARIOS = ("steps", "noset", "nan_sets", "strings", "state_pointers", "cross_states", "deserialize_sizes",
+             "reset_everywhere", "lifecycle", "instantiate", "unsupported", "simulate_nan_input", "huge_step")
+
+
+def test_host_process_survives_every_sequence_and_fresh_instances_run(host):
+    """No crash (every sequence reported), nothing raised in the driver, and after each sequence a fresh
+    instance in the same process runs exactly like the first one did."""
+    for name in SCENARIOS:
+        assert name in host, (name, host["started"][-1:], host["stderr"])
+        assert "exception" not in host[name], (name, host[name])
+        assert host[name]["fresh_after"] == host["baseline"], name
+
+
+def test_bad_step_arguments(host):
+    """h <= 0, non-finite t or h, t not the current time: fmi2Error with a message, the instance then steps
+    on exactly like its untouched twin (FMI 2.0: h > 0, t = the previous t + h)."""
+    r = host["steps"]
+    for what, status, logs in r["sequence"]:
+        assert _refused(status, logs), (what, status, logs)
+    assert r["same"]
+
+
+def test_no_set_state_prior_flag_any_boolean(host):
+    r = host["noset"]
+    assert [s for _, s, _ in r["steps"]] == [0] * 5 and r["same"]
+    assert r["rollback"] == 0 and r["rolled_back"]
+
+
+def test_nan_and_infinity_into_parameters_inputs_and_settings(host):
+    c = {k: v for k, v in host["nan_sets"]["calls"].items()}
+    assert _refused(*c["step: parameter NaN"][1][1:], category="logStatusDiscard"), c["step: parameter NaN"]
+    assert _refused(*c["step: rtol NaN (fixed)"][0][1:]), c["step: rtol NaN (fixed)"]
+    assert _refused(*c["step: input inf"][1][1:], category="logStatusDiscard"), c["step: input inf"]
+    exit_, step = c["rtol NaN left: exit"]
+    assert _refused(*exit_[1:]) and "rtol" in " ".join(m[2] for m in exit_[2]), exit_
+    assert _refused(*step[1:]), step
+    assert c["terminated after discard"] == [0, 1]
+    assert host["nan_sets"]["same"]        # refused steps changed nothing: equal to the twin
+
+
+def test_strings_null_long_not_utf8(host):
+    r = host["strings"]
+    for what, status, logs in r["sequence"]:
+        if what == "good after" or what.startswith("nvr 0"):
+            assert status == 0, (what, status, logs)    # FMI 2.0: nvr = 0 needs no arrays
+        else:
+            assert _refused(status, logs), (what, status, logs)
+            assert all(len(m[2]) < 2000 for m in logs)  # a 1 MB string is not echoed whole
+    assert r["same"] and r["method_kept"]
+
+
+def test_state_pointers_null_stale_made_up(host):
+    r = host["state_pointers"]
+    ok = {"free pointer to NULL", "get", "free", "handle set to NULL by free", "free again (NULL now)"}
+    for what, status, logs in r["sequence"]:
+        if what in ok:
+            assert status == 0, (what, status, logs)
+        else:
+            assert _refused(status, logs), (what, status, logs)
+    assert r["same"]
+
+
+def test_state_of_another_instance_works_of_another_fmu_is_refused(host):
+    r = host["cross_states"]
+    seq = {what: (status, logs) for what, status, logs in r["sequence"]}
+    assert seq["same FMU, other instance"][0] == 0 and r["same_as_b"]
+    for what in ("other FMU's state", "other FMU's state size", "state of the other instance after its free",
+                 "state of a freed instance"):
+        assert _refused(*seq[what]), (what, seq[what])
+    assert r["unchanged_after_foreign"]
+
+
+def test_deserialize_sizes_zero_and_huge(host):
+    r = host["deserialize_sizes"]
+    for what, status, logs in r["sequence"]:
+        assert _refused(status, logs), (what, status, logs)
+    assert r["handle"] is None and r["same"]
+
+
+def test_reset_in_every_phase_equals_a_fresh_instance(host):
+    for phase, (status, same) in host["reset_everywhere"]["reset"].items():
+        assert status == 0 and same, phase
+
+
+def test_free_twice_null_freed_and_same_names(host):
+    r = host["lifecycle"]
+    assert r["calls on freed"] == [3, 3, 3, 3]
+    assert r["same name independent"] and r["same name: first unaffected by the second's free"]
+
+
+def test_instantiate_with_bad_arguments_returns_null_with_a_reason(host):
+    r = dict(host["instantiate"])
+    assert r.pop("good")
+    r.pop("fresh_after")
+    for what, (instance, logs) in r.items():
+        assert not instance, what
+        if what not in ("NULL callbacks", "NULL logger"):   # no logger to tell: stderr
+            assert logs and logs[0][0] == 3 and logs[0][2].startswith("fmi2Instantiate: "), (what, logs)
+    assert host["stderr"].count("fmi2Instantiate: no callback functions or no logger") == 2, host["stderr"]
+
+
+def test_unsupported_calls_and_status_queries(host):
+    r = host["unsupported"]
+    seq = {what: (status, logs) for what, status, logs in r["sequence"]}
+    for what in ("getDirectionalDerivative", "getDirectionalDerivative NULL", "setRealInputDerivatives",
+                 "getRealOutputDerivatives", "cancelStep", "getStatus NULL", "getRealStatus NULL",
+                 "getBooleanStatus NULL", "setDebugLogging NULL categories", "setDebugLogging unknown category",
+                 "setDebugLogging NULL category"):
+        assert _refused(*seq[what]), (what, seq[what])
+    for what in ("getStatus doStep", "getRealStatus kind 99", "getIntegerStatus", "getStringStatus"):
+        assert _refused(*seq[what], category="logStatusDiscard"), (what, seq[what])   # FMI 2.0 4.2.3: not available
+    assert seq["getRealStatus lastSuccessfulTime"][0] == 0 and r["last_time"] == r["t"]
+    assert seq["getBooleanStatus terminated"][0] == 0 and r["terminated"] == 0
+    assert r["same"]
+
+
+def test_simulate_fmu_with_nan_input_ends_at_the_last_good_time(host):
+    r = host["simulate_nan_input"]
+    assert r["last_time"] == pytest.approx(0.05) and r["finite"], r
+
+
+def test_huge_step_ends_with_discard_not_a_hang(host):
+    r = host["huge_step"]
+    assert r["status"] == 2 and r["cpu"] < 20, r
+    assert r["logs"] and r["logs"][0][1] == "logStatusDiscard" and "maximum number of steps" in r["logs"][0][2]

@@ -2,8 +2,9 @@
  *
  * One fmi2Component = one engine instance plus the FMI bookkeeping: the host's callbacks (copied), the
  * instance name, the phase of the FMI 2.0 state machine and the logging switches.  The compiled scene is
- * read from <fmuResourceLocation>/scene.bin at instantiation; nothing here is global, so any number of
- * instances (of one or several FMUs) can live in one process.
+ * read from <fmuResourceLocation>/scene.bin at instantiation; the only globals are the registries of the live
+ * instances and FMU states (pointers from the host are looked up there, never followed blindly), so any number
+ * of instances (of one or several FMUs) can live in one process.
  *
  * Status mapping: the engine's codes are ordered like fmi2Status (OK, Warning, Discard, Error).  Calls in
  * the wrong phase or with bad arguments are refused with fmi2Error and change nothing (a failed step too: the
@@ -52,17 +53,67 @@ typedef struct {
     int logging_on;
     int category_on[NCAT];
     int logged;                /* the engine logged during the current call */
+    int discarded;             /* the last fmi2DoStep was discarded: fmi2Terminated reads true (masters such as
+                                  fmpy's simulate_fmu then end the run instead of retrying the same step forever) */
     double t_start;
     long refused_vr;           /* a parameter the host set before initialization and the engine refused */
     char refused[256];         /* (-1: none); its message fails fmi2ExitInitializationMode */
 } Fmu;
 
-#define STATE_MAGIC 0x4d425346u /* "MBSF": an fmi2FMUstate made by this file */
 typedef struct {
-    unsigned magic;
+    Fmu *owner;                /* freed with its instance (fmi2FreeInstance frees everything) */
     size_t len;
     unsigned char bytes[];     /* mbs_state_save's layout (header with version, GUID, length, checksum) */
 } FmuState;
+
+/* ---- registries of the live instances and FMU states this library handed out ----
+ * A component or state pointer from the host is only compared with these, never followed unless found: a
+ * freed, made-up or other FMU's pointer is refused without touching it (fmi2FreeInstance twice, a stale state
+ * handle). One small lock: instances may live on several threads. */
+#if defined(_MSC_VER)
+#include <windows.h>
+static volatile LONG registry_lock = 0;
+#define LOCK() while (InterlockedExchange(&registry_lock, 1)) {}
+#define UNLOCK() InterlockedExchange(&registry_lock, 0)
+#else
+static volatile int registry_lock = 0;
+#define LOCK() while (__atomic_exchange_n(&registry_lock, 1, __ATOMIC_ACQUIRE)) {}
+#define UNLOCK() __atomic_store_n(&registry_lock, 0, __ATOMIC_RELEASE)
+#endif
+typedef struct { void **item; size_t n, cap; } Registry;
+static Registry instances, states;
+
+static int reg_find(Registry *r, const void *p) {
+    int found = 0;
+    size_t i;
+    if (!p) return 0;
+    LOCK();
+    for (i = 0; i < r->n && !found; i++) found = r->item[i] == p;
+    UNLOCK();
+    return found;
+}
+static int reg_add(Registry *r, void *p) {
+    int ok = 1;
+    LOCK();
+    if (r->n == r->cap) {
+        size_t cap = r->cap ? 2 * r->cap : 8;
+        void **grown = (void **)realloc(r->item, cap * sizeof *grown);
+        if (grown) r->item = grown, r->cap = cap;
+        else ok = 0;
+    }
+    if (ok) r->item[r->n++] = p;
+    UNLOCK();
+    return ok;
+}
+static int reg_drop(Registry *r, const void *p) {
+    int found = 0;
+    size_t i;
+    LOCK();
+    for (i = 0; i < r->n && !found; i++)
+        if (r->item[i] == p) r->item[i] = r->item[--r->n], found = 1;
+    UNLOCK();
+    return found;
+}
 
 /* ---- logging ---- */
 static void emit(const fmi2CallbackFunctions *cb, const char *name, fmi2Status st, const char *msg) {
@@ -99,8 +150,10 @@ static fmi2Status engine_status(Fmu *f, int rc, const char *what) {
 
 /* The call `fn` is allowed in the phases `mask`: otherwise fmi2Error with a message, nothing changes. */
 static int allowed(Fmu *f, int mask, const char *fn) {
-    if (!f)
+    if (!reg_find(&instances, f)) {  /* no logger known: stderr */
+        fprintf(stderr, "mbsfmu: %s: %s\n", fn, f ? "not a live instance of this FMU (freed, or another FMU's)" : "NULL component");
         return 0;
+    }
     f->logged = 0;
     if (f->phase & mask)
         return 1;
@@ -225,8 +278,18 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     Fmu *f;
     int j;
     (void)visible;
-    if (!functions)
-        return NULL;  /* no logger to tell */
+    if (!functions || !functions->logger) {  /* no logger to tell: stderr (FMI 2.0 requires one) */
+        fprintf(stderr, "mbsfmu: fmi2Instantiate: no callback functions or no logger\n");
+        return NULL;
+    }
+    if (!functions->allocateMemory || !functions->freeMemory) {
+        emit(functions, name, fmi2Error, "fmi2Instantiate: no allocateMemory/freeMemory callbacks");
+        return NULL;
+    }
+    if (!instanceName || !*instanceName) {
+        emit(functions, name, fmi2Error, "fmi2Instantiate: no instance name");
+        return NULL;
+    }
     if (fmuType != fmi2CoSimulation) {
         emit(functions, name, fmi2Error, "fmi2Instantiate: this FMU supports co-simulation only");
         return NULL;
@@ -271,7 +334,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     for (j = 0; j < NCAT; j++)
         f->category_on[j] = 1;
     f->sim = mbs_instance_new(model, engine_log, f);
-    if (!f->sim) {
+    if (!f->sim || !reg_add(&instances, f)) {
+        mbs_instance_free(f->sim);
         emit(functions, name, fmi2Error, "fmi2Instantiate: cannot create the engine instance (out of memory?)");
         mbs_model_free(model);
         free(f->name);
@@ -283,8 +347,22 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
 
 void fmi2FreeInstance(fmi2Component c) {
     Fmu *f = (Fmu *)c;
-    if (!f)
+    size_t i;
+    if (!reg_drop(&instances, f)) {  /* NULL, freed before, or not ours: nothing to free */
+        if (f)
+            fprintf(stderr, "mbsfmu: fmi2FreeInstance: not a live instance of this FMU (freed, or another FMU's)\n");
         return;
+    }
+    LOCK();  /* the states it handed out go with it */
+    for (i = 0; i < states.n;) {
+        FmuState *st = (FmuState *)states.item[i];
+        if (st->owner == f) {
+            states.item[i] = states.item[--states.n];
+            free(st);
+        } else
+            i++;
+    }
+    UNLOCK();
     mbs_instance_free(f->sim);
     mbs_model_free(f->model);
     free(f->name);
@@ -343,6 +421,7 @@ fmi2Status fmi2Reset(fmi2Component c) {
     f->phase = st >= fmi2Discard ? P_ERROR : P_INSTANTIATED;
     f->t_start = 0.0;
     f->refused_vr = -1;
+    f->discarded = 0;
     return st >= fmi2Discard ? fmi2Error : st;
 }
 
@@ -463,18 +542,19 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 }
 
 /* ---- FMU state: the engine's byte layout, in memory and serialized ---- */
+/* A state handed out by any live instance of this FMU (same model: it restores into any of them). */
 static FmuState *state_of(Fmu *f, fmi2FMUstate s, const char *fn) {
-    FmuState *st = (FmuState *)s;
-    if (st && st->magic == STATE_MAGIC)
-        return st;
-    logf_(f, fmi2Error, "%s: not an FMU state of this FMU", fn);
+    if (reg_find(&states, s))
+        return (FmuState *)s;
+    logf_(f, fmi2Error, "%s: not an FMU state of this FMU's live instances (never handed out, or freed)", fn);
     return NULL;
 }
 
-static FmuState *state_new(size_t len) {
-    FmuState *st = (FmuState *)malloc(sizeof *st + len);
+/* A new state of `len` bytes owned by f, not yet registered; NULL if out of memory. */
+static FmuState *state_new(Fmu *f, size_t len) {
+    FmuState *st = len <= (size_t)-1 - sizeof *st ? (FmuState *)malloc(sizeof *st + len) : NULL;
     if (st) {
-        st->magic = STATE_MAGIC;
+        st->owner = f;
         st->len = len;
     }
     return st;
@@ -493,16 +573,18 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     if (st && !state_of(f, st, "fmi2GetFMUstate"))
         return fmi2Error;
     if (!st || st->len != len) {  /* new, or an old one of another size: replace */
-        FmuState *fresh = state_new(len);
-        if (!fresh) {
+        FmuState *fresh = state_new(f, len);
+        if (!fresh || !reg_add(&states, fresh)) {
+            free(fresh);
             logf_(f, fmi2Error, "fmi2GetFMUstate: out of memory");
             return fmi2Error;
         }
-        if (st)
-            st->magic = 0, free(st);
+        if (st && reg_drop(&states, st))
+            free(st);
         st = fresh;
         *FMUstate = st;
     }
+    st->owner = f;  /* a state passed in may have been another instance's */
     return engine_status(f, mbs_state_save(f->sim, st->bytes, st->len), "fmi2GetFMUstate");
 }
 
@@ -515,17 +597,21 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
         engine_status(f, MBS_ERROR, "fmi2SetFMUstate (instance unchanged)");
         return fmi2Error;
     }
+    f->discarded = 0;
     return fmi2OK;
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     FmuState *st;
     CHECK(P_ANY, "fmi2FreeFMUstate");
-    if (!FMUstate || !*FMUstate)
-        return fmi2OK;
-    if (!(st = state_of(f, *FMUstate, "fmi2FreeFMUstate")))
+    if (!FMUstate) {
+        logf_(f, fmi2Error, "fmi2FreeFMUstate: NULL state pointer");
         return fmi2Error;
-    st->magic = 0;
+    }
+    if (!*FMUstate)
+        return fmi2OK;  /* FMI 2.0: freeing NULL is a no-op */
+    if (!(st = state_of(f, *FMUstate, "fmi2FreeFMUstate")) || !reg_drop(&states, st))
+        return fmi2Error;
     free(st);
     *FMUstate = NULL;
     return fmi2OK;
@@ -534,8 +620,12 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
     FmuState *st;
     CHECK(P_ANY, "fmi2SerializedFMUstateSize");
-    if (!size || !(st = state_of(f, FMUstate, "fmi2SerializedFMUstateSize")))
+    if (!(st = state_of(f, FMUstate, "fmi2SerializedFMUstateSize")))
         return fmi2Error;
+    if (!size) {
+        logf_(f, fmi2Error, "fmi2SerializedFMUstateSize: NULL size pointer");
+        return fmi2Error;
+    }
     *size = st->len;
     return fmi2OK;
 }
@@ -545,7 +635,11 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
     CHECK(P_ANY, "fmi2SerializeFMUstate");
     if (!(st = state_of(f, FMUstate, "fmi2SerializeFMUstate")))
         return fmi2Error;
-    if (!serializedState || size < st->len) {
+    if (!serializedState) {
+        logf_(f, fmi2Error, "fmi2SerializeFMUstate: NULL buffer");
+        return fmi2Error;
+    }
+    if (size < st->len) {
         logf_(f, fmi2Error, "fmi2SerializeFMUstate: buffer of %lu bytes for a state of %lu",
               (unsigned long)size, (unsigned long)st->len);
         return fmi2Error;
@@ -554,19 +648,39 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
     return fmi2OK;
 }
 
+/* The engine's state header (sim.c, mbs_state_save): "MBSS", uint32 format version, char guid[64], uint64
+ * payload length, uint64 checksum. Checked on the host's bytes before anything is copied, so a size that
+ * disagrees with the header (0, or far beyond the buffer) is refused without reading past the header. */
+#define STATE_HEADER (4 + 4 + 64 + 8 + 8)
+static const char *bad_header(const unsigned char *b, size_t n, const char *guid) {
+    unsigned long long length;
+    if (n < STATE_HEADER) return "too short for an mbsfmu FMU state";
+    if (memcmp(b, "MBSS", 4) != 0) return "not an mbsfmu FMU state (bad magic)";
+    if (!memchr(b + 8, 0, 64) || strcmp((const char *)b + 8, guid) != 0)
+        return "the state belongs to another model (GUID differs)";
+    memcpy(&length, b + 72, 8);
+    if (length != (unsigned long long)(n - STATE_HEADER)) return "truncated, or trailing bytes (length field disagrees)";
+    return NULL;  /* version, checksum and payload: mbs_state_load */
+}
+
 /* The bytes are checked by loading them into this instance and restoring its own state afterwards (the
  * engine's load validates version, GUID, length, sizes and checksum, and changes nothing on failure). */
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate) {
     FmuState *mine, *st;
+    const char *why;
     int rc;
     CHECK(P_ANY, "fmi2DeSerializeFMUstate");
     if (!FMUstate || !serializedState) {
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: NULL pointer");
         return fmi2Error;
     }
-    mine = state_new(mbs_state_size(f->sim));
-    st = state_new(size);
+    if ((why = bad_header((const unsigned char *)serializedState, size, mbs_model_guid(f->model)))) {
+        logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: %lu bytes refused: %s; instance unchanged", (unsigned long)size, why);
+        return fmi2Error;
+    }
+    mine = state_new(f, mbs_state_size(f->sim));
+    st = state_new(f, size);
     if (!mine || !st) {
         free(mine), free(st);
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
@@ -586,6 +700,11 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     if (rc != MBS_OK) {
         free(st);
         engine_status(f, MBS_ERROR, "fmi2DeSerializeFMUstate");
+        return fmi2Error;
+    }
+    if (!reg_add(&states, st)) {
+        free(st);
+        logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
         return fmi2Error;
     }
     *FMUstate = st;  /* an output argument: whatever it held is not ours to free */
@@ -620,15 +739,19 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    fmi2Status st;
     (void)noSetFMUStatePriorToCurrentPoint;
     CHECK(P_STEP, "fmi2DoStep");
-    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize < 0) {
-        logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h >= 0)",
+    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0) {
+        logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h > 0)",
               currentCommunicationPoint, communicationStepSize);
         return fmi2Error;
     }
     /* a refused or failed step leaves the instance at its last good point: the phase stays */
-    return engine_status(f, mbs_do_step(f->sim, currentCommunicationPoint, communicationStepSize), "fmi2DoStep");
+    st = engine_status(f, mbs_do_step(f->sim, currentCommunicationPoint, communicationStepSize), "fmi2DoStep");
+    if (st != fmi2Error)
+        f->discarded = st == fmi2Discard;
+    return st;
 }
 
 fmi2Status fmi2CancelStep(fmi2Component c) {
@@ -637,37 +760,56 @@ fmi2Status fmi2CancelStep(fmi2Component c) {
     return fmi2Error;
 }
 
-/* Status queries: what is not available is fmi2Discard (FMI 2.0, 4.2.3). */
+/* Status queries (FMI 2.0, 4.2.3): what is not available is fmi2Discard, with a message; a NULL output pointer
+ * is fmi2Error. The pythonfmu kind's loader shim answers the same. */
+static int status_refused(Fmu *f, const void *value, const char *fn) {
+    if (value)
+        return 0;
+    logf_(f, fmi2Error, "%s: NULL value pointer", fn);
+    return 1;
+}
+static fmi2Status not_available(Fmu *f, const char *fn, int kind) {
+    logf_(f, fmi2Discard, "%s: status kind %d is not available from this FMU", fn, kind);
+    return fmi2Discard;
+}
+
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
     CHECK(P_ANY, "fmi2GetStatus");
-    (void)s, (void)value;
-    return fmi2Discard;  /* fmi2DoStepStatus: only after fmi2Pending, which this FMU never returns */
+    if (status_refused(f, value, "fmi2GetStatus"))
+        return fmi2Error;
+    return not_available(f, "fmi2GetStatus", s);  /* fmi2DoStepStatus: only after fmi2Pending, never returned */
 }
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
     CHECK(P_ANY, "fmi2GetRealStatus");
-    if (s != fmi2LastSuccessfulTime || !value)
-        return fmi2Discard;
+    if (status_refused(f, value, "fmi2GetRealStatus"))
+        return fmi2Error;
+    if (s != fmi2LastSuccessfulTime)
+        return not_available(f, "fmi2GetRealStatus", s);
     *value = mbs_time(f->sim);
     return fmi2OK;
 }
 
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
     CHECK(P_ANY, "fmi2GetIntegerStatus");
-    (void)s, (void)value;
-    return fmi2Discard;
+    if (status_refused(f, value, "fmi2GetIntegerStatus"))
+        return fmi2Error;
+    return not_available(f, "fmi2GetIntegerStatus", s);
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
     CHECK(P_ANY, "fmi2GetBooleanStatus");
-    if (s != fmi2Terminated || !value)
-        return fmi2Discard;
-    *value = fmi2False;  /* the slave never asks to end the simulation */
+    if (status_refused(f, value, "fmi2GetBooleanStatus"))
+        return fmi2Error;
+    if (s != fmi2Terminated)
+        return not_available(f, "fmi2GetBooleanStatus", s);
+    *value = f->discarded ? fmi2True : fmi2False;  /* after a discarded step, until a good step, reset or restore */
     return fmi2OK;
 }
 
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
     CHECK(P_ANY, "fmi2GetStringStatus");
-    (void)s, (void)value;
-    return fmi2Discard;
+    if (status_refused(f, value, "fmi2GetStringStatus"))
+        return fmi2Error;
+    return not_available(f, "fmi2GetStringStatus", s);
 }

@@ -19,11 +19,13 @@
  *     build time (MBSFMU_VARIABLES, from modelDescription.xml);
  *   - the FMI 2.0 co-simulation calling sequence (instantiated -> initialization mode -> step mode ->
  *     terminated; error state; fmi2Reset back to instantiated);
- *   - FMU states: only handles handed out here are accepted; serialized bytes must carry the engine's
- *     header (sim.c) with this model's GUID, a matching length and checksum;
+ *   - FMU states: only handles handed out here to a live instance are accepted (one of another instance of
+ *     this FMU restores through its bytes); serialized bytes must carry the engine's header (sim.c) with this
+ *     model's GUID, a matching length and checksum;
  *   - refusals the slave cannot report (pythonfmu has no fmi2Error): the slave keeps the reason of a failed
- *     initialization, state restore, string set or outright step refusal in a hidden String variable,
- *     value reference MBSFMU_NVARS (not in modelDescription.xml), which the shim reads after those calls;
+ *     initialization, state restore, string set, outright step refusal or discarded step ("discard: ...") in a
+ *     hidden String variable, value reference MBSFMU_NVARS (not in modelDescription.xml), which the shim
+ *     reads after those calls;
  *   - after one fmi2Fatal from pythonfmu the instance is never passed to pythonfmu again.
  */
 #define _GNU_SOURCE
@@ -70,6 +72,7 @@ typedef char fmi2Byte;
 typedef int fmi2Status;
 typedef int fmi2Type;
 typedef int fmi2StatusKind;
+enum { fmi2LastSuccessfulTime = 2, fmi2Terminated = 3 };   /* of fmi2StatusKind */
 typedef void (*fmi2CallbackLogger)(fmi2ComponentEnvironment, fmi2String, fmi2Status, fmi2String,
                                    fmi2String, ...);
 typedef struct {
@@ -270,6 +273,7 @@ typedef struct {
     fmi2CallbackFunctions cb;  /* a copy: the logger for the shim's own messages */
     char name[256];
     State* states;             /* FMU states handed out for this instance */
+    int discarded;             /* the last fmi2DoStep was discarded: fmi2Terminated reads true (as the native FMU) */
     size_t nstates, capacity;
 } Inst;
 
@@ -322,7 +326,7 @@ static void say_cb(const fmi2CallbackFunctions* cb, const char* inst, fmi2Status
     esc[j] = 0;
     if (cb && cb->logger)
         cb->logger(cb->componentEnvironment, inst, status,
-                   status == fmi2Fatal ? "logStatusFatal" : "logStatusError", esc);
+                   status == fmi2Fatal ? "logStatusFatal" : status == fmi2Discard ? "logStatusDiscard" : "logStatusError", esc);
     else
         fprintf(stderr, "%s: %s\n", inst, msg);
 }
@@ -421,7 +425,8 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
                       : !instanceName || !*instanceName ? "no instance name"
                       : fmuType != fmi2CoSimulation ? "this FMU supports co-simulation only"
                       : !resources ? "no fmuResourceLocation"
-                      : guid && *guid && strcmp(guid, MBSFMU_GUID) ? "GUID differs from this FMU's " MBSFMU_GUID
+                      : !guid ? "no GUID given (NULL)"
+                      : *guid && strcmp(guid, MBSFMU_GUID) ? "GUID differs from this FMU's " MBSFMU_GUID   /* "": unchecked, as pythonfmu */
                       : no_slave_script(resources, text, sizeof text);
     if (why) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: %s", why);
@@ -518,15 +523,21 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolea
     Inst* in;
     fmi2Status st = enter(c, __func__, P(STEP), &in);
     if (st) return st;
-    if (!isfinite(t) || !isfinite(h) || h < 0)   /* as the native FMU (engine/fmi2.c) */
-        return say(in, fmi2Error, "%s: bad step t=%g, h=%g (need finite t and h >= 0)", __func__, t, h), fmi2Error;
-    /* fmi2Discard (the integration failed, logged; the state stays at t) keeps step mode: the master may roll
-       back, change inputs, retry or terminate. A step the engine refused outright (t is not the current
-       time) is fmi2Error with the slave's reason, the instance unchanged, as in the native FMU. */
-    if ((st = done(in, __func__, R.do_step(in->real, t, h, no_rollback))) != fmi2Discard) return st;
+    if (!isfinite(t) || !isfinite(h) || h <= 0)   /* as the native FMU (engine/fmi2.c); FMI 2.0: h > 0 */
+        return say(in, fmi2Error, "%s: bad step t=%g, h=%g (need finite t and h > 0)", __func__, t, h), fmi2Error;
+    /* fmi2Discard (the integration failed; the state stays at t) keeps step mode: the master may roll back,
+       change inputs, retry or terminate; the slave's reason ("discard: ...") is logged here, since pythonfmu
+       passes the slave's messages on only with debug logging. A step the engine refused outright (t is not
+       the current time) is fmi2Error with the slave's reason, the instance unchanged, as in the native FMU. */
+    if ((st = done(in, __func__, R.do_step(in->real, t, h, no_rollback))) != fmi2Discard) {
+        if (st <= fmi2Warning) in->discarded = 0;
+        return st;
+    }
     const char* why = refusal(in, __func__);
+    in->discarded = why && (!*why || !strncmp(why, "discard: ", 9));
     if (!why) return fmi2Fatal;
-    if (!*why) return fmi2Discard;
+    if (!strncmp(why, "discard: ", 9)) return say(in, fmi2Discard, "%s: %s", __func__, why + 9), fmi2Discard;
+    if (!*why) return say(in, fmi2Discard, "%s: the step failed", __func__), fmi2Discard;
     say(in, fmi2Error, "%s: %s", __func__, why);
     return fmi2Error;
 }
@@ -536,7 +547,10 @@ EXPORT fmi2Status fmi2Terminate(fmi2Component c) {
 }
 
 EXPORT fmi2Status fmi2Reset(fmi2Component c) {
-    return transition(c, __func__, LIVE, R.reset, INSTANTIATED);   /* pythonfmu re-creates the slave */
+    Inst* in = find(c);
+    fmi2Status st = transition(c, __func__, LIVE, R.reset, INSTANTIATED);   /* pythonfmu re-creates the slave */
+    if (in && st <= fmi2Warning) in->discarded = 0;
+    return st;
 }
 
 /* ------------------------------------------------------------------------------- variable access */
@@ -659,20 +673,56 @@ EXPORT fmi2Status fmi2CancelStep(fmi2Component c) {
     return unsupported(c, __func__, "fmi2DoStep is synchronous; there is no step to cancel");
 }
 
-/* Status inquiries touch no Python in pythonfmu; only the output pointer needs checking. */
-#define STATUS(fn, T, field)                                                                     \
-    EXPORT fmi2Status fn(fmi2Component c, fmi2StatusKind kind, T* value) {                       \
-        Inst* in;                                                                                \
-        fmi2Status st = enter(c, __func__, P(STEP) | P(TERMINATED) | P(FAILED), &in);            \
-        if (st) return st;                                                                       \
-        if (!value) return say(in, fmi2Error, "%s: NULL value pointer", __func__), fmi2Error;    \
-        return done(in, __func__, R.field(in->real, kind, value));                               \
+/* Status inquiries (FMI 2.0, 4.2.3), answered as the native FMU does: what is not available is fmi2Discard with
+   a message; the time of the last successful step comes from pythonfmu; the slave never asks to terminate. */
+static fmi2Status status_query(fmi2Component c, const char* fn, const void* value, Inst** in) {
+    fmi2Status st = enter(c, fn, P(STEP) | P(TERMINATED) | P(FAILED), in);
+    if (!st && !value) {
+        say(*in, fmi2Error, "%s: NULL value pointer", fn);
+        st = fmi2Error;
     }
-STATUS(fmi2GetStatus, fmi2Status, get_status)
-STATUS(fmi2GetRealStatus, fmi2Real, get_real_status)
-STATUS(fmi2GetIntegerStatus, fmi2Integer, get_integer_status)
-STATUS(fmi2GetBooleanStatus, fmi2Boolean, get_boolean_status)
-STATUS(fmi2GetStringStatus, fmi2String, get_string_status)
+    return st;
+}
+
+static fmi2Status not_available(Inst* in, const char* fn, int kind) {
+    say(in, fmi2Discard, "%s: status kind %d is not available from this FMU", fn, kind);
+    return fmi2Discard;
+}
+
+EXPORT fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind kind, fmi2Status* value) {
+    Inst* in;
+    fmi2Status st = status_query(c, __func__, value, &in);
+    return st ? st : not_available(in, __func__, kind);   /* fmi2DoStepStatus: only after fmi2Pending */
+}
+
+EXPORT fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind kind, fmi2Real* value) {
+    Inst* in;
+    fmi2Status st = status_query(c, __func__, value, &in);
+    if (st) return st;
+    return kind == fmi2LastSuccessfulTime ? done(in, __func__, R.get_real_status(in->real, kind, value))
+                                          : not_available(in, __func__, kind);
+}
+
+EXPORT fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind kind, fmi2Integer* value) {
+    Inst* in;
+    fmi2Status st = status_query(c, __func__, value, &in);
+    return st ? st : not_available(in, __func__, kind);
+}
+
+EXPORT fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind kind, fmi2Boolean* value) {
+    Inst* in;
+    fmi2Status st = status_query(c, __func__, value, &in);
+    if (st) return st;
+    if (kind != fmi2Terminated) return not_available(in, __func__, kind);
+    *value = in->discarded;   /* fmi2True after a discarded step, until a good step, reset or restore */
+    return fmi2OK;
+}
+
+EXPORT fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind kind, fmi2String* value) {
+    Inst* in;
+    fmi2Status st = status_query(c, __func__, value, &in);
+    return st ? st : not_available(in, __func__, kind);
+}
 
 /* ------------------------------------------------------------------------------------ FMU states */
 static State* find_state(Inst* in, fmi2FMUstate s) {
@@ -696,8 +746,39 @@ static fmi2Status keep_state(Inst* in, const char* fn, fmi2FMUstate s, int phase
 }
 
 static fmi2Status unknown_state(Inst* in, const char* fn) {
-    say(in, fmi2Error, "%s: not an FMU state of this instance (never handed out, or freed)", fn);
+    say(in, fmi2Error, "%s: not an FMU state of this FMU's live instances (never handed out, or freed)", fn);
     return fmi2Error;
+}
+
+/* The live instance that holds state handle s (in itself first) and its entry; NULL if none does. A state of
+   another instance of this FMU is as good as one's own (same model); handles are compared, never followed. */
+static Inst* holder(Inst* in, fmi2FMUstate s, State** state) {
+    Inst* owner = NULL;
+    if (!s) return NULL;
+    if ((*state = find_state(in, s))) return in;
+    pthread_mutex_lock(&lock);
+    for (size_t i = 0; i < nlive && !owner; i++)
+        if (live[i]->phase != BROKEN && (*state = find_state(live[i], s))) owner = live[i];
+    pthread_mutex_unlock(&lock);
+    return owner;
+}
+
+/* Restore into `in` a state held by another instance: its bytes, through pythonfmu, into a handle of `in`. */
+static fmi2Status set_borrowed(Inst* in, const char* fn, Inst* owner, State* theirs) {
+    size_t n = 0;
+    fmi2FMUstate mine = NULL;
+    fmi2Status st;
+    if ((st = done(owner, fn, R.state_size(owner->real, theirs->handle, &n))) > fmi2Warning) return st;
+    fmi2Byte* bytes = malloc(n ? n : 1);
+    if (!bytes) return say(in, fmi2Error, "%s: out of memory", fn), fmi2Error;
+    if ((st = done(owner, fn, R.serialize(owner->real, theirs->handle, bytes, n))) <= fmi2Warning &&
+        (st = done(in, fn, R.deserialize(in->real, bytes, n, &mine))) <= fmi2Warning) {
+        int phase = theirs->phase;
+        if ((st = checked(in, fn, R.set_state(in->real, mine))) <= fmi2Warning) in->phase = phase, in->discarded = 0;
+        if (in->phase != BROKEN) R.free_state(in->real, &mine);
+    }
+    free(bytes);
+    return st;
 }
 
 EXPORT fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate* s) {
@@ -725,11 +806,13 @@ EXPORT fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) {
     Inst* in;
     fmi2Status st = enter(c, __func__, LIVE, &in);
     if (st) return st;
-    State* state = find_state(in, s);
-    if (!state) return unknown_state(in, __func__);
+    State* state;
+    Inst* owner = holder(in, s, &state);
+    if (!owner) return unknown_state(in, __func__);
+    if (owner != in) return set_borrowed(in, __func__, owner, state);
     int phase = state->phase;
     /* the engine checks the payload once more and restores all or nothing: a refusal leaves the phase */
-    if ((st = checked(in, __func__, R.set_state(in->real, s))) <= fmi2Warning) in->phase = phase;
+    if ((st = checked(in, __func__, R.set_state(in->real, s))) <= fmi2Warning) in->phase = phase, in->discarded = 0;
     return st;
 }
 
@@ -751,9 +834,11 @@ EXPORT fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, si
     Inst* in;
     fmi2Status st = enter(c, __func__, LIVE, &in);
     if (st) return st;
-    if (!find_state(in, s)) return unknown_state(in, __func__);
+    State* state;
+    Inst* owner = holder(in, s, &state);
+    if (!owner) return unknown_state(in, __func__);
     if (!n) return say(in, fmi2Error, "%s: NULL size pointer", __func__), fmi2Error;
-    return done(in, __func__, R.state_size(in->real, s, n));
+    return done(owner, __func__, R.state_size(owner->real, s, n));
 }
 
 EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte bytes[], size_t n) {
@@ -761,12 +846,14 @@ EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byt
     size_t need = 0;
     fmi2Status st = enter(c, __func__, LIVE, &in);
     if (st) return st;
-    if (!find_state(in, s)) return unknown_state(in, __func__);
+    State* state;
+    Inst* owner = holder(in, s, &state);
+    if (!owner) return unknown_state(in, __func__);
     if (!bytes) return say(in, fmi2Error, "%s: NULL buffer", __func__), fmi2Error;
-    if ((st = done(in, __func__, R.state_size(in->real, s, &need))) > fmi2Warning) return st;
+    if ((st = done(owner, __func__, R.state_size(owner->real, s, &need))) > fmi2Warning) return st;
     if (n < need)
         return say(in, fmi2Error, "%s: buffer of %zu bytes, the state needs %zu", __func__, n, need), fmi2Error;
-    return done(in, __func__, R.serialize(in->real, s, bytes, need));  /* pythonfmu copies n bytes */
+    return done(owner, __func__, R.serialize(owner->real, s, bytes, need));  /* pythonfmu copies n bytes */
 }
 
 /* The engine's state bytes (sim.c, mbs_state_save): "MBSS", uint32 format version, char guid[64],
