@@ -799,6 +799,64 @@ def sc_unsupported():
     return {"sequence": res, "last_time": last, "t": t, "terminated": terminated, "same": outs(a) == outs(b)}
 
 
+def sc_setup_and_resolution():
+    """fmi2SetupExperiment with a non-finite start, a NaN tolerance, a stop before the start: fmi2Error, the
+    instance still initializes (at start 0); a step that cannot advance t (h below t's resolution): fmi2Error."""
+    nan = float("nan")
+    res = {}
+    for what, args in {"start NaN": (0, 0.0, nan, 0, 0.0), "tolerance NaN": (1, nan, 0.0, 0, 0.0),
+                       "stop before start": (0, 0.0, 1.0, 1, 0.5), "stop NaN": (0, 0.0, 0.0, 1, nan)}.items():
+        s = open_fmu()
+        n = len(LOG)
+        res[what] = [st(s.fmi2SetupExperiment, s.component, *args), logged(s.tag, n), st(s.enterInitializationMode),
+                     st(s.exitInitializationMode), st(s.fmi2DoStep, s.component, 0.0, 0.01, 1)]
+        s.fmi2FreeInstance(s.component)
+    a, b = open_fmu(), open_fmu()
+    init(a), init(b)
+    t = steps(a, 0.0, 3)
+    steps(b, 0.0, 3)
+    res["steps"] = calls(a, [("h 1e-300", a.fmi2DoStep, (a.component, t, 1e-300, 1)),
+                             ("h 5e-324", a.fmi2DoStep, (a.component, t, 5e-324, 1))])
+    steps(a, t, 3), steps(b, t, 3)
+    res["same"] = outs(a) == outs(b)
+    return res
+
+
+def sc_restore_state_from_before_initialization():
+    """A state taken before initialization brings that phase back: initialize again, then it runs normally."""
+    ref = fresh_run()
+    a = open_fmu()
+    pre = a.getFMUstate()
+    init(a)
+    steps(a, 0.0, 3)
+    n = len(LOG)
+    r = [st(a.fmi2SetFMUstate, a.component, pre), st(a.fmi2DoStep, a.component, 0.0, 0.01, 1)]
+    logs = logged(a.tag, n)
+    init(a)
+    steps(a, 0.0, 5)
+    return {"calls": r, "logs": logs, "runs_like_fresh": outs(a) == ref}
+
+
+def sc_threads():
+    """Instances stepping on four threads at once (ctypes releases the GIL) equal the same runs one by one."""
+    import threading
+    def run(k, out):
+        s = open_fmu()
+        init(s)
+        if INP:
+            s.setReal([INP[0]], [0.1 * k])
+        steps(s, 0.0, 300)
+        out[k] = outs(s)
+        s.fmi2FreeInstance(s.component)
+    serial, parallel = {}, {}
+    for k in range(4):
+        run(k, serial)
+    threads = [threading.Thread(target=run, args=(k, parallel)) for k in range(4)]
+    [th.start() for th in threads]
+    [th.join() for th in threads]
+    return {"equal": serial == parallel}
+
+
 def sc_simulate_nan_input():
     """fmpy's simulate_fmu retries a discarded step for as long as fmi2Terminated reads false: a NaN input must
     end the run at the last good time (both kinds report fmi2Terminated after a discard), not loop forever."""
@@ -885,7 +943,8 @@ def host(request, host_results):
 
 
 SCENARIOS = ("steps", "noset", "nan_sets", "strings", "state_pointers", "cross_states", "deserialize_sizes",
-             "reset_everywhere", "lifecycle", "instantiate", "unsupported", "simulate_nan_input", "huge_step")
+             "reset_everywhere", "lifecycle", "instantiate", "unsupported", "simulate_nan_input", "huge_step",
+             "setup_and_resolution", "restore_state_from_before_initialization", "threads")
 
 
 def test_host_process_survives_every_sequence_and_fresh_instances_run(host):
@@ -1009,3 +1068,23 @@ def test_huge_step_ends_with_discard_not_a_hang(host):
     r = host["huge_step"]
     assert r["status"] == 2 and r["cpu"] < 20, r
     assert r["logs"] and r["logs"][0][1] == "logStatusDiscard" and "maximum number of steps" in r["logs"][0][2]
+
+
+def test_setup_experiment_arguments_and_steps_below_resolution(host):
+    r = host["setup_and_resolution"]
+    for what in ("start NaN", "tolerance NaN", "stop before start", "stop NaN"):
+        setup, logs, enter, exit_, step = r[what]
+        assert _refused(setup, logs) and (enter, exit_, step) == (0, 0, 0), (what, r[what])
+    for what, status, logs in r["steps"]:
+        assert _refused(status, logs), (what, status, logs)
+    assert r["same"]
+
+
+def test_state_from_before_initialization_restores_that_phase(host):
+    r = host["restore_state_from_before_initialization"]
+    assert r["calls"][0] == 0 and _refused(r["calls"][1], r["logs"]), r
+    assert r["runs_like_fresh"]
+
+
+def test_instances_on_threads_are_independent(host):
+    assert host["threads"]["equal"]

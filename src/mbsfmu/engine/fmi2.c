@@ -60,6 +60,7 @@ typedef struct {
     char refused[256];         /* (-1: none); its message fails fmi2ExitInitializationMode */
 } Fmu;
 
+#define STATE_HEADER (4 + 4 + 64 + 8 + 8)  /* "MBSS", version, GUID, payload length, checksum (sim.c) */
 typedef struct {
     Fmu *owner;                /* freed with its instance (fmi2FreeInstance frees everything) */
     size_t len;
@@ -375,9 +376,11 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     CHECK(P_INSTANTIATED, "fmi2SetupExperiment");
     /* The tolerance is the parameter integrator.rtol (as in the pythonfmu kind); the stop time is not
      * needed: the integrator lands on every communication point. */
-    (void)toleranceDefined, (void)tolerance, (void)stopTimeDefined, (void)stopTime;
-    if (!isfinite(startTime)) {
-        logf_(f, fmi2Error, "fmi2SetupExperiment: start time %g is not finite", startTime);
+    if (!isfinite(startTime) || (toleranceDefined && !(isfinite(tolerance) && tolerance > 0)) ||
+        (stopTimeDefined && !(isfinite(stopTime) && stopTime >= startTime))) {
+        logf_(f, fmi2Error, "fmi2SetupExperiment: need a finite start time, a tolerance > 0 and a finite stop time "
+              ">= start when defined (start %g, tolerance %g, stop %g)", startTime, toleranceDefined ? tolerance : 0.0,
+              stopTimeDefined ? stopTime : startTime);
         return fmi2Error;
     }
     f->t_start = startTime;
@@ -588,6 +591,15 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     return engine_status(f, mbs_state_save(f->sim, st->bytes, st->len), "fmi2GetFMUstate");
 }
 
+/* The FMI phase a state brings with it: step mode if it was taken after initialization, else instantiated
+ * (the payload's Head starts with five doubles, then int32 initialized; sim.c, mbs_state_save). */
+static int state_phase(const FmuState *st) {
+    int initialized = 0;
+    if (st->len >= STATE_HEADER + 5 * 8 + 4)
+        memcpy(&initialized, st->bytes + STATE_HEADER + 5 * 8, 4);
+    return initialized == 1 ? P_STEP : P_INSTANTIATED;
+}
+
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     FmuState *st;
     CHECK(P_ANY, "fmi2SetFMUstate");
@@ -598,6 +610,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
         return fmi2Error;
     }
     f->discarded = 0;
+    f->phase = state_phase(st);  /* a state taken before initialization: initialize again */
     return fmi2OK;
 }
 
@@ -651,7 +664,6 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
 /* The engine's state header (sim.c, mbs_state_save): "MBSS", uint32 format version, char guid[64], uint64
  * payload length, uint64 checksum. Checked on the host's bytes before anything is copied, so a size that
  * disagrees with the header (0, or far beyond the buffer) is refused without reading past the header. */
-#define STATE_HEADER (4 + 4 + 64 + 8 + 8)
 static const char *bad_header(const unsigned char *b, size_t n, const char *guid) {
     unsigned long long length;
     if (n < STATE_HEADER) return "too short for an mbsfmu FMU state";
@@ -742,8 +754,9 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
     fmi2Status st;
     (void)noSetFMUStatePriorToCurrentPoint;
     CHECK(P_STEP, "fmi2DoStep");
-    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0) {
-        logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h > 0)",
+    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0 ||
+        currentCommunicationPoint + communicationStepSize == currentCommunicationPoint) {
+        logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h > 0 that advances t)",
               currentCommunicationPoint, communicationStepSize);
         return fmi2Error;
     }

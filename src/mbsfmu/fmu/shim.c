@@ -493,7 +493,11 @@ EXPORT fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean td, fmi2Real 
                                       fmi2Boolean sd, fmi2Real t1) {
     Inst* in;
     fmi2Status st = enter(c, __func__, P(INSTANTIATED), &in);
-    return st ? st : done(in, __func__, R.setup_experiment(in->real, td, tol, t0, sd, t1));
+    if (st) return st;
+    if (!isfinite(t0) || (td && !(isfinite(tol) && tol > 0)) || (sd && !(isfinite(t1) && t1 >= t0)))   /* as native */
+        return say(in, fmi2Error, "%s: need a finite start time, a tolerance > 0 and a finite stop time >= start when "
+                   "defined (start %g, tolerance %g, stop %g)", __func__, t0, td ? tol : 0.0, sd ? t1 : t0), fmi2Error;
+    return done(in, __func__, R.setup_experiment(in->real, td, tol, t0, sd, t1));
 }
 
 /* A call without arguments that moves the instance from an `allowed` phase to `next` when pythonfmu agrees. */
@@ -523,8 +527,9 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolea
     Inst* in;
     fmi2Status st = enter(c, __func__, P(STEP), &in);
     if (st) return st;
-    if (!isfinite(t) || !isfinite(h) || h <= 0)   /* as the native FMU (engine/fmi2.c); FMI 2.0: h > 0 */
-        return say(in, fmi2Error, "%s: bad step t=%g, h=%g (need finite t and h > 0)", __func__, t, h), fmi2Error;
+    if (!isfinite(t) || !isfinite(h) || h <= 0 || t + h == t)   /* as the native FMU (engine/fmi2.c); FMI 2.0: h > 0 */
+        return say(in, fmi2Error, "%s: bad step t=%g, h=%g (need finite t and h > 0 that advances t)", __func__, t, h),
+               fmi2Error;
     /* fmi2Discard (the integration failed; the state stays at t) keeps step mode: the master may roll back,
        change inputs, retry or terminate; the slave's reason ("discard: ...") is logged here, since pythonfmu
        passes the slave's messages on only with debug logging. A step the engine refused outright (t is not
