@@ -1088,3 +1088,43 @@ def test_state_from_before_initialization_restores_that_phase(host):
 
 def test_instances_on_threads_are_independent(host):
     assert host["threads"]["equal"]
+
+
+def test_nan_or_infinity_in_every_numeric_field_of_every_shipped_scene():
+    """Each number of every shipped and example scene replaced in turn by .nan or .inf (alternately): refused
+    with a line and the key path of that very field (or the list or mapping holding it)."""
+    import copy
+    from pathlib import Path
+
+    import yaml
+
+    import mbsfmu
+    repo = Path(__file__).resolve().parents[1]
+
+    def numbers(x, path=(), text=""):
+        if isinstance(x, dict):
+            for k, v in x.items():
+                yield from numbers(v, path + (k,), f"{text}.{k}" if text else str(k))
+        elif isinstance(x, list):
+            for i, v in enumerate(x):
+                yield from numbers(v, path + (i,), f"{text}[{i}]")
+        elif isinstance(x, (int, float)) and not isinstance(x, bool) and text != "mbsfmu":
+            yield path, text
+
+    bad, n = [], 0
+    for f in sorted(list((repo / "models").glob("*.yaml")) + list((repo / "docs" / "examples").glob("*.yaml"))):
+        data = yaml.safe_load(f.read_text())
+        for path, text in numbers(data):
+            d = copy.deepcopy(data)
+            node = d
+            for k in path[:-1]:
+                node = node[k]
+            node[path[-1]] = (float("nan"), float("inf"))[n % 2]
+            n += 1
+            try:
+                mbsfmu.loads(yaml.safe_dump(d), base=f.parent)
+                bad.append((f.name, text, "loaded"))
+            except mbsfmu.ModelError as e:
+                if e.line is None or not (e.key == text or (e.key or "").startswith(text) or text.startswith(e.key or "\0")):
+                    bad.append((f.name, text, e.key, e.line, str(e)[:120]))
+    assert n > 500 and not bad, bad[:5]
