@@ -1128,3 +1128,31 @@ def test_nan_or_infinity_in_every_numeric_field_of_every_shipped_scene():
                 if e.line is None or not (e.key == text or (e.key or "").startswith(text) or text.startswith(e.key or "\0")):
                     bad.append((f.name, text, e.key, e.line, str(e)[:120]))
     assert n > 500 and not bad, bad[:5]
+
+
+STAR_WORKER = """
+import json, resource, sys, time
+resource.setrlimit(resource.RLIMIT_AS, (2 * 2**30, 2 * 2**30))
+import mbsfmu
+t = time.process_time(); scene = mbsfmu.load(sys.argv[1]); t_load = time.process_time() - t
+t = time.process_time(); ev = mbsfmu.compile(scene); t_compile = time.process_time() - t
+try:
+    mbsfmu.build_fmu(scene, sys.argv[2], kind="native")
+    build = "built"
+except Exception as e:
+    build = f"{type(e).__name__}: {e}"
+print(json.dumps({"load": t_load, "compile": t_compile, "dof": len(ev.velocity_coordinates), "build": build,
+                  "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def test_10000_body_star_loads_within_seconds_and_the_build_refuses_with_its_size(tmp_path):
+    path = tmp_path / "star.yaml"
+    path.write_text(_star(10_000, ""))
+    r = subprocess.run([sys.executable, "-c", STAR_WORKER, str(path), str(tmp_path / "out")], capture_output=True,
+                       text=True, timeout=120, env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(r.stdout)
+    assert res["dof"] == 10_000 and res["load"] < 6 and res["compile"] < 4, res
+    assert res["build"] == "built" or ("10000 bodies" in res["build"] and "GiB" in res["build"]), res["build"]
+    assert res["maxrss_mb"] < 1024, res
