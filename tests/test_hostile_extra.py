@@ -1156,3 +1156,22 @@ def test_10000_body_star_loads_within_seconds_and_the_build_refuses_with_its_siz
     assert res["dof"] == 10_000 and res["load"] < 6 and res["compile"] < 4, res
     assert res["build"] == "built" or ("10000 bodies" in res["build"] and "GiB" in res["build"]), res["build"]
     assert res["maxrss_mb"] < 1024, res
+
+
+def test_devices_and_fifos_as_data_files_even_when_outside_files_are_allowed(tmp_path):
+    """With allow_outside the folder check is off; a device, a FIFO or /proc file is still not read."""
+    cases = []
+    for name, target in (("zero", "/dev/zero"), ("urandom", "/dev/urandom"), ("environ", "/proc/self/environ")):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "data.npz").symlink_to(target)
+        cases.append((name, _scene(d, BASE + NODAL_BODY % "{file: data.npz}"), True))
+    d = tmp_path / "fifo"
+    d.mkdir()
+    os.mkfifo(d / "data.npz")
+    cases.append(("fifo", _scene(d, BASE + NODAL_BODY % f"{{file: {d / 'data.npz'}}}"), True))
+    out = run_bounded(cases, tmp_path, timeout=60)
+    for name, path, _ in cases:
+        r = out[name]
+        assert r["type"] == "ModelError" and r["key"] == "bodies.plate.elastic.nodal.file" and r["cpu"] < CPU_SECONDS, (name, r)
+        assert "not a regular file" in r["text"] or "not an .npz" in r["text"], (name, r["text"])
