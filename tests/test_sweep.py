@@ -208,11 +208,29 @@ def test_sweep_of_a_built_fmu(tmp_path):
                                             (7, 2, None), (1000, 3, math.nan), (0, 2, 1e-3), (1999, 2, 5e-4)])
 def test_batches_cover_every_case_once_and_feed_every_slot(n, slots, cost):
     from mbsfmu.sweep.dispatch import BATCH_SECONDS, batches
-    cases = [(i, {}) for i in range(n)]
-    bs = batches(cases, slots, cost)
-    assert [c for b in bs for c in b] == cases
-    assert len(bs) >= min(n, slots)
-    if (n, slots) == (1999, 2):  # 5 batches would leave one worker idle for the last fifth: 6 of equal size
-        assert [len(b) for b in bs] == [334] * 5 + [329]
-    if cost and math.isfinite(cost) and len(bs) > slots:  # more batches than slots only with enough work each
-        assert len(bs[0]) * cost >= BATCH_SECONDS / 2 or len(bs[0]) == 256  # halved at most by whole rounds
+    for contiguous in (False, True):
+        bs = batches(n, slots, cost, contiguous=contiguous)
+        assert sorted(int(i) for b in bs for i in b) == list(range(n))
+        assert len(bs) >= min(n, slots)
+        if contiguous:
+            assert [int(i) for b in bs for i in b] == list(range(n))
+        else:  # strided: a grid's corners spread over all batches; sizes differ by at most one
+            assert all(np.all(np.diff(b) == len(bs)) for b in bs)
+            assert not bs or max(map(len, bs)) - min(map(len, bs)) <= 1
+        if (n, slots) == (1999, 2):  # 5 batches would leave one worker idle for the last fifth: 6 batches
+            assert len(bs) == 6
+        if cost and math.isfinite(cost) and len(bs) > slots:  # more batches than slots only with enough work each
+            assert len(bs[0]) * cost >= BATCH_SECONDS / 2 or len(bs[0]) >= 256  # halved at most by whole rounds
+
+
+def test_cases_by_column_round_trip():
+    """Cases travel as columns (floats as float64 arrays, words and ints as lists) and come back as the same
+    Python values, bit for bit, in the order taken."""
+    import pickle
+    from mbsfmu.sweep.runner import Cases
+    cols = {"L": [0.1, 1 / 3, 2.5e-300], "integrator.method": ["dop853", "rk4", "radau5"], "n": [1, 2, 3]}
+    cases = pickle.loads(pickle.dumps(Cases.from_columns(cols)))
+    part = cases.take(np.array([2, 0]))
+    assert part.index.tolist() == [2, 0]
+    assert part.values(0) == {"L": 2.5e-300, "integrator.method": "radau5", "n": 3}
+    assert type(part.values(1)["L"]) is float and part.values(1)["L"] == 0.1

@@ -30,7 +30,7 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
     """
     from .cases import make_cases
     from .dispatch import run_cases
-    from .runner import Setup
+    from .runner import Cases, Setup
     np, pd = _require(scheduler)
     columns = make_cases(vary, samples, seed)
     names, n = list(columns), len(next(iter(columns.values())))
@@ -42,17 +42,15 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
     info.check({**inputs, **{k: columns[k][0] for k in names}})
     outputs = info.outputs if outputs is None else _chosen_outputs(info, outputs)
     setup = Setup(_times(info, stop, step), tuple(outputs), inputs, bool(series))
-    cases = [(i, {k: columns[k][i] for k in names}) for i in range(n)]
-    rows = sorted(run_cases(data, cases, setup, scheduler, workers, progress), key=lambda r: r[0])
-    final = np.array([r[3] for r in rows]).reshape(n, len(outputs))
-    table = pd.DataFrame({"case": np.arange(n), **columns, **{o: final[:, k] for k, o in enumerate(outputs)},
-                          "status": [r[1] for r in rows], "wall_time": [r[2] for r in rows]})
+    rows = run_cases(data, Cases.from_columns(columns), setup, scheduler, workers, progress)
+    table = pd.DataFrame({"case": np.arange(n), **columns, **{o: rows.final[:, k] for k, o in enumerate(outputs)},
+                          "status": rows.status, "wall_time": rows.wall})
     if not series:
         return table
-    ok = [r for r in rows if r[4] is not None]
+    ok = [(i, s) for i, s in zip(rows.index, rows.series) if s is not None]
     ts = setup.ts
-    S = np.vstack([r[4] for r in ok]) if ok else np.empty((0, len(outputs)))
-    long = pd.DataFrame({"case": np.repeat([r[0] for r in ok], len(ts)).astype(int), "time": np.tile(ts, len(ok)),
+    S = np.vstack([s for _, s in ok]) if ok else np.empty((0, len(outputs)))
+    long = pd.DataFrame({"case": np.repeat([i for i, _ in ok], len(ts)).astype(int), "time": np.tile(ts, len(ok)),
                          **{o: S[:, k] for k, o in enumerate(outputs)}})
     return table, long
 
@@ -87,10 +85,23 @@ def _model(model):
     return _scene(spec)
 
 
+_SCENES = {}  # content hash → (ModelData, _Info): repeated sweeps of one scene compile its probe once
+
+
 def _scene(spec):
+    text = json.dumps(spec, sort_keys=True)
+    key = _digest(text.encode())
+    hit = _SCENES.get(key)
+    if hit is None:
+        while len(_SCENES) >= 8:
+            _SCENES.pop(next(iter(_SCENES)))
+        hit = _SCENES[key] = _new_scene(json.loads(text), text, key)
+    return hit
+
+
+def _new_scene(spec, text, key):
     from ..simulation import Simulation
     from .runner import ModelData
-    text = json.dumps(spec, sort_keys=True)
     probe = Simulation(json.loads(text))  # what the workers will build; compiles the kernel once, here
     outs = [v.name for v in probe.variables if v.causality == "output"]
     settable = [v.name for v in probe.variables if v.causality in ("parameter", "input")]
@@ -111,7 +122,7 @@ def _scene(spec):
                 raise ValueError(f"{name}={v!r}: {e}") from None
 
     e = spec["experiment"]
-    data = ModelData("scene", _digest(text.encode()), text, spec["name"])
+    data = ModelData("scene", key, text, spec["name"])
     return data, _Info(spec["name"], outs, (e["start"], e["stop"], e["step"]), check)
 
 

@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from .runner import run_batch
+from .runner import Rows, run_batch
 
 BATCHES_PER_SLOT = 8   # several batches per worker: load balance and progress steps
 BATCH_SECONDS = 0.2    # yet at least this much work per task: a task costs ~2 ms of scheduling, a round trip ~6
@@ -19,59 +19,74 @@ SCATTER_BYTES = 1 << 16  # larger models (FMUs) go to each worker once ahead; a 
 
 
 def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
-    """cases [(case number, {name: value})] → rows of run_batch (any order)."""
+    """cases (a runner.Cases) → runner.Rows, in case order."""
     if progress is None:
         progress = sys.stderr.isatty()
     with _bar(len(cases), progress) as bar:
         if scheduler == "inprocess":
-            rows = []
-            for batch in batches(cases, 1):
-                rows += run_batch(model, batch, setup)
-                bar.update(len(batch))
-            return rows
-        with _client(scheduler, workers) as client:
-            return _on_cluster(client, model, cases, setup, bar)
+            parts = []
+            for positions in batches(len(cases), 1, contiguous=True):
+                parts.append(run_batch(model, cases.take(positions), setup))
+                bar.update(len(positions))
+            return Rows.join(parts, len(setup.outputs))
+        with _client(scheduler, workers) as (client, slots):
+            return _on_cluster(client, slots, model, cases, setup, bar)
 
 
-def batches(cases, slots, cost=None):
-    """Split cases into equal batches: about BATCHES_PER_SLOT per slot, but (given the seconds one case costs)
-    at least BATCH_SECONDS of work each, and never fewer batches than slots."""
-    if not cases:
+def batches(n, slots, cost=None, contiguous=False):
+    """Split n cases into batches (numpy arrays of positions): about BATCHES_PER_SLOT per slot, but (given the
+    seconds one case costs) at least BATCH_SECONDS of work each, a whole number per slot, never fewer batches
+    than slots. Batch k takes every count-th case from the k-th on (contiguous: a run of cases), so that a grid's
+    cheap and dear corners spread over all batches."""
+    if n <= 0:
         return []
-    size = max(1, math.ceil(len(cases) / (slots * BATCHES_PER_SLOT)))
+    size = max(1, math.ceil(n / (slots * BATCHES_PER_SLOT)))
     if cost is not None and math.isfinite(cost) and cost > 0:
-        size = max(size, min(math.ceil(BATCH_SECONDS / cost), math.ceil(len(cases) / slots)))
-    size = min(size, max(MAX_BATCH, math.ceil(len(cases) / slots)))
-    count = math.ceil(len(cases) / size)
+        size = max(size, min(math.ceil(BATCH_SECONDS / cost), math.ceil(n / slots)))
+    size = min(size, max(MAX_BATCH, math.ceil(n / slots)))
+    count = math.ceil(n / size)
     count = math.ceil(count / slots) * slots if count > slots else count  # a whole number per slot: balance
-    size = math.ceil(len(cases) / count)
-    return [cases[k:k + size] for k in range(0, len(cases), size)]
+    if contiguous:
+        size = math.ceil(n / count)
+        return [np.arange(k, min(k + size, n)) for k in range(0, n, size)]
+    return [np.arange(k, n, count) for k in range(min(count, n))]
 
 
-def _on_cluster(client, model, cases, setup, bar):
+def _on_cluster(client, slots, model, cases, setup, bar):
     """The first case runs here, in the calling process: its row counts and its time sizes the batches, which
-    then all go out at once (no wave of probes: one round trip to the cluster in all)."""
-    slots = max(1, sum(client.nthreads().values()))
+    then all go out at once in one message (no wave of probes: one round trip to the cluster in all); the
+    results come back in one gather."""
+    from dask.distributed import as_completed, wait
+    n_out = len(setup.outputs)
+    parts, rest, cost = [], np.arange(len(cases)), None
     try:
-        rows, rest = run_batch(model, cases[:1], setup), cases[1:]
-        cost = rows[0][2]
+        first = run_batch(model, cases.take(rest[:1]), setup)
+        if first.status[0] == "ok":  # a failed case's time says little about the others'
+            cost = float(first.wall[0])
+        parts, rest = [first], rest[1:]
         bar.update(1)
     except Exception:  # the model does not load here (e.g. an FMU for the workers' platform): the workers say why
-        rows, rest, cost = [], cases, None
+        pass
     shared = model
     if len(model.data) > SCATTER_BYTES:
         [shared] = client.scatter([model], broadcast=True, hash=False)
-    pending = {client.submit(run_batch, shared, b, setup, pure=False): b for b in batches(rest, slots, cost)}
-    for fut, batch in pending.items():  # in order: the last batch ends the sweep anyway, and no watcher thread
-        try:
-            done = fut.result()
-        except Exception as e:  # the worker died (e.g. killed): its cases fail, the sweep goes on
-            nan = np.full(len(setup.outputs), np.nan)
-            done = [(i, f"worker failed: {type(e).__name__}: {e}", math.nan, nan, None) for i, _ in batch]
-        rows += done
-        fut.release()
-        bar.update(len(batch))
-    return rows
+    chunks = [cases.take(rest[p]) for p in batches(len(rest), slots, cost)]
+    futures = client.map(run_batch, [shared] * len(chunks), chunks, [setup] * len(chunks), pure=False)
+    if isinstance(bar, _NoBar):
+        wait(futures)
+    else:
+        for fut in as_completed(futures):
+            bar.update(len(chunks[futures.index(fut)]))
+    done = [f for f in futures if f.status == "finished"]
+    parts += client.gather(done)
+    for fut, chunk in zip(futures, chunks):
+        if fut.status != "finished":  # the worker died (e.g. killed) or the task failed: its cases fail
+            e = fut.exception()
+            msg = f"worker failed: {type(e).__name__}: {e}"
+            parts.append(Rows(chunk.index, [msg] * len(chunk), np.full(len(chunk), math.nan),
+                              np.full((len(chunk), n_out), math.nan), [None] * len(chunk)))
+    client.cancel(futures)
+    return Rows.join(parts, n_out)
 
 
 def local_cluster(n):
@@ -90,25 +105,29 @@ def local_cluster(n):
 
 @contextlib.contextmanager
 def _client(scheduler, workers):
-    """A Dask client: on an embedded LocalCluster (closed afterwards), an address, or a Client given; on an
-    existing cluster wait until `workers` workers (default 1) have joined."""
+    """(a Dask client, its worker threads): on an embedded LocalCluster (closed afterwards), an address, or a
+    Client given; on an existing cluster wait until `workers` workers (default 1) have joined."""
     from dask.distributed import Client
     if scheduler is None:
         n = int(workers or os.cpu_count() or 1)
         if n < 1:
             raise ValueError(f"workers must be at least 1, got {workers}")
         with local_cluster(n) as cluster, Client(cluster) as client:
-            yield client
+            yield client, n
         return
     with contextlib.ExitStack() as stack:
         client = scheduler if isinstance(scheduler, Client) else stack.enter_context(
             Client(scheduler, timeout=WAIT_FOR_WORKERS))
-        try:
-            client.wait_for_workers(int(workers or 1), timeout=WAIT_FOR_WORKERS)
-        except TimeoutError:
-            raise TimeoutError(f"fewer than {workers or 1} Dask workers joined {client.scheduler.address} within "
-                               f"{WAIT_FOR_WORKERS} s (start them with: dask worker ADDRESS)") from None
-        yield client
+        need = int(workers or 1)
+        threads = client.nthreads()  # one small request; wait only when workers are missing
+        if len(threads) < need:
+            try:
+                client.wait_for_workers(need, timeout=WAIT_FOR_WORKERS)
+            except TimeoutError:
+                raise TimeoutError(f"fewer than {need} Dask workers joined {client.scheduler.address} within "
+                                   f"{WAIT_FOR_WORKERS} s (start them with: dask worker ADDRESS)") from None
+            threads = client.nthreads()
+        yield client, max(1, sum(threads.values()))
 
 
 class _NoBar:

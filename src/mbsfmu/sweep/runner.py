@@ -32,20 +32,90 @@ class Setup(NamedTuple):
     series: bool
 
 
+class Cases:
+    """Cases by column: case numbers and {name: values}. A plain object on purpose: Dask walks the lists, tuples
+    and dicts in a task's arguments looking for references to other tasks (200 cases as tuples of dicts cost
+    ~3 ms to submit); a class instance and numpy arrays it leaves alone, and they pickle compactly."""
+
+    __slots__ = ("index", "columns")
+
+    def __init__(self, index, columns):
+        self.index = np.asarray(index, dtype=np.int64)
+        self.columns = columns  # {name: numpy array (numbers) or list (words such as integrator methods)}
+
+    @classmethod
+    def from_columns(cls, columns):
+        n = len(next(iter(columns.values()))) if columns else 0
+        return cls(np.arange(n), {k: _column(v) for k, v in columns.items()})
+
+    def take(self, positions):
+        """The cases at these positions (a numpy index array)."""
+        positions = np.asarray(positions, dtype=np.int64)
+        return Cases(self.index[positions], {k: v[positions] if isinstance(v, np.ndarray) else [v[p] for p in positions]
+                                             for k, v in self.columns.items()})
+
+    def __len__(self):
+        return len(self.index)
+
+    def values(self, k):
+        """{name: value} of the k-th case here (Python scalars, as a user's loop would pass them)."""
+        return {name: col[k].item() if isinstance(col, np.ndarray) else col[k] for name, col in self.columns.items()}
+
+    def __getstate__(self):
+        return self.index, self.columns
+
+    def __setstate__(self, state):
+        self.index, self.columns = state
+
+
+def _column(values):
+    """Floats as a float64 array (the same numbers back, bit for bit), anything else (words, ints) as a list."""
+    values = list(values)
+    if values and all(isinstance(v, float) for v in values):
+        return np.asarray(values, dtype=np.float64)
+    return values
+
+
+class Rows(NamedTuple):
+    """Results of some cases, by column: case numbers, status ("ok" or the failure message), wall time per case
+    [s], the outputs at the stop time (a row per case), and with series a (points × outputs) array per case
+    (None for a failed case)."""
+    index: np.ndarray
+    status: list
+    wall: np.ndarray
+    final: np.ndarray
+    series: list
+
+    @staticmethod
+    def join(parts, n_outputs):
+        parts = [p for p in parts if len(p.index)]
+        if not parts:
+            return Rows(np.empty(0, np.int64), [], np.empty(0), np.empty((0, n_outputs)), [])
+        index = np.concatenate([p.index for p in parts])
+        order = np.argsort(index, kind="stable")
+        status = [s for p in parts for s in p.status]
+        series = [s for p in parts for s in p.series]
+        return Rows(index[order], [status[k] for k in order], np.concatenate([p.wall for p in parts])[order],
+                    np.concatenate([p.final for p in parts])[order], [series[k] for k in order])
+
+
 def run_batch(model, cases, setup):
-    """cases: [(case number, {name: value})] → [(case number, status, wall time, outputs, series or None)]."""
+    """Run `cases` (a Cases) on this process's build of `model` → Rows."""
     runner = _runner(model)
-    rows = []
-    for i, values in cases:
+    n, m = len(cases), len(setup.outputs)
+    final, wall = np.empty((n, m)), np.empty(n)
+    status, series = ["ok"] * n, [None] * n
+    for k in range(n):
         t0 = time.perf_counter()
         try:
-            final, series = runner.run(values, setup)
-            bad = [n for n, v in zip(setup.outputs, final) if not math.isfinite(v)]
-            status = f"non-finite output {', '.join(bad)} at t={setup.ts[-1]:g}" if bad else "ok"
+            final[k], series[k] = runner.run(cases.values(k), setup)
+            bad = [o for o, v in zip(setup.outputs, final[k]) if not math.isfinite(v)]
+            if bad:
+                status[k] = f"non-finite output {', '.join(bad)} at t={setup.ts[-1]:g}"
         except Exception as e:  # one case's failure never stops the sweep
-            final, series, status = np.full(len(setup.outputs), np.nan), None, runner.failed(e)
-        rows.append((i, status, time.perf_counter() - t0, np.asarray(final, dtype=float), series))
-    return rows
+            final[k], series[k], status[k] = np.nan, None, runner.failed(e)
+        wall[k] = time.perf_counter() - t0
+    return Rows(cases.index, status, wall, final, series)
 
 
 def _runner(model):
