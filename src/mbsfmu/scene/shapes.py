@@ -20,7 +20,7 @@ MESH_MAX_BYTES = 64 * 2**20
 _SIZE_KEYS = {"box": ("size",), "sphere": ("radius",), "cylinder": ("radius", "length"),
               "capsule": ("radius", "length"), "mesh": ("file",)}
 _COMMON = ("type", "at", "rotation", "color", "opacity")
-_HEX = re.compile(r"^#(?:[0-9a-fA-F]{3}|[0-9a-fA-F]{6})$")
+_HEX = re.compile(r"#(?:[0-9a-fA-F]{3}|[0-9a-fA-F]{6})")   # fullmatch: no trailing newline
 COLORS = {"red": "#d03030", "green": "#30a040", "blue": "#3060d0", "yellow": "#e0c020", "orange": "#e08020",
           "purple": "#8040b0", "cyan": "#20b0c0", "magenta": "#c030a0", "white": "#f0f0f0", "grey": "#808080",
           "gray": "#808080", "black": "#202020", "brown": "#8b5a2b", "steel": "#8c9aa8"}
@@ -104,7 +104,7 @@ def _mesh_file(ck, s, path):
 
 def _color(ck, s, path):
     c = s["color"]
-    if isinstance(c, str) and _HEX.match(c):
+    if isinstance(c, str) and _HEX.fullmatch(c):
         return "#" + "".join(ch * 2 for ch in c[1:]).lower() if len(c) == 4 else c.lower()
     if isinstance(c, str) and c.lower() in COLORS:
         return COLORS[c.lower()]
