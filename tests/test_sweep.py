@@ -234,3 +234,28 @@ def test_cases_by_column_round_trip():
     assert part.index.tolist() == [2, 0]
     assert part.values(0) == {"L": 2.5e-300, "integrator.method": "radau5", "n": 3}
     assert type(part.values(1)["L"]) is float and part.values(1)["L"] == 0.1
+
+
+@pytest.mark.parametrize("progress", [False, True])
+def test_a_failed_batch_fails_its_cases_only(monkeypatch, progress):
+    """A batch whose task fails on the cluster (here: raises for the batch holding case 5) records its cases as
+    failed with the reason; every other case completes. Threads in this process, so the patch reaches them."""
+    from dask.distributed import Client, LocalCluster
+    from mbsfmu.sweep import dispatch
+    real = dispatch.run_batch
+
+    def flaky(model, cases, setup):
+        if 5 in cases.index:
+            raise RuntimeError("lost the batch")
+        return real(model, cases, setup)
+
+    monkeypatch.setattr(dispatch, "run_batch", flaky)
+    with LocalCluster(n_workers=1, threads_per_worker=4, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        table = mbsfmu.sweep(MODELS / "pendulum.yaml", vary={"L": "0.5:1.5:24"}, stop=0.1, scheduler=client,
+                             outputs=["y.theta"], progress=progress)
+    failed = table[table["status"] != "ok"]
+    assert 5 in failed["case"].tolist() and 0 < len(failed) < 24
+    assert failed["status"].str.contains("worker failed: RuntimeError: lost the batch").all()
+    assert failed["y.theta"].isna().all() and table.loc[table["status"] == "ok", "y.theta"].notna().all()
+    assert table["case"].tolist() == list(range(24))

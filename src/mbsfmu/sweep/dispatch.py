@@ -75,18 +75,21 @@ def _on_cluster(client, slots, model, cases, setup, bar):
     if isinstance(bar, _NoBar):
         wait(futures)
     else:
+        size = {f.key: len(c) for f, c in zip(futures, chunks)}
         for fut in as_completed(futures):
-            bar.update(len(chunks[futures.index(fut)]))
+            bar.update(size[fut.key])
     done = [f for f in futures if f.status == "finished"]
     parts += client.gather(done)
     for fut, chunk in zip(futures, chunks):
         if fut.status != "finished":  # the worker died (e.g. killed) or the task failed: its cases fail
-            e = fut.exception()
+            try:
+                e = fut.exception()
+            except BaseException as why:  # cancelled (e.g. the scheduler lost it)
+                e = why
             msg = f"worker failed: {type(e).__name__}: {e}"
             parts.append(Rows(chunk.index, [msg] * len(chunk), np.full(len(chunk), math.nan),
                               np.full((len(chunk), n_out), math.nan), [None] * len(chunk)))
-    client.cancel(futures)
-    return Rows.join(parts, n_out)
+    return Rows.join(parts, n_out)  # the futures go with this frame: released without a request to wait for
 
 
 def local_cluster(n):
@@ -119,7 +122,7 @@ def _client(scheduler, workers):
         client = scheduler if isinstance(scheduler, Client) else stack.enter_context(
             Client(scheduler, timeout=WAIT_FOR_WORKERS))
         need = int(workers or 1)
-        threads = client.nthreads()  # one small request; wait only when workers are missing
+        threads = _threads(client)  # wait only when workers are missing
         if len(threads) < need:
             try:
                 client.wait_for_workers(need, timeout=WAIT_FOR_WORKERS)
@@ -128,6 +131,16 @@ def _client(scheduler, workers):
                                    f"{WAIT_FOR_WORKERS} s (start them with: dask worker ADDRESS)") from None
             threads = client.nthreads()
         yield client, max(1, sum(threads.values()))
+
+
+def _threads(client):
+    """{worker: threads}: from a cluster object made in this process (LocalCluster, dask-jobqueue, ...), which
+    keeps a current copy over its watch stream, else one request to the scheduler."""
+    info = getattr(getattr(client, "cluster", None), "scheduler_info", None)
+    workers = info.get("workers") if info else None
+    if workers:
+        return {a: int(w.get("nthreads", 1)) for a, w in workers.items()}
+    return client.nthreads()
 
 
 class _NoBar:
