@@ -869,6 +869,73 @@ def sc_threads():
     return {"equal": serial == parallel}
 
 
+def sc_random_calls():
+    """3,000 calls drawn at random from the FMI 2.0 API (arguments valid as memory, hostile as values: stale and
+    made-up handles, unknown references, NaN, calls out of order) on a pool of instances: every status is one of
+    OK, Warning, Discard, Error (never Fatal), and the process lives on."""
+    import random
+    rng = random.Random(2026)
+    nan = float("nan")
+    pool = [open_fmu() for _ in range(3)]
+    handles = [fmi2FMUstate(0x1234560), fmi2FMUstate()]   # a made-up one and NULL; got, freed and stale ones join
+    nv = len(md.modelVariables)
+    statuses = {}
+
+    def vr():
+        return rng.choice([rng.randrange(nv), nv, 2**31, rng.randrange(nv)])
+
+    def value():
+        return rng.choice([0.0, 1.0, -1.0, 1e-3, nan, float("inf"), 1e300, rng.uniform(-10, 10)])
+
+    for _ in range(3000):
+        s = rng.choice(pool)
+        c = s.component
+        t = ctypes.c_double()
+        op = rng.randrange(14)
+        if op == 0:
+            r = st(s.fmi2DoStep, c, rng.choice([0.0, 0.01, 0.02, nan, 1.0]), rng.choice([0.01, 0.001, -0.01, 0.0, 0.5]), 1)
+        elif op == 1:
+            r = st(s.fmi2SetReal, c, vrs(vr()), 1, reals(value()))
+        elif op == 2:
+            r = st(s.fmi2GetReal, c, vrs(vr()), 1, reals(0.0))
+        elif op == 3:
+            r = st(s.fmi2SetupExperiment, c, 0, 0.0, rng.choice([0.0, nan]), 0, 0.0)
+        elif op == 4:
+            r = st(rng.choice([s.fmi2EnterInitializationMode, s.fmi2ExitInitializationMode, s.fmi2Terminate]), c)
+        elif op == 5:
+            r = st(s.fmi2Reset, c) if rng.random() < 0.3 else 0
+        elif op == 6:
+            h = fmi2FMUstate()
+            r = st(s.fmi2GetFMUstate, c, ctypes.byref(h))
+            if h.value:
+                handles.append(h)
+        elif op == 7:
+            r = st(s.fmi2SetFMUstate, c, rng.choice(handles))
+        elif op == 8:
+            h = rng.choice(handles)
+            copy = fmi2FMUstate(h.value)
+            r = st(s.fmi2FreeFMUstate, c, ctypes.byref(copy))   # the list keeps the stale value
+        elif op == 9:
+            n = ctypes.c_size_t()
+            r = st(s.fmi2SerializedFMUstateSize, c, rng.choice(handles), ctypes.byref(n))
+        elif op == 10:
+            data = rng.randbytes(rng.choice([0, 10, 88, 200, 700]))
+            h = fmi2FMUstate()
+            r = st(s.fmi2DeSerializeFMUstate, c, ctypes.create_string_buffer(data, max(len(data), 1)), len(data), ctypes.byref(h))
+        elif op == 11:
+            r = st(s.fmi2SetString, c, vrs(vr()), 1, (ctypes.c_char_p * 1)(rng.choice([b"rk4", b"dopri5", b"x", b"\xff"])))
+        elif op == 12:
+            r = st(s.fmi2GetRealStatus, c, rng.choice([0, 2, 3]), ctypes.byref(t))
+        else:   # an instance ends; a new one takes its place (the old component and its states go stale)
+            s.fmi2FreeInstance(c)
+            r = st(s.fmi2DoStep, c, 0.0, 0.01, 1)
+            pool[pool.index(s)] = open_fmu()
+        statuses[str(r)] = statuses.get(str(r), 0) + 1
+    for s in pool:
+        s.fmi2FreeInstance(s.component)
+    return {"statuses": statuses}
+
+
 def sc_simulate_nan_input():
     """fmpy's simulate_fmu retries a discarded step for as long as fmi2Terminated reads false: a NaN input must
     end the run at the last good time (both kinds report fmi2Terminated after a discard), not loop forever."""
@@ -956,7 +1023,7 @@ def host(request, host_results):
 
 SCENARIOS = ("steps", "noset", "nan_sets", "strings", "state_pointers", "cross_states", "deserialize_sizes",
              "reset_everywhere", "lifecycle", "instantiate", "unsupported", "simulate_nan_input", "huge_step",
-             "setup_and_resolution", "restore_state_from_before_initialization", "threads")
+             "setup_and_resolution", "restore_state_from_before_initialization", "threads", "random_calls")
 
 
 def test_host_process_survives_every_sequence_and_fresh_instances_run(host):
@@ -1187,3 +1254,9 @@ def test_devices_and_fifos_as_data_files_even_when_outside_files_are_allowed(tmp
         r = out[name]
         assert r["type"] == "ModelError" and r["key"] == "bodies.plate.elastic.nodal.file" and r["cpu"] < CPU_SECONDS, (name, r)
         assert "not a regular file" in r["text"] or "not an .npz" in r["text"], (name, r["text"])
+
+
+def test_3000_random_calls_never_fatal(host):
+    statuses = host["random_calls"]["statuses"]
+    assert set(statuses) <= {"0", "1", "2", "3"}, statuses      # never Fatal, never an access violation
+    assert statuses.get("0", 0) > 300 and statuses.get("3", 0) > 300, statuses   # both good and refused calls ran
