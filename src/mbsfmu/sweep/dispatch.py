@@ -54,9 +54,8 @@ def batches(n, slots, cost=None, contiguous=False):
 
 def _on_cluster(client, slots, model, cases, setup, bar):
     """The first case runs here, in the calling process: its row counts and its time sizes the batches, which
-    then all go out at once in one message (no wave of probes: one round trip to the cluster in all); the
-    results come back in one gather."""
-    from dask.distributed import as_completed, wait
+    then all go out at once in one message (no wave of probes: one round trip to the cluster in all)."""
+    from dask.distributed import as_completed
     n_out = len(setup.outputs)
     parts, rest, cost = [], np.arange(len(cases)), None
     try:
@@ -72,23 +71,18 @@ def _on_cluster(client, slots, model, cases, setup, bar):
         [shared] = client.scatter([model], broadcast=True, hash=False)
     chunks = [cases.take(rest[p]) for p in batches(len(rest), slots, cost)]
     futures = client.map(run_batch, [shared] * len(chunks), chunks, [setup] * len(chunks), pure=False)
-    if isinstance(bar, _NoBar):
-        wait(futures)
-    else:
-        size = {f.key: len(c) for f, c in zip(futures, chunks)}
-        for fut in as_completed(futures):
-            bar.update(size[fut.key])
-    done = [f for f in futures if f.status == "finished"]
-    parts += client.gather(done)
-    for fut, chunk in zip(futures, chunks):
-        if fut.status != "finished":  # the worker died (e.g. killed) or the task failed: its cases fail
-            try:
-                e = fut.exception()
-            except BaseException as why:  # cancelled (e.g. the scheduler lost it)
-                e = why
-            msg = f"worker failed: {type(e).__name__}: {e}"
-            parts.append(Rows(chunk.index, [msg] * len(chunk), np.full(len(chunk), math.nan),
-                              np.full((len(chunk), n_out), math.nan), [None] * len(chunk)))
+    chunk = {f.key: c for f, c in zip(futures, chunks)}
+    # each batch's results are fetched as soon as it ends, while the other workers still compute
+    for fut, got in as_completed(futures, with_results=True, raise_errors=False):
+        c = chunk[fut.key]
+        if not isinstance(got, Rows):  # the worker died (e.g. killed), the task failed or was cancelled
+            if isinstance(got, tuple):  # an error comes as (type, exception, traceback)
+                got = next((x for x in got if isinstance(x, BaseException)), got)
+            msg = f"worker failed: {type(got).__name__}: {got}"
+            got = Rows(c.index, [msg] * len(c), np.full(len(c), math.nan), np.full((len(c), n_out), math.nan),
+                       [None] * len(c))
+        parts.append(got)
+        bar.update(len(c))
     return Rows.join(parts, n_out)  # the futures go with this frame: released without a request to wait for
 
 
