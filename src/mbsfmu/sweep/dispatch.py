@@ -55,7 +55,7 @@ def batches(n, slots, cost=None, contiguous=False):
 def _on_cluster(client, slots, model, cases, setup, bar):
     """The first case runs here, in the calling process: its row counts and its time sizes the batches, which
     then all go out at once in one message (no wave of probes: one round trip to the cluster in all)."""
-    from dask.distributed import as_completed
+    from dask.distributed import wait
     n_out = len(setup.outputs)
     parts, rest, cost = [], np.arange(len(cases)), None
     try:
@@ -72,17 +72,21 @@ def _on_cluster(client, slots, model, cases, setup, bar):
     chunks = [cases.take(rest[p]) for p in batches(len(rest), slots, cost)]
     futures = client.map(run_batch, [shared] * len(chunks), chunks, [setup] * len(chunks), pure=False)
     chunk = {f.key: c for f, c in zip(futures, chunks)}
-    # each batch's results are fetched as soon as it ends, while the other workers still compute
-    for fut, got in as_completed(futures, with_results=True, raise_errors=False):
-        c = chunk[fut.key]
-        if not isinstance(got, Rows):  # the worker died (e.g. killed), the task failed or was cancelled
-            if isinstance(got, tuple):  # an error comes as (type, exception, traceback)
-                got = next((x for x in got if isinstance(x, BaseException)), got)
-            msg = f"worker failed: {type(got).__name__}: {got}"
-            got = Rows(c.index, [msg] * len(c), np.full(len(c), math.nan), np.full((len(c), n_out), math.nan),
-                       [None] * len(c))
-        parts.append(got)
-        bar.update(len(c))
+    pending = set(futures)
+    while pending:  # each batch's results are fetched as soon as it ends, while the other workers still compute
+        done, pending = wait(pending, return_when="FIRST_COMPLETED")  # no polling (as_completed's thread waits
+        for fut in done:                                              # in 100 ms steps)
+            c = chunk[fut.key]
+            try:
+                got = fut.result()
+            except (KeyboardInterrupt, SystemExit):
+                raise
+            except BaseException as e:  # the worker died (e.g. killed), the task failed or was cancelled
+                msg = f"worker failed: {type(e).__name__}: {e}"
+                got = Rows(c.index, [msg] * len(c), np.full(len(c), math.nan), np.full((len(c), n_out), math.nan),
+                           [None] * len(c))
+            parts.append(got)
+            bar.update(len(c))
     return Rows.join(parts, n_out)  # the futures go with this frame: released without a request to wait for
 
 
