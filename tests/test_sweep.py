@@ -259,3 +259,39 @@ def test_a_failed_batch_fails_its_cases_only(monkeypatch, progress):
     assert failed["status"].str.contains("worker failed: RuntimeError: lost the batch").all()
     assert failed["y.theta"].isna().all() and table.loc[table["status"] == "ok", "y.theta"].notna().all()
     assert table["case"].tolist() == list(range(24))
+
+
+def test_a_failed_station_call_runs_its_batch_again_as_a_task(monkeypatch):
+    """A batch whose call to its worker's Station fails (as when the worker dies: OSError) runs once more as an
+    ordinary Dask task; every case completes, each once, equal to an in-process sweep."""
+    from dask.distributed import Client, LocalCluster
+    from mbsfmu.sweep import dispatch
+    real, calls = dispatch.Station.run, []
+
+    async def lost(self, model, cases, setup):
+        calls.append(cases.index.tolist())
+        if len(calls) == 1:
+            raise OSError("Unable to contact Actor's worker")
+        return await real(self, model, cases, setup)
+
+    monkeypatch.setattr(dispatch.Station, "run", lost)
+    kw = dict(vary={"L": "0.5:1.5:24"}, stop=0.1, outputs=["y.theta"], progress=False)
+    with LocalCluster(n_workers=2, threads_per_worker=2, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        table = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=client, **kw)
+    assert len(calls) >= 2 and (table["status"] == "ok").all()
+    ref = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler="inprocess", **kw)
+    assert table["y.theta"].tolist() == ref["y.theta"].tolist()
+
+
+def test_sweeps_on_two_clients_in_one_process():
+    """Dask binds an actor to the process's current client; with two clients (the second the default), each
+    sweep's stations must still answer through their own client: results, no hang."""
+    from dask.distributed import Client, LocalCluster
+    kw = dict(vary={"L": "0.5:1.5:6"}, stop=0.1, outputs=["y.theta"], progress=False)
+    with LocalCluster(n_workers=1, processes=False, dashboard_address=None) as c1, Client(c1) as a, \
+            LocalCluster(n_workers=1, processes=False, dashboard_address=None) as c2, Client(c2) as b:
+        tables = [mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=c, **kw) for c in (a, b, a)]
+    ref = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler="inprocess", **kw)
+    for t in tables:
+        assert t["y.theta"].tolist() == ref["y.theta"].tolist()
