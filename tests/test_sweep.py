@@ -295,3 +295,26 @@ def test_sweeps_on_two_clients_in_one_process():
     ref = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler="inprocess", **kw)
     for t in tables:
         assert t["y.theta"].tolist() == ref["y.theta"].tolist()
+
+
+def test_a_worker_killed_mid_sweep_loses_no_case():
+    """A worker process killed (SIGKILL) while its batches run: those batches run again as tasks on the living
+    worker (the nanny restarts the dead one), every case ends ok, and the next sweep uses the new worker."""
+    import os
+    import signal
+    import threading
+    from dask.distributed import Client
+    from mbsfmu.sweep.dispatch import local_cluster
+    kw = dict(vary={"L": "0.5:1.5:400"}, stop=60.0, outputs=["y.theta"], progress=False)  # ~1.5 s per worker
+    with local_cluster(2) as cluster, Client(cluster) as client:
+        pids = list(client.run(os.getpid).values())
+        mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=client, **{**kw, "stop": 0.1})  # stations made, warm
+        timer = threading.Timer(0.3, os.kill, (pids[0], signal.SIGKILL))
+        timer.start()
+        first = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=client, **kw)
+        timer.join()
+        client.wait_for_workers(2, timeout=60)
+        assert pids[0] not in client.run(os.getpid).values()
+        again = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=client, **kw)
+    assert (first["status"] == "ok").all() and (again["status"] == "ok").all()
+    assert first["y.theta"].tolist() == again["y.theta"].tolist()
