@@ -6,7 +6,6 @@ import json
 import math
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,7 +18,6 @@ pytest.importorskip("dask.distributed", reason="sweeps need dask[distributed] (p
 
 import mbsfmu  # noqa: E402
 from mbsfmu.cli import main  # noqa: E402
-from mbsfmu.simulation import Simulation  # noqa: E402
 from mbsfmu.sweep.cases import latin_hypercube, make_cases  # noqa: E402
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -68,10 +66,6 @@ def test_grid_on_two_local_workers_matches_scipy(pendulum_theta0):
 
 
 def test_initial_angle_as_y0():
-    try:
-        Simulation(mbsfmu.load(MODELS / "pendulum.yaml").spec).set("y0.theta", 0.1)
-    except KeyError:
-        pytest.skip("Simulation.set('y0.<coordinate>') is not available yet (issue 10)")
     table = mbsfmu.sweep(MODELS / "pendulum.yaml", vary={"L": "0.5,1.1", "y0.theta": "0.2,2.5", "integrator.rtol": [1e-11]},
                          stop=STOP, scheduler="inprocess", outputs="y.theta")
     _check_angles(table, "y0.theta")
@@ -318,3 +312,9 @@ def test_a_worker_killed_mid_sweep_loses_no_case():
         again = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=client, **kw)
     assert (first["status"] == "ok").all() and (again["status"] == "ok").all()
     assert first["y.theta"].tolist() == again["y.theta"].tolist()
+
+
+def test_an_unknown_name_lists_every_name_that_can_vary():
+    with pytest.raises(ValueError) as e:
+        mbsfmu.sweep(MODELS / "spinning_top.yaml", vary={"yd0.top.q0": [1.0]}, stop=0.1, scheduler="inprocess")
+    assert "yd0.top.wz" in str(e.value) and "y0.top.q3" in str(e.value) and "spin" in str(e.value)

@@ -105,19 +105,15 @@ def _new_scene(spec, text, key):
     probe = Simulation(json.loads(text))  # what the workers will build; compiles the kernel once, here
     outs = [v.name for v in probe.variables if v.causality == "output"]
     settable = [v.name for v in probe.variables if v.causality in ("parameter", "input")]
+    initial = [f"{n.split('.', 1)[0]}0.{n.split('.', 1)[1]}" for n in outs if n.startswith(("y.", "yd."))]
 
     def check(values):
         for name, v in values.items():
             try:
                 probe.set(name, v)
             except KeyError:
-                coord = name.split(".", 1)[1] if name.startswith(("y0.", "yd0.")) else None
-                if coord is not None and f"{'y' if name.startswith('y0.') else 'yd'}.{coord}" in outs:
-                    raise ValueError(f"cannot vary {name!r}: initial values need Simulation.set('y0.…'/'yd0.…'), "
-                                     "which this version of mbsfmu lacks (issue 10)") from None
                 raise ValueError(f"cannot vary {name!r} in {spec['name']}: not a parameter, input, integrator "
-                                 f"setting or initial value; choose from {', '.join(settable)}, "
-                                 "y0.<coordinate>, yd0.<coordinate>") from None
+                                 f"setting or initial value; choose from {', '.join(settable + initial)}") from None
             except (TypeError, ValueError) as e:
                 raise ValueError(f"{name}={v!r}: {e}") from None
 
