@@ -116,7 +116,7 @@ const double *mbs_body_d(const MbsEval *e, int i);
 int mbs_validate_code(const MbsModel *m, char *err, size_t errlen);
 void mbs_run_programs(const MbsModel *m, int stage, double *D, double *td, double t);
 /* tree.c */
-void mbs_kinematics(const MbsEval *e, int full);  /* full = 0: S, o, ω, v only (rigid scenes) */
+void mbs_kinematics(const MbsEval *e);
 void mbs_mass_matrix_and_bias(const MbsEval *e);
 void mbs_applied_forces(const MbsEval *e);
 int mbs_eval_rhs(const MbsEval *e);                   /* 0, or MBS_F_SINGULAR */

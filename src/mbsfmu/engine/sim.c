@@ -28,6 +28,8 @@ struct MbsInstance {
     double rtol, atol, max_step, step;
     int initialized, params_dirty, inputs_dirty, initial_valid, q_in_active;
     int out_valid;        /* out holds the output points of the current state (a master reads them one by one) */
+    double *kin_x, kin_t; /* the workspace holds the kinematics at (kin_t, kin_x) when kin_valid */
+    int kin_valid;
     double time;
     MbsIntegrator *integ;
     char msg[1024];
@@ -86,12 +88,26 @@ static void time_numbers(MbsInstance *s, double t)
 #endif
 }
 
+/* The kinematics at (t, x) into the workspace, unless they are there already: the output points read after a
+ * step and the next step's first stage (or an FSAL method's last stage and the output points) share one pass.
+ * The stamp is t and x's bits (time_numbers(t) ran before); binding numbers clears it. */
+static void kinematics(MbsInstance *s, const MbsEval *e, double t)
+{
+    const size_t bytes = (size_t)s->n * sizeof(double);
+    if (s->kin_valid && s->kin_t == t && !memcmp(s->kin_x, e->x, bytes)) return;
+    mbs_kinematics(e);
+    memcpy(s->kin_x, e->x, bytes);
+    s->kin_t = t;
+    s->kin_valid = 1;
+}
+
 static int ode_f(void *ctx, double t, const double *x, double *xdot)
 {
     MbsInstance *s = ctx;
     if (s->m->hdr[H_NCARDAN] && gimbal(s, x, NULL, s->msg, sizeof s->msg)) return MBS_F_GIMBAL;
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, xdot);
+    kinematics(s, &e, t);
     if (mbs_eval_rhs(&e)) {
         snprintf(s->msg, sizeof s->msg, "the mass matrix is singular (a chain of bodies without mass or inertia?)");
         return MBS_F_SINGULAR;
@@ -146,7 +162,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
     size_t nwork = (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f;
     size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 3 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + s->n
-                   + 6 * (size_t)m->hdr[H_NOUT] + 1;
+                   + 6 * (size_t)m->hdr[H_NOUT] + s->n + 1;
     double *buf = calloc(total, sizeof(double));
     if (!buf) { free(s); return NULL; }
     s->D = buf;                buf += nd;
@@ -161,6 +177,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->k = buf;                buf += f;
     s->q = buf;                buf += f;
     s->xdot = buf;             buf += s->n;
+    s->kin_x = buf;            buf += s->n;
     s->out = buf;
 #ifdef MBS_WITH_ELASTIC
     if (m->hdr[H_FEATURES] & F_ELASTIC) {
@@ -196,6 +213,7 @@ int mbs_reset(MbsInstance *s)
     s->max_step = di[DI_MAX_STEP];
     s->step = di[DI_STEP];
     s->initialized = s->params_dirty = s->inputs_dirty = s->initial_valid = s->q_in_active = s->out_valid = 0;
+    s->kin_valid = 0;
     s->time = 0.0;
     s->msg[0] = 0;
     mbs_integ_free(s->integ);
@@ -208,6 +226,7 @@ int mbs_reset(MbsInstance *s)
 static int bind(MbsInstance *s)
 {
     const MbsModel *m = s->m;
+    s->kin_valid = 0;
     for (int p = 0; p < m->hdr[H_NPARAM]; p++)
         if (!isfinite(s->D[p])) {
             int vr = 0;
@@ -288,7 +307,7 @@ int mbs_set_real(MbsInstance *s, int vr, double value)
         }
 #endif
         s->D[idx] = value;
-        s->initial_valid = s->out_valid = 0;
+        s->initial_valid = s->out_valid = s->kin_valid = 0;
         if (s->initialized) s->params_dirty = 1;
         return MBS_OK;
     }
@@ -314,7 +333,7 @@ static void output_points(MbsInstance *s, const double *x, double t, int o0, int
     const MbsModel *m = s->m;
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, s->xdot);
-    mbs_kinematics(&e, (m->hdr[H_FEATURES] & F_ELASTIC) != 0);  /* positions and velocities, no Jacobians */
+    kinematics(s, &e, t);
     for (int o = o0; o < o1; o++, r += 6) {
         const int *oi = m->out + 3 * o;
 #ifdef MBS_WITH_ELASTIC
@@ -350,6 +369,7 @@ int mbs_get_real(MbsInstance *s, int vr, double *value)
     case MBS_V_YD: *value = s->x[NPOS(s->m) + idx]; return MBS_OK;
     case MBS_V_OUT:
         if (!s->out_valid) {  /* all points at once: one kinematics pass per state, not one per variable */
+            if (s->params_dirty && (rc = bind(s))) return rc;  /* a parameter set since the step: its geometry */
             output_points(s, s->x, s->time, 0, s->m->hdr[H_NOUT], s->out);
             s->out_valid = 1;
         }
@@ -510,7 +530,7 @@ int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, s->xdot);
     e.M = M; e.k = k; e.q = q;
-    mbs_kinematics(&e, 1);
+    kinematics(s, &e, t);
     mbs_mass_matrix_and_bias(&e);
     mbs_applied_forces(&e);
     return MBS_OK;

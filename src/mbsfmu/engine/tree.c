@@ -127,13 +127,11 @@ static double *body_work(const MbsEval *e, int i) { return e->work + (size_t)i *
 static int col_lo(const double *wk) { return (int)wk[W_LO]; }
 static int col_hi(const double *wk) { return (int)wk[W_HI]; }
 
-/* Recursive kinematics of all body origins (tree.py: kinematics). */
-
 const double *mbs_body_d(const MbsEval *e, int i) { return e->D + e->m->hdr[H_D_BODY] + (size_t)i * DB; }
 
 /* Joint frame of body i's parent side: S_p, o_p, ω_p, v_p, ā_p, ᾱ_p, J_Rp, J_Tp, the offset ρ and S_J
  * (tree.py: attachment). J_R, J_T of the body start as the parent's; [lo, hi) their nonzero columns. */
-static void attachment(const MbsEval *e, int i, int full, double *S_J, double *rho, const double **o_p,
+static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const double **o_p,
                        const double **w_p, const double **v_p, const double **a_p, const double **al_p, double *J_R,
                        int *lo, int *hi, double *node_buf)
 {
@@ -143,7 +141,7 @@ static void attachment(const MbsEval *e, int i, int full, double *S_J, double *r
     const double *db = mbs_body_d(e, i);
     if (par < 0) {
         *o_p = *w_p = *v_p = *a_p = *al_p = Z;
-        if (full) memset(J_R, 0, 6 * (size_t)f * sizeof(double));
+        memset(J_R, 0, 6 * (size_t)f * sizeof(double));
         memcpy(S_J, db + DB_R0, 9 * sizeof(double));
         memcpy(rho, db + DB_AT, 3 * sizeof(double));
         *lo = f;
@@ -169,14 +167,13 @@ static void attachment(const MbsEval *e, int i, int full, double *S_J, double *r
 #endif
     const double *S_p = pw + W_S;
     *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
-    if (full) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
+    memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
     mm(S_p, db + DB_R0, S_J);
     mv(S_p, db + DB_AT, rho);
 }
 
-/* Recursive kinematics of all body origins (tree.py: kinematics). full = 0: S, o, ω, v only (what output
- * points need), without accelerations and Jacobians; rigid scenes only. */
-void mbs_kinematics(const MbsEval *e, int full)
+/* Recursive kinematics of all body origins (tree.py: kinematics): S, o, ω, v, ᾱ, ā, J_R, J_T. */
+void mbs_kinematics(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
@@ -190,7 +187,7 @@ void mbs_kinematics(const MbsEval *e, int full)
         const double *o_p, *w_p, *v_p, *a_p, *al_p;
         double S_J[9], rho[3], node_buf[15];
         int lo, hi;
-        attachment(e, i, full, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
+        attachment(e, i, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
         double p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
         for (int k = 0; k < np; k++) {
             int pi = ib[IB_POS + k], s = ib[IB_DRV + k];
@@ -221,7 +218,6 @@ void mbs_kinematics(const MbsEval *e, int full)
             vv[r] = v_p[r] + wxr[r] + v_rel[r];
         }
         mm(S_J, R, wk + W_S);
-        if (!full) continue;
         /* prescribed accelerations of driven coordinates join the bias terms */
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 3; r++) {
@@ -454,14 +450,14 @@ int mbs_cholesky_solve(int n, double *M, double *r)
     return 0;
 }
 
-/* ẋ = [Z(y) ẏ; M⁻¹(q − k)] into e->xdot. Returns 0, or MBS_F_SINGULAR when M is not positive definite. */
+/* ẋ = [Z(y) ẏ; M⁻¹(q − k)] into e->xdot, from the kinematics at e->x already in the workspace (mbs_kinematics).
+ * Returns 0, or MBS_F_SINGULAR when M is not positive definite. */
 int mbs_eval_rhs(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m), np = NPOS(m);
     const double *y = e->x, *yd = e->x + np;
     double *xd = e->xdot;
-    mbs_kinematics(e, 1);
     mbs_mass_matrix_and_bias(e);
     mbs_applied_forces(e);
     for (int c = 0; c < f; c++) xd[np + c] = e->q[c] - e->k[c];
