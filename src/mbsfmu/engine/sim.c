@@ -30,6 +30,7 @@ struct MbsInstance {
     int out_valid;        /* out holds the output points of the current state (a master reads them one by one) */
     double *kin_x, kin_t; /* the workspace holds the kinematics at (kin_t, kin_x) when kin_valid */
     int kin_valid;
+    int time_programs;    /* the scene has expressions of t (drives, force values): run them per evaluation */
     double time;
     MbsIntegrator *integ;
     char msg[1024];
@@ -82,7 +83,7 @@ static MbsEval evaluation(MbsInstance *s, const double *x, double *xdot)
 static void time_numbers(MbsInstance *s, double t)
 {
 #ifdef MBS_WITH_EXPR
-    if (s->m->hdr[H_FEATURES] & F_EXPR) mbs_run_programs(s->m, 1, s->D, s->td, t);
+    if (s->time_programs) mbs_run_programs(s->m, 1, s->D, s->td, t);
 #else
     (void)s; (void)t;
 #endif
@@ -93,10 +94,11 @@ static void time_numbers(MbsInstance *s, double t)
  * The stamp is t and x's bits (time_numbers(t) ran before); binding numbers clears it. */
 static void kinematics(MbsInstance *s, const MbsEval *e, double t)
 {
-    const size_t bytes = (size_t)s->n * sizeof(double);
-    if (s->kin_valid && s->kin_t == t && !memcmp(s->kin_x, e->x, bytes)) return;
+    int same = s->kin_valid && s->kin_t == t;
+    for (int i = 0; same && i < s->n; i++) same = memcmp(s->kin_x + i, e->x + i, sizeof(double)) == 0;  /* bits */
+    if (same) return;
     mbs_kinematics(e);
-    memcpy(s->kin_x, e->x, bytes);
+    memcpy(s->kin_x, e->x, (size_t)s->n * sizeof(double));
     s->kin_t = t;
     s->kin_valid = 1;
 }
@@ -155,6 +157,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     if (!s) return NULL;
     const int f = NVEL(m), nd = m->hdr[H_ND];
     s->m = m;
+    for (int p = 0; p < m->hdr[H_NPROG]; p++) s->time_programs |= m->prog[4 * p] == 1;
     s->log = log;
     s->log_env = log_env;
     s->n = NPOS(m) + f;
