@@ -267,3 +267,14 @@ def test_output_points_follow_a_parameter_set_at_the_same_state():
     ref = Simulation(spec)
     ref.set("L", 2.0)
     assert after == ref.output_values(sim.x, sim.time)["bob.r.z"] and after != before
+
+
+def test_an_unstable_step_that_breaks_the_mass_matrix_says_so():
+    """rk4 at 0.25 ms on the elastic arm grows its stiff modes until M is indefinite (t ≈ 0.013 s): the message
+    names the unstable step and the remedies, not massless bodies (M was regular at the start)."""
+    sim = Simulation(mbsfmu.load(REPO / "models" / "robot_arm_elastic.yaml").spec)
+    sim.set("integrator.method", "rk4")
+    sim.set("integrator.step", 2.5e-4)
+    with pytest.raises(IntegrationError, match="unstable step .*radau5") as e:
+        sim.run(np.linspace(0.0, 0.1, 11))
+    assert 0.0 < e.value.t < 0.1

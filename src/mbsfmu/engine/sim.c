@@ -31,6 +31,7 @@ struct MbsInstance {
     double *kin_x, kin_t; /* the workspace holds the kinematics at (kin_t, kin_x) when kin_valid */
     int kin_valid;
     int time_programs;    /* the scene has expressions of t (drives, force values): run them per evaluation */
+    int rhs_ok;           /* an evaluation succeeded since initialization (M was regular once) */
     double time;
     MbsIntegrator *integ;
     char msg[1024];
@@ -111,9 +112,17 @@ static int ode_f(void *ctx, double t, const double *x, double *xdot)
     MbsEval e = evaluation(s, x, xdot);
     kinematics(s, &e, t);
     if (mbs_eval_rhs(&e)) {
-        snprintf(s->msg, sizeof s->msg, "the mass matrix is singular (a chain of bodies without mass or inertia?)");
+        double big = 0.0;
+        for (int i = 0; i < s->n; i++) big = fmax(big, fabs(x[i]));
+        if (!s->rhs_ok)
+            snprintf(s->msg, sizeof s->msg, "the mass matrix is singular (a chain of bodies without mass or inertia?)");
+        else  /* it was regular before: this configuration, or a state an unstable step blew up */
+            snprintf(s->msg, sizeof s->msg, "the mass matrix became singular or indefinite (largest |y|, |ẏ| of the "
+                     "state: %.3g): bodies without mass or inertia in this configuration, or an unstable step (try a "
+                     "smaller step, radau5 or gen_alpha)", big);
         return MBS_F_SINGULAR;
     }
+    s->rhs_ok = 1;
     return MBS_F_OK;
 }
 
@@ -436,6 +445,7 @@ int mbs_initialize(MbsInstance *s, double t0)
     if (mbs_integ_reset(s->integ, t0, s->x)) return report(s, MBS_ERROR, "%s", mbs_integ_message(s->integ));
     s->time = t0;
     s->initialized = 1;
+    s->rhs_ok = 0;
     s->params_dirty = 0;
     memset(s->u_applied, 0, (size_t)s->nu * sizeof(double));  /* apply_inputs compares against this */
     s->inputs_dirty = 1;
