@@ -67,6 +67,11 @@ int mbs_get_real(MbsInstance *s, int vr, double *v) {
     *v = vr == 0 ? s->a : vr == 1 ? s->u : s->x;
     return MBS_OK;
 }
+int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *v) {
+    for (size_t i = 0; i < n; i++)
+        if (mbs_get_real(s, (int)vr[i], v + i)) return MBS_ERROR;
+    return MBS_OK;
+}
 int mbs_set_string(MbsInstance *s, int vr, const char *v) { (void)s, (void)vr, (void)v; return MBS_ERROR; }
 int mbs_get_string(MbsInstance *s, int vr, const char **v) { (void)s, (void)vr, (void)v; return MBS_ERROR; }
 

@@ -451,18 +451,10 @@ static fmi2Status setting(Fmu *f, int vr, int rc, const char *fn) {
 }
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
-    size_t i;
     CHECK(P_ANY, "fmi2GetReal");
     if (bad_array(f, vr, value, nvr, "fmi2GetReal"))
         return fmi2Error;
-    for (i = 0; i < nvr; i++) {
-        int r = vr_int(f, vr[i], "fmi2GetReal");
-        if (r < 0)
-            return fmi2Error;
-        if (mbs_get_real(f->sim, r, &value[i]) != MBS_OK)
-            return engine_status(f, MBS_ERROR, "fmi2GetReal");
-    }
-    return fmi2OK;
+    return mbs_get_reals(f->sim, vr, nvr, value) == MBS_OK ? fmi2OK : engine_status(f, MBS_ERROR, "fmi2GetReal");
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {

@@ -60,6 +60,7 @@ MBS_API int mbs_reset(MbsInstance *s);                   /* back to the state af
  * returns MBS_DISCARD. Getting before mbs_initialize gives the initial state at the parameters set so far. */
 MBS_API int mbs_set_real(MbsInstance *s, int vr, double value);
 MBS_API int mbs_get_real(MbsInstance *s, int vr, double *value);
+MBS_API int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *value);  /* fmi2GetReal's n */
 MBS_API int mbs_set_string(MbsInstance *s, int vr, const char *value); /* integrator.method */
 MBS_API int mbs_get_string(MbsInstance *s, int vr, const char **value);
 

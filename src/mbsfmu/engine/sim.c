@@ -1,6 +1,7 @@
 /* An instance: the bound numbers, inputs, state and integrator of one running scene, and the variables the
  * FMU exposes. Everything is allocated in mbs_instance_new (the integrator at initialization); nothing per
  * step. Failures return MBS_DISCARD/MBS_ERROR with a message (mbs_message, and the logger if any). */
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdint.h>
@@ -390,6 +391,27 @@ int mbs_get_real(MbsInstance *s, int vr, double *value)
     case -1: return report(s, MBS_ERROR, "unknown value reference %d", vr);
     default: return report(s, MBS_ERROR, "value reference %d is a String", vr);
     }
+}
+
+/* n values by value reference: what a master reads after every step (states, output points already computed
+ * for this state) straight from the instance; the rest as mbs_get_real. */
+int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *value)
+{
+    const MbsModel *m = s->m;
+    const unsigned nvars = (unsigned)m->hdr[H_NVARS];
+    for (size_t i = 0; i < n; i++) {
+        const unsigned v = vr[i];
+        if (s->initialized && v < nvars) {
+            const int kind = m->vars[2 * v], idx = m->vars[2 * v + 1];
+            if (kind == MBS_V_Y) { value[i] = s->x[idx]; continue; }
+            if (kind == MBS_V_YD) { value[i] = s->x[NPOS(m) + idx]; continue; }
+            if (kind == MBS_V_OUT && s->out_valid) { value[i] = s->out[idx]; continue; }
+        }
+        if (v > (unsigned)INT_MAX) return report(s, MBS_ERROR, "unknown value reference %u", v);
+        int rc = mbs_get_real(s, (int)v, value + i);
+        if (rc) return rc;
+    }
+    return MBS_OK;
 }
 
 int mbs_set_start(MbsInstance *s, int index, double value)
