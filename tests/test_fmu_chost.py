@@ -32,7 +32,7 @@ static void logger(void* env, const char* inst, int st, const char* cat, const c
   va_list ap; va_start(ap, msg); printf("LOG %d %s ", st, cat); vprintf(msg, ap); printf("\n"); va_end(ap);
   fflush(stdout);
 }
-int main(int argc, char** argv) {  /* lib resources_uri vr_out n h */
+int main(int argc, char** argv) {  /* lib resources_uri vr_out n h guid */
   void* h = dlopen(argv[1], RTLD_NOW | RTLD_LOCAL);
   if (!h) { printf("DLOPEN %s\n", dlerror()); return 2; }
   void* (*inst)(const char*, int, const char*, const char*, const cb_t*, int, int) = dlsym(h, "fmi2Instantiate");
@@ -44,7 +44,7 @@ int main(int argc, char** argv) {  /* lib resources_uri vr_out n h */
   int (*term)(void*) = dlsym(h, "fmi2Terminate");
   void (*freeI)(void*) = dlsym(h, "fmi2FreeInstance");
   cb_t cb = { logger, calloc, free, NULL, NULL };
-  void* c = inst("chost", 1, "", argv[2], &cb, 0, 1);
+  void* c = inst("chost", 1, argv[6], argv[2], &cb, 0, 1);
   if (!c) { printf("INSTANTIATE failed\n"); return 3; }
   vr_t vout = (vr_t)atoi(argv[3]); int n = atoi(argv[4]); double dt = atof(argv[5]), t = 0, y = 0;
   setup(c, 0, 0, 0.0, 0, 0); enter(c); exitI(c);
@@ -88,7 +88,7 @@ def test_fmu_runs_in_a_c_host(tmp_path):
     lib = unz / "binaries" / "linux64" / "double_pendulum.so"
     # no LD_PRELOAD, PYTHONPATH, PYTHONHOME: the FMU's loader shim finds libpython and site-packages
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON") and k != "LD_PRELOAD"}
-    r = subprocess.run([str(host), str(lib), (unz / "resources").as_uri(), str(vr["y.phi1"]), "20", "0.01"],
+    r = subprocess.run([str(host), str(lib), (unz / "resources").as_uri(), str(vr["y.phi1"]), "20", "0.01", md.guid],
                        capture_output=True, text=True, env=env, timeout=120, cwd=tmp_path)
     lines = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT")]
     assert lines, (r.returncode, r.stdout, r.stderr)

@@ -758,6 +758,7 @@ def sc_instantiate():
     nolog.freeMemory = cb.freeMemory
     cases = {"bad GUID": (b"bad", 1, b"{nope}", uri.encode(), ctypes.byref(cb)),
              "NULL GUID": (b"nullguid", 1, None, uri.encode(), ctypes.byref(cb)),
+             "empty GUID": (b"emptyguid", 1, b"", uri.encode(), ctypes.byref(cb)),
              "http URI": (b"http", 1, guid, b"http://example.com/resources", ctypes.byref(cb)),
              "missing folder": (b"missing", 1, guid, b"file:///nonexistent/resources", ctypes.byref(cb)),
              "NULL URI": (b"nulluri", 1, guid, None, ctypes.byref(cb)),

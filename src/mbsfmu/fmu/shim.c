@@ -426,7 +426,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
                       : fmuType != fmi2CoSimulation ? "this FMU supports co-simulation only"
                       : !resources ? "no fmuResourceLocation"
                       : !guid ? "no GUID given (NULL)"
-                      : *guid && strcmp(guid, MBSFMU_GUID) ? "GUID differs from this FMU's " MBSFMU_GUID   /* "": unchecked, as pythonfmu */
+                      : strcmp(guid, MBSFMU_GUID) ? "GUID differs from this FMU's " MBSFMU_GUID  /* "" too, as the native FMU */
                       : no_slave_script(resources, text, sizeof text);
     if (why) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: %s", why);
