@@ -318,3 +318,17 @@ def test_an_unknown_name_lists_every_name_that_can_vary():
     with pytest.raises(ValueError) as e:
         mbsfmu.sweep(MODELS / "spinning_top.yaml", vary={"yd0.top.q0": [1.0]}, stop=0.1, scheduler="inprocess")
     assert "yd0.top.wz" in str(e.value) and "y0.top.q3" in str(e.value) and "spin" in str(e.value)
+
+
+def test_a_native_fmu_sweeps_on_a_cluster(tmp_path):
+    """A large model (the native FMU, ~350 KB) goes to each worker's station once, then batches name it by its
+    key; two sweeps give the in-process sweep's values."""
+    from dask.distributed import Client, LocalCluster
+    fmu = mbsfmu.build_fmu(MODELS / "pendulum.yaml", tmp_path, kind="native")
+    kw = dict(vary={"L": "0.5:1.5:8"}, stop=0.2, step=0.05, outputs=["y.theta"], progress=False)
+    ref = mbsfmu.sweep(str(fmu), scheduler="inprocess", **kw)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        tables = [mbsfmu.sweep(str(fmu), scheduler=client, **kw) for _ in range(2)]
+    for t in tables:
+        assert (t["status"] == "ok").all() and t["y.theta"].tolist() == ref["y.theta"].tolist()

@@ -15,11 +15,11 @@ import numpy as np
 from .runner import Rows, run_batch
 
 BATCHES_PER_SLOT = 8   # several batches per worker: load balance and progress steps
-BATCH_SECONDS = 0.2    # yet at least this much work per task: a task costs ~2 ms of scheduling, a round trip ~6
+BATCH_SECONDS = 0.2    # yet at least this much work per batch: each costs a round trip to its worker (~1.5 ms)
 MAX_BATCH = 256        # long sweeps still report progress and lose little to a dying worker
 AHEAD = 2              # batches in flight per worker thread: the next is there when one ends
 WAIT_FOR_WORKERS = 60  # seconds an existing cluster may take to offer its first worker
-SCATTER_BYTES = 1 << 16  # larger models (FMUs) go to each worker once ahead; a scene's JSON rides with each batch
+LARGE_MODEL = 1 << 16  # bytes: larger models (FMUs) go to each station once; a scene's JSON rides with each batch
 
 
 def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
@@ -77,7 +77,7 @@ def _on_cluster(client, model, cases, setup, bar):
         return Rows.join(parts, n_out)
     stations = _stations(client, threads)
     sent = model
-    if len(model.data) > SCATTER_BYTES:  # a large model (an FMU) goes to each station once, then by its key
+    if len(model.data) > LARGE_MODEL:  # a large model (an FMU) goes to each station once, then by its key
         client.sync(asyncio.gather, *(s.keep(model) for s in stations.values()))
         sent = model._replace(data=None)
     slots = [a for _ in range(AHEAD) for a, n in threads.items() for _ in range(n)]  # one round over all first
