@@ -376,7 +376,13 @@ def test_100_bad_value_references_and_types(fmus, tmp_path):
     assert res["a"] == res["b"]              # 100 refused calls changed nothing: bit-identical to the twin
 
 
-def test_wrong_call_order(fmus, tmp_path):
+@pytest.mark.parametrize("kind", ["pythonfmu", "native"])
+def test_wrong_call_order(fmus, tmp_path, kind):
+    """Calls out of the FMI 2.0 order (status queries before initialization among them): fmi2Error with a
+    message from both kinds, the same answers; freed, NULL and foreign components refused untouched."""
+    if kind == "native":
+        fmus = {m: mbsfmu.build_fmu(REPO / "models" / f"{m}.yaml", tmp_path / "native", kind="native")
+                for m in ("pendulum", "spring_damper")}
     res, stderr = drive("order", fmus, tmp_path)
     expected_ok = {"enter", "exit", "doStep", "terminate", "getReal after terminate", "reset",
                    "setupExperiment after reset", "enter after reset", "exit after reset",

@@ -28,6 +28,7 @@
 /* ---- phases of the FMI 2.0 co-simulation state machine (bit masks, for "allowed in") ---- */
 enum { P_INSTANTIATED = 1, P_INIT = 2, P_STEP = 4, P_TERMINATED = 8, P_ERROR = 16, P_FATAL = 32 };
 #define P_ANY (P_INSTANTIATED | P_INIT | P_STEP | P_TERMINATED | P_ERROR)
+#define P_STATUS (P_STEP | P_TERMINATED | P_ERROR)  /* FMI 2.0 (co-simulation state machine): after initialization */
 static const char *phase_name(int p) {
     switch (p) {
     case P_INSTANTIATED: return "instantiated";
@@ -761,7 +762,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
 
 fmi2Status fmi2CancelStep(fmi2Component c) {
     CHECK(P_ANY, "fmi2CancelStep");
-    logf_(f, fmi2Error, "fmi2CancelStep: fmi2DoStep is synchronous (canRunAsynchronuously=false)");
+    logf_(f, fmi2Error, "fmi2CancelStep: not supported: fmi2DoStep is synchronous (canRunAsynchronuously=false)");
     return fmi2Error;
 }
 
@@ -779,14 +780,14 @@ static fmi2Status not_available(Fmu *f, const char *fn, int kind) {
 }
 
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
-    CHECK(P_ANY, "fmi2GetStatus");
+    CHECK(P_STATUS, "fmi2GetStatus");
     if (status_refused(f, value, "fmi2GetStatus"))
         return fmi2Error;
     return not_available(f, "fmi2GetStatus", s);  /* fmi2DoStepStatus: only after fmi2Pending, never returned */
 }
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
-    CHECK(P_ANY, "fmi2GetRealStatus");
+    CHECK(P_STATUS, "fmi2GetRealStatus");
     if (status_refused(f, value, "fmi2GetRealStatus"))
         return fmi2Error;
     if (s != fmi2LastSuccessfulTime)
@@ -796,14 +797,14 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
 }
 
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
-    CHECK(P_ANY, "fmi2GetIntegerStatus");
+    CHECK(P_STATUS, "fmi2GetIntegerStatus");
     if (status_refused(f, value, "fmi2GetIntegerStatus"))
         return fmi2Error;
     return not_available(f, "fmi2GetIntegerStatus", s);
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    CHECK(P_ANY, "fmi2GetBooleanStatus");
+    CHECK(P_STATUS, "fmi2GetBooleanStatus");
     if (status_refused(f, value, "fmi2GetBooleanStatus"))
         return fmi2Error;
     if (s != fmi2Terminated)
@@ -813,7 +814,7 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boo
 }
 
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
-    CHECK(P_ANY, "fmi2GetStringStatus");
+    CHECK(P_STATUS, "fmi2GetStringStatus");
     if (status_refused(f, value, "fmi2GetStringStatus"))
         return fmi2Error;
     return not_available(f, "fmi2GetStringStatus", s);
