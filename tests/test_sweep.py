@@ -332,3 +332,18 @@ def test_a_native_fmu_sweeps_on_a_cluster(tmp_path):
         tables = [mbsfmu.sweep(str(fmu), scheduler=client, **kw) for _ in range(2)]
     for t in tables:
         assert (t["status"] == "ok").all() and t["y.theta"].tolist() == ref["y.theta"].tolist()
+
+
+def test_sweeps_before_and_after_a_cluster_restart():
+    """client.restart() kills the workers and with them the stations: the next sweep makes new ones."""
+    from dask.distributed import Client
+    from mbsfmu.sweep import dispatch
+    from mbsfmu.sweep.dispatch import local_cluster
+    kw = dict(vary={"L": "0.5:1.5:12"}, stop=0.2, outputs=["y.theta"], progress=False)
+    with local_cluster(1) as cluster, Client(cluster) as client:
+        before = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=client, **kw)
+        client.restart()
+        after = mbsfmu.sweep(MODELS / "pendulum.yaml", scheduler=client, **kw)
+        live = [f.status for _, f in dispatch._STATIONS[client].values()]
+    assert (after["status"] == "ok").all() and after["y.theta"].tolist() == before["y.theta"].tolist()
+    assert live == ["finished"]  # a new station, not the lost one (whose batches would go the slow way)

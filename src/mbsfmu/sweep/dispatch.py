@@ -154,8 +154,8 @@ _STATIONS = weakref.WeakKeyDictionary()  # Client → {worker address: (Station 
 def _stations(client, threads):
     """{worker: Station actor} for the workers in `threads`, made on first use (one round trip for all)."""
     have = _STATIONS.setdefault(client, {})
-    for gone in set(have) - set(threads):
-        del have[gone]
+    for gone in [a for a, (_, f) in have.items() if a not in threads or f.status != "finished"]:
+        del have[gone]  # its worker left, or the actor was lost (a worker restart, client.restart())
     new = [a for a in threads if a not in have]
     if new:  # loose placement: should the worker die first, Dask may place it elsewhere and the call fails over
         made = [client.submit(Station, actor=True, workers=[a], allow_other_workers=True, pure=False) for a in new]
