@@ -432,7 +432,8 @@ def test_snapshot_then_continue_is_bit_identical(eng, name):
 
 def _corruptions(method, n, off):
     """(what, byte offset, int32 value) that a valid snapshot must not accept; offsets into the method's
-    POD struct (layouts of Radau5State / GenAlphaState) and the pivot arrays (the snapshot's last ints)."""
+    POD struct (layouts of Radau5State / GenAlphaState) and the pivot arrays (the snapshot's last ints: two of
+    n for radau5, of nvel for gen_alpha, whose matrices are nvel × nvel)."""
     if method == "radau5":  # 6 doubles, then have_f0, have_J, current_jac, have_lu, have_old, have_Q, ...
         flags = off + 48
         return [("flag have_lu = 2", flags + 12, 2), ("flag first = -1", flags + 32, -1),
@@ -452,7 +453,7 @@ def test_corrupt_snapshot_rejected_and_integrator_unchanged(eng, name):
     it = _snap_case(eng, name)
     it.advance(0.25)
     raw = it.save()
-    n = it.n
+    n = it.n if method == "radau5" else {"top": 3, "vdp": 1}[SNAP_CASES[name][0]]  # pivots: n / nvel each
     # the state actually in use: LU pair / an LU slot present, so the pivots are checked
     flags = it.state_offset() + (48 if method == "radau5" else 24)
     assert struct.unpack_from("<i", raw, flags + (12 if method == "radau5" else 20))[0] >= 1

@@ -504,7 +504,7 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
         return NULL;
     }
     memset(&sz, 0, sizeof sz);
-    cls->sizes(it->n, opt, &sz);
+    cls->sizes(it->n, ode->nvel, opt, &sz);
     n = (size_t)it->n;
     m = (size_t)cls->dense_rows;
     it->off_ms = align8(sizeof(MbsCommon));

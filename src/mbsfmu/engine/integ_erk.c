@@ -200,9 +200,9 @@ static int fsal_check(const MbsIntegrator *it, const void *ms, const int *hi)
 
 /* ------------------------------------------------------------------------------------------- dopri5 */
 
-static void dopri5_sizes(int n, const MbsIntegOptions *opt, MbsSizes *sz)
+static void dopri5_sizes(int n, int nvel, const MbsIntegOptions *opt, MbsSizes *sz)
 {
-    (void)opt;
+    (void)nvel, (void)opt;
     fsal_sizes(n, 7, sz);
 }
 
@@ -300,9 +300,9 @@ const MbsMethodClass mbs_dopri5_class = {
 
 /* ------------------------------------------------------------------------------------------- dop853 */
 
-static void dop853_sizes(int n, const MbsIntegOptions *opt, MbsSizes *sz)
+static void dop853_sizes(int n, int nvel, const MbsIntegOptions *opt, MbsSizes *sz)
 {
-    (void)opt;
+    (void)nvel, (void)opt;
     fsal_sizes(n, S8X, sz);
 }
 
@@ -380,9 +380,9 @@ typedef struct {
     double *k1, *k2, *k3, *k4, *xs;
 } Rk4View;
 
-static void rk4_sizes(int n, const MbsIntegOptions *opt, MbsSizes *sz)
+static void rk4_sizes(int n, int nvel, const MbsIntegOptions *opt, MbsSizes *sz)
 {
-    (void)opt;
+    (void)nvel, (void)opt;
     sz->work = 5 * (size_t)n;
     sz->view = sizeof(Rk4View);
 }

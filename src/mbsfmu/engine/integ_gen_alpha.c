@@ -57,14 +57,14 @@ typedef struct {       /* constants, and arrays carved from the history and work
 #define ST(it) ((GenAlphaState *)(it)->ms)
 #define VW(it) ((GenAlphaView *)(it)->view)
 
-static void sizes(int n, const MbsIntegOptions *opt, MbsSizes *sz)
+static void sizes(int n, int nvel, const MbsIntegOptions *opt, MbsSizes *sz)
 {
     (void)opt;
-    size_t N = (size_t)n; /* nvel <= n: size the arrays by n, the layout depends on n only */
+    size_t N = (size_t)n, V = (size_t)(nvel >= 1 && nvel <= n ? nvel : n); /* init refuses other nvel */
     sz->state = sizeof(GenAlphaState);
-    sz->hist = 2 * N + 4 * N * N;
-    sz->hist_int = 2 * N;
-    sz->work = N * N + 10 * N + 3 * 4 * N;
+    sz->hist = 2 * V + 4 * V * V;  /* the FMU state: K, D and two LU of S are nvel², not n² */
+    sz->hist_int = 2 * V;
+    sz->work = V * V + 10 * N + 3 * 4 * N;
     sz->work_int = N;
     sz->view = sizeof(GenAlphaView);
 }
@@ -95,18 +95,18 @@ static int init(MbsIntegrator *it, char *err, size_t errlen)
     g->c = (1.0 - g->af) / (1.0 - g->am);
     g->newton_tol = fmax(10.0 * MBS_EPS / it->rtol, fmin(0.03, sqrt(it->rtol)));
     double *h = it->ha, *w = it->wa;
-    g->vdot = h; h += N;
-    g->a = h; h += N;
-    g->K = h; h += N * N;
-    g->D = h; h += N * N;
-    g->LU[0] = h; h += N * N;
+    g->vdot = h; h += nv;
+    g->a = h; h += nv;
+    g->K = h; h += nv * nv;
+    g->D = h; h += nv * nv;
+    g->LU[0] = h; h += nv * nv;
     g->LU[1] = h;
     g->piv[0] = it->hi;
-    g->piv[1] = it->hi + N;
+    g->piv[1] = it->hi + nv;
     g->pivs = it->wi;
     double **scratch[] = {&g->a_base, &g->dy_base, &g->v_base, &g->sc, &g->w, &g->dw, &g->acc0, &g->dy, &g->xa,
                           &g->xd};
-    g->S = w; w += N * N;
+    g->S = w; w += nv * nv;
     for (size_t k = 0; k < sizeof scratch / sizeof *scratch; ++k) { *scratch[k] = w; w += N; }
     GaStep *steps[] = {&g->big, &g->half, &g->end};
     for (int k = 0; k < 3; ++k) { /* y and v adjacent: [y; v] is a state vector */
@@ -436,7 +436,7 @@ static int check(const MbsIntegrator *it, const void *ms, const int *hi)
         return 1;
     if (s->ncache > 0 && !s->have_K) return 1;
     for (int k = 0; k < s->ncache; ++k)
-        if (!mbs_lu_pivots_valid(g->nv, hi + k * it->n)) return 1;
+        if (!mbs_lu_pivots_valid(g->nv, hi + k * g->nv)) return 1;
     return 0;
 }
 

@@ -7,7 +7,7 @@
  * messages), dense output (the ahead point and its segment), normalization after every accepted step,
  * stats, snapshots.  A method supplies the hooks of base.py's subclasses:
  *
- *   sizes(n, opt, &sz)         how much memory: sz->state (bytes of the method's POD history struct),
+ *   sizes(n, nvel, opt, &sz)   how much memory: sz->state (bytes of the method's POD history struct),
  *                              sz->hist / sz->hist_int (doubles / ints of history arrays), sz->work /
  *                              sz->work_int (doubles / ints of scratch), sz->view (bytes of the method's
  *                              pointer struct).  Called once, before allocation, in mbs_integ_new.
@@ -102,7 +102,7 @@ typedef struct {
 typedef struct MbsMethodClass {
     const char *name;
     int dense_rows;  /* rows of the continuous extension's coefficients Q; 0: no dense output */
-    void (*sizes)(int n, const MbsIntegOptions *opt, MbsSizes *sz);
+    void (*sizes)(int n, int nvel, const MbsIntegOptions *opt, MbsSizes *sz);
     int (*init)(MbsIntegrator *it, char *err, size_t errlen);
     void (*reset_history)(MbsIntegrator *it);
     void (*invalidate_derivative)(MbsIntegrator *it);

@@ -61,9 +61,9 @@ typedef struct {        /* arrays carved from the history and work blocks, and c
 #define ST(it) ((Radau5State *)(it)->ms)
 #define VW(it) ((Radau5View *)(it)->view)
 
-static void sizes(int n, const MbsIntegOptions *opt, MbsSizes *sz)
+static void sizes(int n, int nvel, const MbsIntegOptions *opt, MbsSizes *sz)
 {
-    (void)opt;
+    (void)nvel, (void)opt;
     size_t N = (size_t)n;
     sz->state = sizeof(Radau5State);
     sz->hist = N + N * N + N * N + 2 * N * N + 3 * N + N;
