@@ -256,13 +256,8 @@ int mbs_integ_initial_step(MbsIntegrator *it, const double *f0, int order, doubl
     return 0;
 }
 
-int mbs_integ_fixed_substeps(MbsIntegrator *it, double span, double h_max, long *nsub)
+int mbs_integ_fixed_substeps_many(MbsIntegrator *it, double span, double h_max, double ulps, long *nsub)
 {
-    /* No extra step when span/h is an integer up to rounding. The slack covers the rounding of the
-     * communication times themselves: a master that accumulates t += h hands over spans that differ from
-     * h by ulps of t (at t = 100 s, 1e-11 of a 1 ms step), which once took two half steps per point. */
-    double ulps = 8.0 * DBL_EPSILON * (fabs(it->c->t) + span);
-    if (span * (1.0 - 1e-12) - ulps <= h_max) { *nsub = 1; return 0; }  /* one step per point: no division */
     double q = isfinite(h_max) ? ceil(span / h_max * (1.0 - 1e-12) - ulps / h_max) : 1.0;
     if (!(q >= 1.0)) q = 1.0;
     if (q > (double)it->max_steps) {

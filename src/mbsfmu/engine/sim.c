@@ -38,6 +38,12 @@ struct MbsInstance {
     char msg[1024];
 };
 
+#if defined(__GNUC__)
+#define MBS_NOINLINE __attribute__((noinline))
+#else
+#define MBS_NOINLINE
+#endif
+
 /* ------------------------------------------------------------------------------------------ messages */
 static int report(MbsInstance *s, int status, const char *fmt, ...)
 {
@@ -364,7 +370,7 @@ int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double ou
     return MBS_OK;
 }
 
-int mbs_get_real(MbsInstance *s, int vr, double *value)
+MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart from mbs_get_reals' fast loop */
 {
     int idx = 0, kind = var(s, vr, &idx), rc;
     if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT) && !s->initialized && !s->initial_valid &&
@@ -488,7 +494,7 @@ static int prepare(MbsInstance *s, double t)
         int rc = apply_inputs(s);
         if (rc) return rc;
     }
-    if (!isfinite(t) || fabs(t - s->time) > 1e-9 * fmax(1.0, fabs(t)))
+    if (!isfinite(t) || fabs(t - s->time) > 1e-9 * (fabs(t) > 1.0 ? fabs(t) : 1.0))
         return report(s, MBS_ERROR, "do_step called at t=%.17g but the simulation is at t=%.17g", t, s->time);
     return MBS_OK;
 }
