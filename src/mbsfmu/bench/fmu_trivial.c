@@ -91,6 +91,7 @@ int mbs_do_step(MbsInstance *s, double t, double h) {
     return MBS_OK;
 }
 double mbs_time(const MbsInstance *s) { return s->t; }
+int mbs_initialized(const MbsInstance *s) { return s->initialized; }
 const char *mbs_message(const MbsInstance *s) { (void)s; return ""; }
 
 /* state: the four numbers that determine the future */

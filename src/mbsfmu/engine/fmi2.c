@@ -61,7 +61,6 @@ typedef struct {
     char refused[256];         /* (-1: none); its message fails fmi2ExitInitializationMode */
 } Fmu;
 
-#define STATE_HEADER (4 + 4 + 64 + 8 + 8)  /* "MBSS", version, GUID, payload length, checksum (sim.c) */
 typedef struct {
     Fmu *owner;                /* freed with its instance (fmi2FreeInstance frees everything) */
     size_t len;
@@ -584,15 +583,6 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     return engine_status(f, mbs_state_save(f->sim, st->bytes, st->len), "fmi2GetFMUstate");
 }
 
-/* The FMI phase a state brings with it: step mode if it was taken after initialization, else instantiated
- * (the payload's Head starts with five doubles, then int32 initialized; sim.c, mbs_state_save). */
-static int state_phase(const FmuState *st) {
-    int initialized = 0;
-    if (st->len >= STATE_HEADER + 5 * 8 + 4)
-        memcpy(&initialized, st->bytes + STATE_HEADER + 5 * 8, 4);
-    return initialized == 1 ? P_STEP : P_INSTANTIATED;
-}
-
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     FmuState *st;
     CHECK(P_ANY, "fmi2SetFMUstate");
@@ -603,7 +593,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
         return fmi2Error;
     }
     f->discarded = 0;
-    f->phase = state_phase(st);  /* a state taken before initialization: initialize again */
+    f->phase = mbs_initialized(f->sim) ? P_STEP : P_INSTANTIATED;  /* a state from before: initialize again */
     return fmi2OK;
 }
 
@@ -654,48 +644,27 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
     return fmi2OK;
 }
 
-/* The engine's state header (sim.c, mbs_state_save): "MBSS", uint32 format version, char guid[64], uint64
- * payload length, uint64 checksum. Checked on the host's bytes before anything is copied, so a size that
- * disagrees with the header (0, or far beyond the buffer) is refused without reading past the header. */
-static const char *bad_header(const unsigned char *b, size_t n, const char *guid) {
-    unsigned long long length;
-    if (n < STATE_HEADER) return "too short for an mbsfmu FMU state";
-    if (memcmp(b, "MBSS", 4) != 0) return "not an mbsfmu FMU state (bad magic)";
-    if (!memchr(b + 8, 0, 64) || strcmp((const char *)b + 8, guid) != 0)
-        return "the state belongs to another model (GUID differs)";
-    memcpy(&length, b + 72, 8);
-    if (length != (unsigned long long)(n - STATE_HEADER)) return "truncated, or trailing bytes (length field disagrees)";
-    return NULL;  /* version, checksum and payload: mbs_state_load */
-}
-
-/* The bytes are checked by loading them into this instance and restoring its own state afterwards (the
- * engine's load validates version, GUID, length, sizes and checksum, and changes nothing on failure). */
+/* The host's bytes are checked by loading them into this instance and restoring its own state afterwards (the
+ * engine's load checks magic, version, GUID and length before it reads further, then the checksum and sizes,
+ * and changes nothing on failure); only bytes that passed are copied into a new state. */
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate) {
     FmuState *mine, *st;
-    const char *why;
     int rc;
     CHECK(P_ANY, "fmi2DeSerializeFMUstate");
     if (!FMUstate || !serializedState) {
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: NULL pointer");
         return fmi2Error;
     }
-    if ((why = bad_header((const unsigned char *)serializedState, size, mbs_model_guid(f->model)))) {
-        logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: %lu bytes refused: %s; instance unchanged", (unsigned long)size, why);
-        return fmi2Error;
-    }
     mine = state_new(f, mbs_state_size(f->sim));
-    st = state_new(f, size);
-    if (!mine || !st) {
-        free(mine), free(st);
+    if (!mine) {
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
         return fmi2Error;
     }
-    memcpy(st->bytes, serializedState, size);
     rc = mbs_state_save(f->sim, mine->bytes, mine->len);
-    if (rc == MBS_OK && (rc = mbs_state_load(f->sim, st->bytes, st->len)) == MBS_OK &&
+    if (rc == MBS_OK && (rc = mbs_state_load(f->sim, serializedState, size)) == MBS_OK &&
         mbs_state_load(f->sim, mine->bytes, mine->len) != MBS_OK) {
-        free(mine), free(st);
+        free(mine);
         f->phase = P_FATAL;
         logf_(f, fmi2Fatal, "fmi2DeSerializeFMUstate: the instance's own state did not load back: %s",
               mbs_message(f->sim));
@@ -703,15 +672,16 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     }
     free(mine);
     if (rc != MBS_OK) {
-        free(st);
         engine_status(f, MBS_ERROR, "fmi2DeSerializeFMUstate");
         return fmi2Error;
     }
-    if (!reg_add(&states, st)) {
+    st = state_new(f, size);
+    if (!st || !reg_add(&states, st)) {
         free(st);
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
         return fmi2Error;
     }
+    memcpy(st->bytes, serializedState, size);
     *FMUstate = st;  /* an output argument: whatever it held is not ours to free */
     return fmi2OK;
 }
