@@ -18,7 +18,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from test_scene_hostile import BASE, ELASTIC, NODAL_BODY, base, bomb, chain, elastic, inline, nodal_arrays, run_bounded
+from test_scene_hostile import (BASE, ELASTIC, NODAL_BODY, base, bomb, bounded_results, chain, elastic, inline,
+                                 nodal_arrays, run_bounded)
 
 CPU_SECONDS = 1.0
 CPU_LARGE = {"star_10000_then_bad": 4.0,   # a 1.4 MB file: ~2 s of honest reading
@@ -351,24 +352,9 @@ CASES = {
 FILE_LEVEL = ("symlink_loop_scene", "missing_scene", "dev_null", "proc_self_mem")  # no line: the file cannot be read
 
 
-def _case_path(name, root):
-    make = CASES[name][0]
-    d = root / name
-    if callable(make):
-        return make(d)
-    d.mkdir(parents=True)
-    (d / "scene.yaml").write_text(make, encoding="utf-8")
-    return d / "scene.yaml"
-
-
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    root = tmp_path_factory.mktemp("hostile_extra")
-    paths = {name: _case_path(name, root) for name in CASES}
-    out = run_bounded([(n, p, False) for n, p in paths.items()], root)
-    out["_paths"] = {n: str(p) for n, p in paths.items()}
-    out["_root"] = str(root)
-    return out
+    return bounded_results(CASES, tmp_path_factory.mktemp("hostile_extra"))
 
 
 @pytest.mark.parametrize("name", [n for n in CASES if CASES[n][2] is not None])
@@ -487,6 +473,15 @@ def steps(s, t, n, h=0.01):
     return t
 
 
+def twins(n=3):
+    """Two instances of the FMU, initialized and stepped n times alike: `a` to attack, `b` to compare with."""
+    a, b = open_fmu(), open_fmu()
+    init(a), init(b)
+    t = steps(a, 0.0, n)
+    steps(b, 0.0, n)
+    return a, b, t
+
+
 def outs(s):
     return list(s.getReal(OUT))
 
@@ -511,10 +506,7 @@ def reals(*v):
 
 # ---- scenarios: each returns JSON-able data ----------------------------------------------------------------------
 def sc_steps():
-    a, b = open_fmu(), open_fmu()
-    init(a), init(b)
-    t = steps(a, 0.0, 3)
-    steps(b, 0.0, 3)
+    a, b, t = twins()
     inf, nan = float("inf"), float("nan")
     seq = [("h zero", a.fmi2DoStep, (a.component, t, 0.0, 1)), ("h -0", a.fmi2DoStep, (a.component, t, -0.0, 1)),
            ("h negative", a.fmi2DoStep, (a.component, t, -1e-300, 1)), ("h NaN", a.fmi2DoStep, (a.component, t, nan, 1)),
@@ -613,10 +605,7 @@ def sc_strings():
 
 
 def sc_state_pointers():
-    a, b = open_fmu(), open_fmu()
-    init(a), init(b)
-    t = steps(a, 0.0, 3)
-    steps(b, 0.0, 3)
+    a, b, t = twins()
     size = ctypes.c_size_t()
     s = fmi2FMUstate()
     res = calls(a, [("get NULL", a.fmi2GetFMUstate, (a.component, None)),
@@ -674,10 +663,7 @@ def sc_cross_states():
 
 
 def sc_deserialize_sizes():
-    a, b = open_fmu(), open_fmu()
-    init(a), init(b)
-    t = steps(a, 0.0, 3)
-    steps(b, 0.0, 3)
+    a, b, t = twins()
     good = bytes(a.serializeFMUstate(a.getFMUstate()))
     buf = ctypes.create_string_buffer(good, len(good))
     h = fmi2FMUstate()
@@ -782,10 +768,7 @@ def sc_instantiate():
 
 
 def sc_unsupported():
-    a, b = open_fmu(), open_fmu()
-    init(a), init(b)
-    t = steps(a, 0.0, 3)
-    steps(b, 0.0, 3)
+    a, b, t = twins()
     v = ctypes.c_double()
     i = ctypes.c_int(7)
     sptr = ctypes.c_char_p()
@@ -824,10 +807,7 @@ def sc_setup_and_resolution():
         res[what] = [st(s.fmi2SetupExperiment, s.component, *args), logged(s.tag, n), st(s.enterInitializationMode),
                      st(s.exitInitializationMode), st(s.fmi2DoStep, s.component, 0.0, 0.01, 1)]
         s.fmi2FreeInstance(s.component)
-    a, b = open_fmu(), open_fmu()
-    init(a), init(b)
-    t = steps(a, 0.0, 3)
-    steps(b, 0.0, 3)
+    a, b, t = twins()
     res["steps"] = calls(a, [("h 1e-300", a.fmi2DoStep, (a.component, t, 1e-300, 1)),
                              ("h 5e-324", a.fmi2DoStep, (a.component, t, 5e-324, 1))])
     steps(a, t, 3), steps(b, t, 3)

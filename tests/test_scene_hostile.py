@@ -369,9 +369,8 @@ def run_bounded(cases, tmp, memory=MEMORY, timeout=300):
     return json.loads(proc.stdout)
 
 
-def _case_path(name, root):
-    make = CASES[name][0]
-    d = root / name
+def _case_path(make, d):
+    """The scene file of a case: `make` is its text, or a function of its folder that writes it."""
     if callable(make):
         return make(d)
     d.mkdir(parents=True)
@@ -379,14 +378,18 @@ def _case_path(name, root):
     return d / "scene.yaml"
 
 
-@pytest.fixture(scope="module")
-def results(tmp_path_factory):
-    root = tmp_path_factory.mktemp("hostile")
-    paths = {name: _case_path(name, root) for name in CASES}
+def bounded_results(cases, root):
+    """Each case of {name: (scene text or maker, ...)} written under root and loaded in a bounded worker."""
+    paths = {name: _case_path(case[0], root / name) for name, case in cases.items()}
     out = run_bounded([(n, p, False) for n, p in paths.items()], root)
     out["_paths"] = {n: str(p) for n, p in paths.items()}
     out["_root"] = str(root)
     return out
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    return bounded_results(CASES, tmp_path_factory.mktemp("hostile"))
 
 
 def _expected_line(name, path):
