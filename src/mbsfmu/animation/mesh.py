@@ -13,18 +13,17 @@ from ..errors import ModelError
 from ..scene import limits
 
 MAX_TRIANGLES = 2_000_000
-MAX_BYTES = 256 * 2**20  # an ASCII STL of MAX_TRIANGLES
 
 
 def read_mesh(path):
     path = Path(path)
     try:
         with limits.open_regular(path) as f:  # not a FIFO or device: nothing waits or reads forever
-            data = f.read(MAX_BYTES + 1)
+            data = f.read(limits.MESH_BYTES + 1)  # the file may have grown since the scene was loaded
     except OSError as e:
         raise ModelError(f"cannot read mesh file: {e.strerror}", file=str(path)) from None
-    if len(data) > MAX_BYTES:
-        raise ModelError(f"the mesh file is larger than {MAX_BYTES // 2**20} MiB", file=str(path))
+    if len(data) > limits.MESH_BYTES:
+        raise ModelError(f"the mesh file is larger than {limits.MESH_BYTES // 2**20} MB", file=str(path))
     try:
         if path.suffix.lower() == ".obj":
             tris = _obj(data.decode("utf-8", errors="replace"))

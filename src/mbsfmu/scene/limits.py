@@ -15,6 +15,7 @@ EXPRESSION_CHARS = 4096         # one numeric expression
 MESSAGE_CHARS = 400             # an error message (quoted input is shortened)
 
 NPZ_BYTES = 64 * 2**20          # an .npz file, and the arrays read from it (declared uncompressed sizes)
+MESH_BYTES = 64 * 2**20         # a mesh file (STL, OBJ) of a shape: checked at load, bounded again when read
 NPZ_ENTRIES = 64                # members of an .npz (zip) file
 BEAM_ELEMENTS = 200             # the beam generator's dense FE matrices grow as elements²
 

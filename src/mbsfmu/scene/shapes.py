@@ -11,12 +11,11 @@ import re
 from pathlib import Path
 
 from ..errors import ModelError
-from . import datafile
+from . import datafile, limits
 from .yaml_lines import Map, Seq
 
 SHAPE_TYPES = ("box", "sphere", "cylinder", "capsule", "mesh")
 MESH_SUFFIXES = (".stl", ".obj")
-MESH_MAX_BYTES = 64 * 2**20
 _SIZE_KEYS = {"box": ("size",), "sphere": ("radius",), "cylinder": ("radius", "length"),
               "capsule": ("radius", "length"), "mesh": ("file",)}
 _COMMON = ("type", "at", "rotation", "color", "opacity")
@@ -97,8 +96,8 @@ def _mesh_file(ck, s, path):
         ck.fail(s, "file", path + ".file", f"'{name}' is not a supported mesh file", "formats: STL (binary or ASCII), OBJ")
     if not f.is_file():
         ck.fail(s, "file", path + ".file", f"no such mesh file '{name}' (looked in {base})")
-    if f.stat().st_size > MESH_MAX_BYTES:
-        ck.fail(s, "file", path + ".file", f"'{name}' is larger than {MESH_MAX_BYTES // 2**20} MB", "simplify the mesh for drawing")
+    if f.stat().st_size > limits.MESH_BYTES:
+        ck.fail(s, "file", path + ".file", f"'{name}' is larger than {limits.MESH_BYTES // 2**20} MB", "simplify the mesh for drawing")
     return Path(name).as_posix()
 
 
