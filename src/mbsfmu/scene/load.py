@@ -250,6 +250,13 @@ class _Checker:
             self.fail(parent, key, path, f"{what} of {len(v):,} characters (at most {limits.NAME_CHARS})", "use a shorter name")
         return v
 
+    def key_name(self, node, name, path, what, exclude=()):
+        """A name given as a key of `node` (a parameter, a body): the rule `name` applies to values."""
+        if not isinstance(name, str) or not _NAME.fullmatch(name) or len(name) > limits.NAME_CHARS or name in exclude:
+            self.fail(node, name, path, f"{name!r} is not valid as {what}",
+                      f"letters, digits, underscore; starts with a letter; at most {limits.NAME_CHARS} characters"
+                      + "".join(f"; not '{x}'" for x in exclude))
+
     def text(self, parent, key, path):
         """A description: text (numbers allowed and kept as written)."""
         v = parent.get(key)
@@ -292,9 +299,7 @@ class _Checker:
             self.fail(root, "parameters", "parameters", "expected a mapping of name: value")
         for name, v in node.items():
             path = f"parameters.{name}"
-            if not _NAME.fullmatch(name) or len(name) > limits.NAME_CHARS:
-                self.fail(node, name, path, f"{name[:limits.NAME_CHARS]!r} is not valid as a parameter name",
-                          f"letters, digits, underscore; starts with a letter; at most {limits.NAME_CHARS} characters")
+            self.key_name(node, name, path, "a parameter name")
             if name in RESERVED or name in FUNCTIONS:
                 self.fail(node, name, path, f"'{name}' is reserved", "choose another parameter name")
             desc, unit = "", None
@@ -323,8 +328,7 @@ class _Checker:
             self.fail(root, "bodies", "bodies", "expected a non-empty mapping of body name: body")
         names = list(node)
         for n in names:
-            if not _NAME.fullmatch(n) or n == "world" or len(n) > limits.NAME_CHARS:
-                self.fail(node, n, f"bodies.{n}", f"{n!r} is not valid as a body name", "letters, digits, underscore; starts with a letter; not 'world'")
+            self.key_name(node, n, f"bodies.{n}", "a body name", exclude=("world",))
         out = [self.body(node, n) for n in names]
         self.acyclic(node, {b["name"]: b["parent"] for b in out})
         self.massless(node, out)
