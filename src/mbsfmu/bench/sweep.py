@@ -6,7 +6,8 @@ Measures, in alternation so that every configuration sees the same machine load:
 - mbsfmu.sweep on an embedded LocalCluster with 1 … cores worker processes, started and warmed up (imports)
   beforehand. Each worker process builds a model once in its life (cached by content hash): the first sweep on
   each fresh cluster builds it there and is reported on its own; the timed sweeps find it built;
-- Dask's own round trip: a no-op task submitted and its result fetched on the 1-worker cluster.
+- Dask's round trips on the 1-worker cluster: a no-op task submitted and its result fetched, and a no-op call to
+  an actor (the way a sweep's batches travel).
 Every configuration's results equal the plain loop's bit for bit (checked before timing).
 Writes <out>/sweep.md, sweep.csv and sweep.png.
 
@@ -63,7 +64,7 @@ def _name(k):
 
 def measure(case_counts=(200,), stop=2.0, repeats=5, max_workers=None):
     """→ ({cases: {configuration: [wall seconds per repeat]}}, cold sweep seconds, worker counts,
-    {workers: first sweep's seconds on the fresh cluster}, [no-op task round trips])."""
+    {workers: first sweep's seconds on the fresh cluster}, {"task"/"actor": [no-op round trips]})."""
     import numpy as np
     from dask.distributed import Client
     import mbsfmu
