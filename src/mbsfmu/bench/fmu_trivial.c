@@ -1,9 +1,10 @@
 /* The trivial engine of bench/fmu_speed.py: the smallest implementation of mbs_engine.h that fmi2.c needs,
- * for one state x' = -a x + u integrated with classical RK4 at a fixed internal step of 1 ms.
+ * for n independent states x_i' = -a x_i + u integrated with classical RK4 at a fixed internal step of 1 ms.
  *
  * Compiled with engine/fmi2.c it gives a native FMU of the same FMI layer shape as an mbsfmu native FMU,
  * so that the benchmark separates the cost of the FMI layer and the instance from that of the multibody
- * engine.  Variables: vr 0 parameter a, vr 1 input u, vr 2 output x.  scene.bin holds the GUID only.
+ * engine; n is chosen so that the host reads as many outputs from it as from the scene's FMU.
+ * Variables: vr 0 parameter a, vr 1 input u, vr 2 .. 2+n-1 outputs x_i.  scene.bin: the GUID, a newline, n.
  */
 #include <math.h>
 #include <stdio.h>
@@ -13,48 +14,50 @@
 #include "mbs_engine.h"
 
 #define H_INT 1e-3
+#define NMAX 64
 
-struct MbsModel { char guid[64]; };
+struct MbsModel { char guid[64]; int n; };
 struct MbsInstance {
     const MbsModel *m;
-    double a, u, t, x;
+    double a, u, t, x[NMAX];
     int initialized;
 };
 
 MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen) {
     MbsModel *m = calloc(1, sizeof *m);
+    char text[128] = "";
     FILE *fp = fopen(path, "rb");
-    size_t n = 0;
+    size_t len = 0;
     if (fp) {
-        n = fread(m->guid, 1, sizeof m->guid - 1, fp);
+        len = fread(text, 1, sizeof text - 1, fp);
         fclose(fp);
     }
-    if (!fp || n == 0) {
-        snprintf(err, errlen, "cannot read %s", path);
+    char *nl = len ? strchr(text, '\n') : NULL;
+    if (!m || !nl || nl - text >= (long)sizeof m->guid || (m->n = atoi(nl + 1)) < 1 || m->n > NMAX) {
+        snprintf(err, errlen, "cannot read %s (GUID, newline, 1 to %d states)", path, NMAX);
         free(m);
         return NULL;
     }
-    m->guid[strcspn(m->guid, "\r\n")] = 0;
+    memcpy(m->guid, text, (size_t)(nl - text));
     return m;
 }
 void mbs_model_free(MbsModel *m) { free(m); }
 const char *mbs_model_guid(const MbsModel *m) { return m->guid; }
-int mbs_model_nvars(const MbsModel *m) { (void)m; return 3; }
+int mbs_model_nvars(const MbsModel *m) { return 2 + m->n; }
 
+static void start(MbsInstance *s, const MbsModel *m) {
+    memset(s, 0, sizeof *s);
+    s->m = m, s->a = 1.0;
+    for (int i = 0; i < m->n; i++) s->x[i] = 1.0;
+}
 MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *env) {
-    MbsInstance *s = calloc(1, sizeof *s);
+    MbsInstance *s = malloc(sizeof *s);
     (void)log, (void)env;
-    if (s)
-        s->m = m, s->a = 1.0, s->x = 1.0;
+    if (s) start(s, m);
     return s;
 }
 void mbs_instance_free(MbsInstance *s) { free(s); }
-int mbs_reset(MbsInstance *s) {
-    const MbsModel *m = s->m;
-    memset(s, 0, sizeof *s);
-    s->m = m, s->a = 1.0, s->x = 1.0;
-    return MBS_OK;
-}
+int mbs_reset(MbsInstance *s) { start(s, s->m); return MBS_OK; }
 
 int mbs_set_real(MbsInstance *s, int vr, double v) {
     if (vr == 0) s->a = v;
@@ -63,8 +66,8 @@ int mbs_set_real(MbsInstance *s, int vr, double v) {
     return MBS_OK;
 }
 int mbs_get_real(MbsInstance *s, int vr, double *v) {
-    if (vr < 0 || vr > 2) return MBS_ERROR;
-    *v = vr == 0 ? s->a : vr == 1 ? s->u : s->x;
+    if (vr < 0 || vr >= 2 + s->m->n) return MBS_ERROR;
+    *v = vr == 0 ? s->a : vr == 1 ? s->u : s->x[vr - 2];
     return MBS_OK;
 }
 int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *v) {
@@ -80,32 +83,36 @@ int mbs_initialize(MbsInstance *s, double t0) { s->t = t0; s->initialized = 1; r
 static double f(const MbsInstance *s, double x) { return -s->a * x + s->u; }
 
 int mbs_do_step(MbsInstance *s, double t, double h) {
-    int i, n = (int)ceil(h / H_INT - 1e-9);
-    double dt = h / n, x = s->x;
+    int i, j, n = (int)ceil(h / H_INT - 1e-9);
+    double dt = h / n;
     if (!isfinite(s->u)) return MBS_DISCARD;
-    for (i = 0; i < n; i++) {
-        double k1 = f(s, x), k2 = f(s, x + 0.5 * dt * k1), k3 = f(s, x + 0.5 * dt * k2), k4 = f(s, x + dt * k3);
-        x += dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4);
-    }
-    s->x = x, s->t = t + h;
+    for (i = 0; i < n; i++)
+        for (j = 0; j < s->m->n; j++) {
+            double x = s->x[j], k1 = f(s, x), k2 = f(s, x + 0.5 * dt * k1), k3 = f(s, x + 0.5 * dt * k2),
+                   k4 = f(s, x + dt * k3);
+            s->x[j] = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4);
+        }
+    s->t = t + h;
     return MBS_OK;
 }
 double mbs_time(const MbsInstance *s) { return s->t; }
 int mbs_initialized(const MbsInstance *s) { return s->initialized; }
 const char *mbs_message(const MbsInstance *s) { (void)s; return ""; }
 
-/* state: the four numbers that determine the future */
-size_t mbs_state_size(const MbsInstance *s) { (void)s; return 4 * sizeof(double); }
+/* state: the numbers that determine the future */
+size_t mbs_state_size(const MbsInstance *s) { return (3 + (size_t)s->m->n) * sizeof(double); }
 int mbs_state_save(const MbsInstance *s, void *buf, size_t len) {
-    double v[4] = {s->a, s->u, s->t, s->x};
-    if (len != sizeof v) return MBS_ERROR;
-    memcpy(buf, v, sizeof v);
+    const double head[3] = {s->a, s->u, s->t};
+    if (len != mbs_state_size(s)) return MBS_ERROR;
+    memcpy(buf, head, sizeof head);
+    memcpy((double *)buf + 3, s->x, (size_t)s->m->n * sizeof(double));
     return MBS_OK;
 }
 int mbs_state_load(MbsInstance *s, const void *buf, size_t len) {
-    double v[4];
-    if (len != sizeof v) return MBS_ERROR;
-    memcpy(v, buf, sizeof v);
-    s->a = v[0], s->u = v[1], s->t = v[2], s->x = v[3];
+    double head[3];
+    if (len != mbs_state_size(s)) return MBS_ERROR;
+    memcpy(head, buf, sizeof head);
+    s->a = head[0], s->u = head[1], s->t = head[2];
+    memcpy(s->x, (const double *)buf + 3, (size_t)s->m->n * sizeof(double));
     return MBS_OK;
 }

@@ -15,6 +15,13 @@
 
 #include <stddef.h>
 
+/* keeps a cold path out of its hot caller (which link-time optimization then inlines where it is called) */
+#if defined(__GNUC__)
+#define MBS_NOINLINE __attribute__((noinline))
+#else
+#define MBS_NOINLINE
+#endif
+
 enum { MBS_RK4, MBS_DOPRI5, MBS_DOP853, MBS_RADAU5, MBS_GEN_ALPHA, MBS_AUTO, MBS_NMETHODS };
 extern const char *const mbs_method_names[MBS_NMETHODS]; /* "rk4", "dopri5", ... */
 int mbs_method_index(const char *name);                   /* -1 when unknown */

@@ -77,6 +77,7 @@ struct MbsModel {
     const double *D, *elastic_d;      /* defaults: the instance copies D */
     int n_elastic_i, n_elastic_d;
     const char **coord_name, **body_name, **var_name;  /* into the blob */
+    const int32_t *read;               /* vr → offset into the instance's [y; ẏ; output points] block, -1 else */
     void *blob;                        /* owned copy of the compiled scene */
 };
 

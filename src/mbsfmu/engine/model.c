@@ -118,7 +118,13 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     int nnames = 0;
     const char *names = section(b, len, tab, nsec, S_NAMES, 2, -1, &nnames);
     m->coord_name = calloc((size_t)np + nb + H[H_NVARS] + 1, sizeof(char *));
-    if (!m->coord_name) FAIL("out of memory");
+    int32_t *read = malloc(((size_t)H[H_NVARS] + 1) * sizeof *read);
+    m->read = read;
+    if (!m->coord_name || !read) FAIL("out of memory");
+    for (int k = 0; k < H[H_NVARS]; k++) {
+        const int kind = m->vars[2 * k], idx = m->vars[2 * k + 1];
+        read[k] = kind == MBS_V_Y ? idx : kind == MBS_V_YD ? np + idx : kind == MBS_V_OUT ? np + nv + idx : -1;
+    }
     m->body_name = m->coord_name + np;
     m->var_name = m->body_name + nb;
     for (int k = 0, pos = 0; k < np + nb + H[H_NVARS]; k++) {
@@ -133,6 +139,7 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
 #endif
     return m;
 fail:
+    free((void *)m->read);
     free(m->coord_name);
     free(b);
     free(m);
@@ -161,6 +168,7 @@ MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen)
 void mbs_model_free(MbsModel *m)
 {
     if (!m) return;
+    free((void *)m->read);
     free(m->coord_name);
     free(m->blob);
     free(m);

@@ -38,12 +38,6 @@ struct MbsInstance {
     char msg[1024];
 };
 
-#if defined(__GNUC__)
-#define MBS_NOINLINE __attribute__((noinline))
-#else
-#define MBS_NOINLINE
-#endif
-
 /* ------------------------------------------------------------------------------------------ messages */
 static int report(MbsInstance *s, int status, const char *fmt, ...)
 {
@@ -189,6 +183,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->u = buf;                buf += s->nu;
     s->u_applied = buf;        buf += s->nu;
     s->x = buf;                buf += s->n;
+    s->out = buf;              buf += 6 * (size_t)m->hdr[H_NOUT];  /* right after x: m->read's block */
     s->x_before = buf;         buf += s->n;
     s->start = buf;            buf += s->n;
     s->work = buf;             buf += nwork;
@@ -196,8 +191,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->k = buf;                buf += f;
     s->q = buf;                buf += f;
     s->xdot = buf;             buf += s->n;
-    s->kin_x = buf;            buf += s->n;
-    s->out = buf;
+    s->kin_x = buf;
 #ifdef MBS_WITH_ELASTIC
     if (m->hdr[H_FEATURES] & F_ELASTIC) {
         s->elastic_work = calloc(1, mbs_elastic_work_size(m) + 1);
@@ -400,21 +394,19 @@ MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart f
 }
 
 /* n values by value reference: what a master reads after every step (states, output points already computed
- * for this state) straight from the instance; the rest as mbs_get_real. */
+ * for this state) straight from the instance's [y; ẏ; output points] block; the rest as mbs_get_real. */
 int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *value)
 {
-    const MbsModel *m = s->m;
-    const unsigned nvars = (unsigned)m->hdr[H_NVARS];
+    const unsigned nvars = (unsigned)s->m->hdr[H_NVARS];
+    const int32_t *read = s->m->read;
+    const double *block = s->x;  /* [y; ẏ; output points] */
     for (size_t i = 0; i < n; i++) {
-        const unsigned v = vr[i];
-        if (s->initialized && v < nvars) {
-            const int kind = m->vars[2 * v], idx = m->vars[2 * v + 1];
-            if (kind == MBS_V_Y) { value[i] = s->x[idx]; continue; }
-            if (kind == MBS_V_YD) { value[i] = s->x[NPOS(m) + idx]; continue; }
-            if (kind == MBS_V_OUT && s->out_valid) { value[i] = s->out[idx]; continue; }
-        }
-        if (v > (unsigned)INT_MAX) return report(s, MBS_ERROR, "unknown value reference %u", v);
-        int rc = mbs_get_real(s, (int)v, value + i);
+        /* entries of the block that hold this state's values (-1 in read, as unsigned, is past any limit) */
+        const unsigned limit = !s->initialized ? 0u : (unsigned)(s->n + (s->out_valid ? 6 * s->m->hdr[H_NOUT] : 0));
+        for (; i < n && vr[i] < nvars && (unsigned)read[vr[i]] < limit; i++) value[i] = block[read[vr[i]]];
+        if (i == n) break;
+        if (vr[i] > (unsigned)INT_MAX) return report(s, MBS_ERROR, "unknown value reference %u", vr[i]);
+        int rc = mbs_get_real(s, (int)vr[i], value + i);
         if (rc) return rc;
     }
     return MBS_OK;
