@@ -557,6 +557,29 @@ def test_win64_dll_when_mingw_is_installed(built):
     assert b"fmi2DoStep" in dll and b"fmi2Instantiate" in dll  # export names
 
 
+def test_win64_dll_runs_under_wine(built, host, tmp_path):
+    """The win64 DLL of every shipped model, run under wine by the same C host built for Windows, gives the
+    linux64 binary's numbers (another compiler and C library)."""
+    if shutil.which(native.MINGW) is None or shutil.which("wine") is None:
+        pytest.skip(f"needs {native.MINGW} (Debian gcc-mingw-w64-x86-64) and wine (Debian wine64)")
+    exe = tmp_path / "fmu_host.exe"
+    subprocess.run([native.MINGW, "-O2", "-D__USE_MINGW_ANSI_STDIO=1", "-o", str(exe), str(HOST)], check=True)
+    env = {**os.environ, "WINEDEBUG": "-all", "WINEDLLOVERRIDES": "mscoree,mshtml="}  # no Mono/Gecko prompts
+    for m, fmu in built.items():
+        d, md, outs = _unpack(fmu, tmp_path / m)
+        ident = md.coSimulation.modelIdentifier
+        common = [(d / "resources").as_uri(), md.guid, "-o", ",".join(map(str, outs)), "-n", str(STEPS), "-h",
+                  "0.01", "-p"]
+        lin = subprocess.run([str(host), str(d / "binaries" / "linux64" / f"{ident}.so"), *common],
+                             capture_output=True, text=True, check=True).stdout
+        win = subprocess.run(["wine", str(exe), str(d / "binaries" / "win64" / f"{ident}.dll"), *common], env=env,
+                             capture_output=True, text=True, timeout=300)
+        assert win.returncode == 0 and "DONE" in win.stdout, (m, win.stdout[-2000:], win.stderr[-2000:])
+        a, b = _host_rows(win.stdout), _host_rows(lin)
+        assert a.shape == b.shape == (STEPS + 1, len(outs) + 1), m
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12, err_msg=m)
+
+
 def test_command_line_builds_native(tmp_path):
     from mbsfmu.cli import main
     assert main(["build", "--kind", "native", str(REPO / "models" / "pendulum.yaml"), "-o", str(tmp_path)]) == 0

@@ -11,9 +11,17 @@
  *     for fixed-step integrators) with the outputs read once
  * Exit codes: 0 ok, 2 usage/dlopen, 3 instantiate, 4 a call failed (its status is printed).
  * Needs only libc (and libdl on old glibc); built by tests/test_fmu_native.py and bench/fmu_speed.py.
+ * Also builds for Windows with MinGW-w64 (LoadLibrary for dlopen), to run a win64 DLL under wine.
  */
 #define _POSIX_C_SOURCE 199309L
+#ifdef _WIN32
+#include <windows.h>
+#define dlopen(path, flags) ((void *)LoadLibraryA(path))
+#define dlsym(lib, name) ((void *)GetProcAddress((HMODULE)(lib), name))
+#define dlerror() "LoadLibrary failed"
+#else
 #include <dlfcn.h>
+#endif
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -50,9 +58,16 @@ static void logger(void *env, const char *inst, int status, const char *cat, con
 }
 
 static double now_ns(void) {
+#ifdef _WIN32
+    LARGE_INTEGER c, f;
+    QueryPerformanceCounter(&c);
+    QueryPerformanceFrequency(&f);
+    return (double)c.QuadPart * 1e9 / (double)f.QuadPart;
+#else
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return ts.tv_sec * 1e9 + ts.tv_nsec;
+#endif
 }
 
 #define MAXV 256
