@@ -26,9 +26,10 @@ CC = shutil.which("cc") or shutil.which("gcc")
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux") or CC is None,
                                 reason="the loader shim is built for linux64 with a C compiler")
 
-# ---- the child process: fmpy's low-level API, a logger that keeps every message -------------------------------
-DRIVER = r'''
-import ctypes, json, os, pickle, random, struct, sys
+# ---- the child processes (here and tests/test_hostile_extra.py): fmpy's low-level API, a logger that keeps every
+# message, the FMI call helpers; each driver script appends its own part ----------------------------------------
+FMPY_CHILD = r'''
+import ctypes, json, math, os, pickle, random, struct, sys
 import fmpy
 from fmpy import read_model_description, calloc, free
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE,
@@ -36,22 +37,14 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE,
 from fmpy.fmi1 import FMICallException
 from fmpy.logging import addLoggerProxy
 
-scenario, fmu, other, work = sys.argv[1:5]
 LOG = []
 cb = fmi2CallbackFunctions()
-cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, st, cat, msg: LOG.append((name.decode(), st, (cat or b"").decode(),
+cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, st, cat, msg: LOG.append((name.decode(errors="replace"), st,
+                                                                              (cat or b"").decode(),
                                                                               msg.decode(errors="replace"))))
 cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
 cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
 addLoggerProxy(ctypes.byref(cb))   # fmpy's proxy formats the messages like a C host does
-
-
-def open_fmu(path, tag):
-    md = read_model_description(path)
-    d = fmpy.extract(path, os.path.join(work, tag))
-    s = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier, instanceName=tag)
-    s.instantiate(callbacks=cb)
-    return s, {v.name: v.valueReference for v in md.modelVariables}, md, d
 
 
 def init(s):
@@ -72,15 +65,27 @@ def logged(tag, since):
     return [m[1:] for m in LOG[since:] if m[0] == tag]
 
 
-def outputs(s, md):
-    return s.getReal([v.valueReference for v in md.modelVariables if v.causality == "output"])
-
-
 def steps(s, t, n, h=0.01):
     for _ in range(n):
         s.doStep(t, h)
         t += h
     return t
+'''
+
+DRIVER = FMPY_CHILD + r'''
+scenario, fmu, other, work = sys.argv[1:5]
+
+
+def open_fmu(path, tag):
+    md = read_model_description(path)
+    d = fmpy.extract(path, os.path.join(work, tag))
+    s = FMU2Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier, instanceName=tag)
+    s.instantiate(callbacks=cb)
+    return s, {v.name: v.valueReference for v in md.modelVariables}, md, d
+
+
+def outputs(s, md):
+    return s.getReal([v.valueReference for v in md.modelVariables if v.causality == "output"])
 
 
 def calls_with_messages(tag, calls):

@@ -18,6 +18,7 @@ import zipfile
 import numpy as np
 import pytest
 
+from test_fmu_hostile import FMPY_CHILD
 from test_scene_hostile import (BASE, ELASTIC, NODAL_BODY, base, bomb, bounded_results, chain, elastic, inline,
                                  nodal_arrays, run_bounded)
 
@@ -399,23 +400,8 @@ def test_cli_prints_one_line_without_traceback(results):
 
 
 # ==== hosts: both FMU kinds through fmpy's FMU2Slave, every hostile sequence in one child process per kind ========
-HOST_DRIVER = r'''
-import ctypes, json, math, os, sys
-import fmpy
-from fmpy import read_model_description, calloc, free
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2CallbackAllocateMemoryTYPE,
-                       fmi2CallbackFreeMemoryTYPE, fmi2FMUstate)
-from fmpy.fmi1 import FMICallException
-from fmpy.logging import addLoggerProxy
-
+HOST_DRIVER = FMPY_CHILD + r'''
 fmu, other, work, only = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4:]
-LOG = []
-cb = fmi2CallbackFunctions()
-cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, st, cat, msg: LOG.append((name.decode(errors="replace"), st, (cat or b"").decode(),
-                                                                              msg.decode(errors="replace"))))
-cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-addLoggerProxy(ctypes.byref(cb))
 MD = {p: read_model_description(p) for p in (fmu, other)}
 DIRS = {p: fmpy.extract(p, os.path.join(work, os.path.basename(p))) for p in (fmu, other)}
 md = MD[fmu]
@@ -437,24 +423,11 @@ def open_fmu(path=fmu, tag=None, instantiate=True):
     return s
 
 
-def init(s):
-    s.setupExperiment(startTime=0.0)
-    s.enterInitializationMode()
-    s.exitInitializationMode()
-
-
 def st(call, *args):
     try:
-        r = call(*args)
-        return 0 if r is None or not isinstance(r, int) else r
-    except FMICallException as e:
-        return e.status
+        return status(call, *args)
     except OSError as e:  # access violation in ctypes: must never happen
         return f"OSError {e}"
-
-
-def logged(tag, since):
-    return [m[1:] for m in LOG[since:] if m[0] == tag]
 
 
 def calls(s, seq):
@@ -464,13 +437,6 @@ def calls(s, seq):
         n = len(LOG)
         out.append((what, st(fn, *args), logged(s.tag, n)))
     return out
-
-
-def steps(s, t, n, h=0.01):
-    for _ in range(n):
-        s.doStep(t, h)
-        t += h
-    return t
 
 
 def twins(n=3):
