@@ -194,7 +194,8 @@ def report(scenes, outdir: Path, runs: int, n: int) -> Path:
         fmus = {k: Unpacked(p, tmp / f"x{i}") for i, (k, p) in enumerate(built.items())}
         start_rows = startup(host, fmus, runs)
         cases = cases_of({k[len("native "):]: f for k, f in fmus.items() if k.startswith("native")}, rk4,
-                         lambda k: Unpacked(build_trivial_fmu(tmp / f"t{k}", k), tmp / f"tx{k}"))
+                         lambda k: fmus["trivial"] if k == 1 else Unpacked(build_trivial_fmu(tmp / f"t{k}", k),
+                                                                           tmp / f"tx{k}"))
         times = loop_cost(host, cases, n, runs)
         instr = instructions(host, cases)
     loop_rows = []
