@@ -553,3 +553,23 @@ def test_pure_python_yaml_parser_has_the_same_limits():
     lines = r.stdout.splitlines()
     assert lines[0] == "flexible_pendulum"
     assert lines[1] == "1 nested more than 64 levels deep" and "alias" in lines[2]
+
+
+@pytest.mark.parametrize("depth", [65, 999, 1001, 5000, 100_000])
+@pytest.mark.parametrize("style", ["flow_seq", "flow_map", "block"])
+def test_nesting_refused_alike_whichever_yaml_layer_answers(depth, style, tmp_path):
+    """libyaml (PyYAML >= 6.0.4) has a depth limit of its own besides the loader's 64: whichever refuses,
+    the user gets one ModelError line that names the limit, at the file and line."""
+    if style == "block":
+        depth = min(depth, 2000)  # block nesting costs indentation: 2000 levels is already 4 MB
+        body = "x:\n" + "".join("  " * i + "-\n" for i in range(1, depth + 1))
+    elif style == "flow_seq":
+        body = "x: " + "[" * depth + "]" * depth + "\n"
+    else:
+        body = "x: " + "{a: " * depth + "1" + "}" * depth + "\n"
+    p = tmp_path / "deep.yaml"
+    p.write_text("mbsfmu: 1\nname: deep\n" + body)
+    with pytest.raises(mbsfmu.ModelError) as e:
+        mbsfmu.load(p)
+    text = str(e.value)
+    assert "\n" not in text and text.startswith(f"{p}:") and f"nested more than {limits.DEPTH} levels" in text, text

@@ -1,8 +1,10 @@
 """Compiling the engine: which C sources a scene needs, and the in-process shared library.
 
 The in-process library has every part (any scene can be loaded); a native FMU carries only the parts its scene
-uses (`sources(features)`): no elastic-body code for a rigid scene, no expression machine where no number
-depends on parameters or time. The integrators always stay, since `integrator.method` is a parameter.
+uses: the scene's feature bits set the switches (`sources(features)`: no elastic-body code for a rigid scene, no
+expression machine where no number depends on parameters or time), and the files are those the FMI layer's
+calls reach under these switches (`linked_sources`, read off the compiled objects), never a list kept by hand.
+The integrators always stay, since `integrator.method` is a parameter.
 
 The library is compiled once per source version with the system C compiler (`$CC` or `cc`) into
 `$MBSFMU_CACHE` or `~/.cache/mbsfmu` (at install by `python -m mbsfmu.engine.build`, else on first use).
@@ -42,6 +44,54 @@ def sources(feats=("expr", "elastic")):
     feats = [f for f in OPTIONAL if f in feats and (HERE / OPTIONAL[f][0]).exists()]
     srcs = [HERE / s for s in CORE if (HERE / s).exists()] + [HERE / OPTIONAL[f][0] for f in feats]
     return srcs, [HERE / h for h in HEADERS if (HERE / h).exists()], [OPTIONAL[f][1] for f in feats]
+
+
+_LINKED: dict = {}
+
+
+def linked_sources(roots, defs, cc=None):
+    """The engine C files a program made of `roots` (e.g. the FMI layer) links, compiled with the switches
+    `defs`: the closure over undefined symbols, read off the compiled objects with nm. Derived from what each
+    kept file calls, so a call a switch leaves in can never meet a file left out (the link would fail).
+    Without nm: every engine file."""
+    import hashlib
+    import shutil
+    import subprocess
+    import tempfile
+    cands = [HERE / s for s in CORE + tuple(f for f, _ in OPTIONAL.values())]
+    files = [*roots, *(c for c in cands if c not in roots)]
+    key = hashlib.sha256(" ".join(defs).encode())
+    for p in sorted(files) + sorted(HERE.glob("*.h")):
+        key.update(p.name.encode() + p.read_bytes())
+    key = key.hexdigest()
+    if key in _LINKED:
+        return _LINKED[key]
+    cc = cc or compiler()
+    nm = shutil.which("nm") or subprocess.run([cc, "-print-prog-name=nm"], capture_output=True, text=True).stdout.strip()
+    if not nm or not shutil.which(nm):
+        return list(files)
+    defined, undefined = {}, {}
+    with tempfile.TemporaryDirectory(prefix="mbsfmu_nm_") as tmp:
+        for k, f in enumerate(files):
+            obj = Path(tmp) / f"{k}.o"
+            r = subprocess.run([cc, "-c", "-O0", "-std=c99", *defs, f"-I{HERE}", f"-I{HERE / 'fmi2'}", "-o", str(obj),
+                                str(f)], capture_output=True, text=True)
+            if r.returncode:
+                raise EngineUnavailable(f"compiling {f.name} failed: {r.stderr.strip()[:2000]}")
+            table = subprocess.run([nm, "-P", "-g", str(obj)], capture_output=True, text=True, check=True).stdout
+            syms = [ln.split()[:2] for ln in table.splitlines() if len(ln.split()) >= 2]
+            undefined[f] = {s for s, t in syms if t == "U"}
+            for s, t in syms:
+                if t != "U":
+                    defined.setdefault(s, f)
+    keep, todo = set(), list(roots)
+    while todo:
+        f = todo.pop()
+        if f not in keep:
+            keep.add(f)
+            todo += [defined[s] for s in undefined[f] if s in defined]
+    _LINKED[key] = [f for f in files if f in keep]
+    return _LINKED[key]
 
 
 def compiler():

@@ -133,7 +133,11 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
         m->coord_name[k] = names + pos;
         pos = (int)(end - names) + 1;
     }
+#ifdef MBS_WITH_EXPR
     if (mbs_validate_code(m, err, errlen)) goto fail;
+#else
+    if (H[H_NPROG] > 0) FAIL("the scene has expressions but this engine was built without them (rebuild the FMU)");
+#endif
 #ifdef MBS_WITH_ELASTIC
     if ((H[H_FEATURES] & F_ELASTIC) && mbs_elastic_validate(m, err, errlen)) goto fail;
 #endif

@@ -37,12 +37,13 @@ COSIMULATION = {"needsExecutionTool": "false", "canGetAndSetFMUstate": "true", "
 
 
 def source_files(blob: bytes) -> dict[str, bytes]:
-    """The engine C sources a compiled scene needs and fmi2.c, with their headers (collect_sources). The
+    """fmi2.c and the engine C sources it links with the scene's switches (engine.build.linked_sources),
+    with their headers (collect_sources). The
     engine's feature switches (-DMBS_WITH_...) are written at the top of each C file, so that compiling the
     files of sources/ needs no flags."""
     from ..engine import build as engine_build
-    srcs, _, defs = engine_build.sources(engine_build.features(blob))
-    out = collect_sources(list(srcs) + [FMI_LAYER])
+    _, _, defs = engine_build.sources(engine_build.features(blob))
+    out = collect_sources(engine_build.linked_sources([FMI_LAYER], defs))
     if defs:
         banner = "/* this FMU's engine parts (mbsfmu engine/build.py) */\n" + "".join(
             f"#define {d[2:].replace('=', ' ', 1)}\n" for d in defs)

@@ -321,6 +321,9 @@ def read_yaml(text, file=None):
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         problem = getattr(e, "problem", None) or str(e)
+        if "nesting depth" in problem:  # libyaml's own depth limit (PyYAML >= 6.0.4) may answer before ours
+            raise ModelError(f"nested more than {limits.DEPTH} levels deep", file=file, line=mark.line + 1 if mark else None,
+                             key=loader.compose_path(), hint="a scene needs a few levels; flatten the data") from None
         raise ModelError(f"invalid YAML: {problem}", file=file, line=mark.line + 1 if mark else None, key=loader.compose_path(),
                          hint="check the indentation (spaces, not tabs), colons and brackets at this line") from None
     finally:
