@@ -10,7 +10,7 @@ import math
 import os
 import sys
 
-from .errors import IntegrationError, ModelError
+from .errors import IntegrationError, ModelError, printable
 
 EPILOG = """examples:
   mbsfmu build models/double_pendulum.yaml -o out/        # writes out/double_pendulum.fmu
@@ -388,20 +388,20 @@ def main(argv=None):
     except BrokenPipeError:  # the reader (e.g. head) has gone: stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except ModelError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
     except IntegrationError as e:
-        print(f"simulation failed: {e}", file=sys.stderr)
-        return 1
-    except (FileNotFoundError, KeyError, ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
+        return _fail(f"simulation failed: {e}")
+    except (ModelError, FileNotFoundError, KeyError, ValueError, OSError) as e:
+        return _fail(f"error: {e}")
     except KeyboardInterrupt:
         return 130
     except Exception as e:  # anything else: still one line, no traceback
-        print(f"error: {type(e).__name__}: {e}", file=sys.stderr)
-        return 1
+        return _fail(f"error: {type(e).__name__}: {e}")
+
+
+def _fail(line):
+    """The one line a failure prints: what it quotes (file names, keys, values) is escaped, never obeyed."""
+    print(printable(line), file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":

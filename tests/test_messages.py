@@ -1,0 +1,97 @@
+"""What a new user reads: every message that quotes a file (its name, keys, values, data file names) shows
+control, format and bidi characters as escapes, so nothing from a file acts on the terminal; the CLI prints
+one plain line."""
+
+import contextlib
+import io
+
+import pytest
+
+import mbsfmu
+from mbsfmu.cli import main
+from mbsfmu.errors import ModelError
+
+SCENE = """mbsfmu: 1
+name: demo
+bodies:
+  NAME:
+    parent: world
+    joint: {type: TYPE, axis: [0, 1, 0], coordinates: [phi]}
+    mass: MASS
+    inertia: {xx: 0.1, yy: 0.1, zz: 0.1}
+    KEY: 1
+"""
+GOOD = {"NAME": "link", "TYPE": "revolute", "MASS": "1.0", "KEY": "center_of_mass"}
+
+# every class: C0 controls, DEL, C1 controls (U+009B is a one-character CSI), a terminal command,
+# bidi overrides and isolates, zero widths, the BOM, line and paragraph separators
+HOSTILE = ([chr(c) for c in range(0x20)] + ["\x7f"] + [chr(c) for c in range(0x80, 0xA0)]
+           + ["\x1b[2J", "\x1b]0;owned\x07", "\u202e", "\u202a", "\u2066", "\u2069", "\u200e", "\u061c",
+              "\u200b", "\ufeff", "\u2028", "\u2029"])
+
+
+def _yaml(s):
+    """s as a double-quoted YAML scalar (YAML escapes: the file itself stays plain text)."""
+    return '"' + "".join(ch if ch.isprintable() and ch not in '"\\' else f"\\u{ord(ch):04x}" for ch in s) + '"'
+
+
+def _refusal(tmp_path, file="scene.yaml", **place):
+    text = SCENE
+    for k, v in {**GOOD, **place}.items():
+        text = text.replace(k, v)
+    path = tmp_path / file
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ModelError) as e:
+        mbsfmu.load(path)
+    return str(e.value), path
+
+
+def _shown_safely(line, raw):
+    # Python's own notion of printable (Unicode categories) is the reference: nothing else may reach a terminal
+    assert line.isprintable(), repr(line)
+    assert raw not in line
+
+
+@pytest.mark.parametrize("ch", HOSTILE, ids=[f"U+{ord(c[0]):04X}{'…' if len(c) > 1 else ''}" for c in HOSTILE])
+def test_names_keys_and_values_are_escaped(tmp_path, ch):
+    for place in ({"NAME": _yaml(f"hook{ch}")}, {"KEY": _yaml(f"key{ch}")}, {"TYPE": _yaml(f"revolute{ch}")},
+                  {"MASS": _yaml(f"m{ch}")}, {"MASS": _yaml(f"1.0 + m{ch}")}):
+        line, _ = _refusal(tmp_path, **place)
+        _shown_safely(line, ch)
+
+
+@pytest.mark.parametrize("ch", ["\r", "\n", "\x1b[2J", "\x9b", "\u202e", "\x7f", "\t"])
+def test_file_and_data_file_names_are_escaped(tmp_path, ch):
+    line, path = _refusal(tmp_path, file=f"scene{ch}.yaml", MASS="-1")  # a refusal that names the file
+    _shown_safely(line, ch)
+    assert "scene" in line and ":7: bodies.link.mass" in line
+    elastic = SCENE.replace("    KEY: 1\n", f"    elastic: {{nodal: {{file: {_yaml('data' + ch + '.npz')}}}}}\n")
+    for k, v in GOOD.items():
+        elastic = elastic.replace(k, v)
+    path.write_text(elastic, encoding="utf-8")
+    with pytest.raises(ModelError) as e:
+        mbsfmu.load(path)
+    _shown_safely(str(e.value), ch)
+    assert "data" in str(e.value)
+
+
+def test_the_cli_line_is_escaped(tmp_path):
+    """Through `mbsfmu check`: one line on stderr, exit 1, the terminal command shown as text."""
+    path = tmp_path / "scene\x1b[2J.yaml"
+    text = SCENE
+    for k, v in {**GOOD, "NAME": _yaml("hook\r\u202e\x85")}.items():
+        text = text.replace(k, v)
+    path.write_text(text, encoding="utf-8")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        status = main(["check", str(path)])
+    assert status == 1
+    line = err.getvalue()
+    assert line.endswith("\n") and line.count("\n") == 1
+    _shown_safely(line[:-1], "\x1b")
+    assert all(e in line for e in ("\\x1b[2J", "hook\\r\\u202e\\x85"))  # shown as the escapes one would type
+
+
+def test_plain_text_is_unchanged():
+    e = ModelError("unknown key 'ä → ü 😀'", file="C:\\scenes\\x.yaml", line=3, key="bodies.Übung", hint="valid: a")
+    assert str(e) == "C:\\scenes\\x.yaml:3: bodies.Übung: unknown key 'ä → ü 😀' (valid: a)"
