@@ -437,15 +437,98 @@ def test_every_shape_type_draws(browser, tmp_path):
 
 @pytest.mark.slow
 def test_native_fmu_motion_is_drawn(tmp_path):
-    """An FMU run through fmpy: the native FMU does not carry its scene, so it comes with --scene; the rod's
-    drawn rotation follows the exact pendulum solution, and nothing of the viewer travels in the FMU."""
+    """An FMU run through fmpy, here with its scene given (--scene): the rod's drawn rotation follows the exact
+    pendulum solution, and nothing of the viewer travels in the FMU."""
     import zipfile
     fmu = mbsfmu.build_fmu(MODELS / "pendulum.yaml", tmp_path, kind="native")
     assert not [n for n in zipfile.ZipFile(fmu).namelist() if "three" in n.lower() or "animation" in n.lower()]
     out = tmp_path / "fmu.html"
-    assert main(["animate", str(fmu), "-o", str(out)]) == 1  # says: give --scene
     assert main(["animate", str(fmu), "--scene", str(MODELS / "pendulum.yaml"), "--stop", "1.5", "-o", str(out)]) == 0
     _, t, F = page_data(out)
     assert abs(t[-1] - 1.5) < 1e-9
     angle = np.array([math.atan2(R[0, 2], R[0, 0]) for R in (quat_matrix(q) for q in F[:, 3:7])])
     assert np.max(np.abs(angle - pendulum_theta(t))) < 1e-5
+
+
+# -- FMUs animated alone -------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def orphans(tmp_path_factory):
+    """Both kinds built from the pendulum with a box on the bob, the scene file then deleted; and the page that
+    animating the scene gave before."""
+    tmp = tmp_path_factory.mktemp("orphans")
+    scene = _bob_box_scene(tmp)
+    fmus = {kind: mbsfmu.build_fmu(scene, tmp / kind, kind=kind) for kind in ("pythonfmu", "native")}
+    page = mbsfmu.animate(scene, tmp / "scene.html", stop=1.0)
+    scene.unlink()
+    return fmus, page
+
+
+def _same(a, b, path="data"):
+    """Equal JSON data; numbers to 1e-9 (the FMU's run and the in-process run agree to ~1e-12)."""
+    if isinstance(a, float) or isinstance(b, float):
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-12), path
+    elif isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a:
+            _same(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for k, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{path}[{k}]")
+    else:
+        assert a == b, path
+
+
+@pytest.mark.parametrize("kind", ["pythonfmu", "native"])
+def test_an_fmu_alone_animates_like_its_scene(orphans, kind, tmp_path):
+    """`mbsfmu animate X.fmu` as docs/animation.md shows it, with the scene file gone: the page draws the
+    same scene (bodies, links, shapes, sizes, camera) and the same motion as animating the scene did."""
+    fmus, scene_page = orphans
+    out = tmp_path / "fmu.html"
+    assert main(["animate", str(fmus[kind]), "--stop", "1", "-o", str(out)]) == 0
+    want, t0, F0 = page_data(scene_page)
+    got, t, F = page_data(out)
+    assert [s["type"] for b in got["scene"]["bodies"] for s in b["shapes"]] == ["box"]
+    _same({k: got[k] for k in ("name", "description", "stride", "scene")},
+          {k: want[k] for k in ("name", "description", "stride", "scene")})
+    assert np.array_equal(t, t0) and np.allclose(F, F0, atol=1e-6)  # float32 frames
+
+
+def _replaced(fmu, tmp_path, text=None, member="resources/mbsfmu_drawing.json"):
+    """A copy of the FMU whose drawing description is `text` (None: removed)."""
+    import zipfile
+    out = tmp_path / fmu.name
+    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            if item.filename != member:
+                zout.writestr(item, zin.read(item.filename))
+        if text is not None:
+            zout.writestr(member, text)
+    return out
+
+
+def test_foreign_drawing_descriptions_are_refused(orphans, tmp_path, capsys):
+    """The description is foreign data: read bounded, parsed as JSON only, and used only if it compiles to the
+    scene the FMU runs; anything else is one line that says to give --scene, within bounded time."""
+    import zipfile
+    fmu = orphans[0]["pythonfmu"]
+    spec = json.loads(zipfile.ZipFile(fmu).read("resources/mbsfmu_drawing.json"))
+    longer = json.loads(json.dumps(spec))
+    next(p for p in longer["parameters"] if p["name"] == "L")["value"] = 0.9   # another pendulum
+    huge_beam = json.loads(json.dumps(spec))
+    huge_beam["bodies"][1]["elastic"] = {"beam": {"length": 1.0, "EI": [1.0, 1.0], "rhoA": 1.0, "elements": 10**6,
+                                                  "modes": 2, "clamped": "start"}, "coordinates": ["q1", "q2"],
+                                        "damping_ratio": 0.0, "dynamic_stiffening": True, "initial": {}, "initial_velocity": {}}
+    cases = {None: "carries no drawing description", json.dumps(longer): "not the scene it runs",
+             json.dumps(huge_beam): "at most 200", "\x80not json": "cannot read", "[" * 100_000: "cannot read",
+             " " * (100 * 2**20): "larger than", json.dumps([spec]): "cannot read",
+             json.dumps({**spec, "bodies": "x"}): "cannot read", "1" * 10_000: "cannot read"}
+    for text, words in cases.items():
+        bad = _replaced(fmu, tmp_path, text)
+        t0 = time.process_time()
+        assert main(["animate", str(bad), "-o", str(tmp_path / "x.html")]) == 1
+        err = capsys.readouterr().err
+        assert words in err and "--scene" in err and err.count("\n") == 1, err
+        assert time.process_time() - t0 < 3, words
+    assert not (tmp_path / "x.html").exists()

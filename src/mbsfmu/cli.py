@@ -345,7 +345,7 @@ def parser():
     p.add_argument("--input", help="input CSV: a 'time' column, then input names")
     p.add_argument("--result", help="draw this result CSV (from 'mbsfmu simulate --csv') instead of simulating")
     p.add_argument("--fps", type=float, default=60, help="frames kept per simulated second (default: 60)")
-    p.add_argument("--scene", help="for an FMU: the scene it was built from (native FMUs do not carry it)")
+    p.add_argument("--scene", help="for an FMU: draw from this scene (default: the drawing description the FMU carries)")
     p.set_defaults(run=_animate)
     p = sub.add_parser("crosscheck", help="write the FMI cross-check files (<model>.fmu, _ref.csv, _ref.opt, _in.csv)")
     p.add_argument("scene", help="scene file (.yaml)")

@@ -29,8 +29,8 @@ def animate(source, output="animation.html", stop=None, input_csv=None, result_c
     and return its path. The motion is simulated (a scene in process, an FMU with fmpy) until `stop` (default:
     the scene's experiment), with inputs from `input_csv` (a 'time' column, then input names); or read from
     `result_csv` (written by `mbsfmu simulate --csv`: 'time' and 'y.<coordinate>' columns). `scene`: the scene
-    an FMU was built from (needed for FMUs that do not carry it, e.g. native ones; shape files are read
-    next to it)."""
+    an FMU was built from (without it, the drawing description the FMU carries; shape files are read next to
+    the scene, else next to the FMU)."""
     from ..equations.model import Model
     from . import drawing, frames, page, trajectory
     spec, base, fmu = trajectory.load_source(source, scene)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-SPEC_IN_FMU = "resources/mbsfmu_spec.json"
+
 
 
 def read_csv(path, what):
@@ -44,15 +44,41 @@ def from_scene(spec, stop=None, input_csv=None):
 
 
 def fmu_spec(path):
-    """The normalized scene an mbsfmu FMU carries (Python-run FMUs do; native ones carry only compiled data)."""
+    """The normalized scene an mbsfmu FMU carries for drawing (fmu/build.py: drawing_resource). Foreign data:
+    read bounded, parsed as JSON (never unpickled or executed) and accepted only if it compiles to the very
+    scene the FMU runs (its compiled scene, GUID included)."""
+    from fmpy import read_model_description
+    from ..fmu.build import DRAWING_FILE, SCENE_FILE
+    from ..fmu.native import SCENE_FILE as NATIVE_SCENE_FILE
+    from ..simulation import compiled
+    member, spec, problem = f"resources/{DRAWING_FILE}", None, None
     try:
         with zipfile.ZipFile(path) as z:
-            return json.loads(z.read(SPEC_IN_FMU))
-    except KeyError:
-        raise ValueError(f"{path} carries no scene description ({SPEC_IN_FMU}); give the scene it was built "
-                         "from as well (--scene SCENE.yaml)") from None
-    except (zipfile.BadZipFile, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: cannot read the FMU's scene: {e}") from None
+            names = set(z.namelist())
+            text = _read_member(z, member) if member in names else None
+            blob = next((_read_member(z, n) for n in (f"resources/{SCENE_FILE}", f"resources/{NATIVE_SCENE_FILE}")
+                         if n in names), None)
+        if text is None:
+            problem = f"carries no drawing description ({member})"
+        else:
+            spec = json.loads(text)
+            if blob is None or compiled(spec, read_model_description(path).guid)[0] != blob:
+                problem = "its drawing description is not the scene it runs (altered, or built by another mbsfmu version)"
+    except Exception as e:  # noqa: BLE001 - whatever the bytes hold, the answer is one message
+        problem = f"cannot read its drawing description ({type(e).__name__}: {e})"
+    if problem:
+        raise ValueError(f"{path}: {problem}; give the scene it was built from as well (--scene SCENE.yaml)")
+    return spec
+
+
+def _read_member(z, name):
+    """A zip member's bytes, at most limits.DRAWING_BYTES whatever its header claims (no zip bomb unpacks)."""
+    from ..scene.limits import DRAWING_BYTES
+    with z.open(name) as f:
+        data = f.read(DRAWING_BYTES + 1)
+    if len(data) > DRAWING_BYTES:
+        raise ValueError(f"{name} is larger than {DRAWING_BYTES} bytes")
+    return data
 
 
 def from_fmu(path, coordinates, stop=None, input_csv=None):

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.linalg import eigh
 
 from ..errors import ModelError
+from ..scene import limits
 from .nodal import MassPoints, NodalData, damping_from_ratio
 
 GAUSS_XI, GAUSS_W = np.polynomial.legendre.leggauss(4)   # exact for the degree-6 mass integrands
@@ -173,6 +174,8 @@ def beam_from_spec(spec, key="elastic.beam", damping_ratio=0.0, dynamic_stiffeni
         if isinstance(value, bool) or not float(value).is_integer() or value < 1:
             raise ModelError(f"`{name}` must be a positive integer, got {value!r}", key=f"{key}.{name}")
     elements, modes = int(elements), int(modes)
+    if elements > limits.BEAM_ELEMENTS:  # here too: specs also come from FMUs (`mbsfmu animate`), not only from `load`
+        raise ModelError(f"`elements` must be at most {limits.BEAM_ELEMENTS}, got {elements}", key=f"{key}.elements")
     clamped = spec.get("clamped", "start")
     if clamped not in ("start", "none"):
         raise ModelError(f"`clamped` must be `start` or `none`, got {clamped!r}", key=f"{key}.clamped")

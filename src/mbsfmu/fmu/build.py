@@ -9,6 +9,8 @@ The default kind is a pythonfmu FMU: pythonfmu's prebuilt FMI binary (behind mbs
   target with ``cc`` if the library does not load there); no numpy, scipy, YAML or plotting,
 * ``mbsfmu_<name>_<hash>.py`` - the generated slave script (from ``slave.py.in``), which implements the
   slave protocol pythonfmu's binary calls (pythonfmu's Python package is not needed at run time),
+* ``mbsfmu_drawing.json`` - the normalized scene as JSON, for ``mbsfmu animate`` only (both kinds carry it;
+  the FMU never reads it),
 
 and the ``modelDescription.xml`` written here (one writer for both kinds).
 """
@@ -32,6 +34,7 @@ from xml.etree.ElementTree import Element, SubElement, tostring
 
 KINDS = ("pythonfmu", "native")
 SCENE_FILE = "mbsfmu_scene.bin"
+DRAWING_FILE = "mbsfmu_drawing.json"  # in resources/: what `mbsfmu animate FMU` draws from (animation/trajectory.py)
 TEMPLATE = Path(__file__).with_name("slave.py.in")
 SHIM_SOURCE = Path(__file__).with_name("shim.c")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
@@ -213,6 +216,7 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     members.update({f"resources/{SCENE_FILE}": blob, f"resources/{module_name}.py": script.encode("utf-8"),
                     "resources/slavemodule.txt": module_name.encode(),
                     "modelDescription.xml": model_description(spec, name, variables, version, guid=guid)})
+    members.update(drawing_resource(spec))
     members.update(_pythonfmu_binaries(name))
     _slave_loads(members, module_name, rt_package)
     with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as z:
@@ -221,6 +225,19 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     if shim:
         _attach_shim(dest, name)
     return dest
+
+
+def drawing_resource(spec: dict) -> dict[str, bytes]:
+    """{member: bytes} of the drawing description: the normalized scene (the kinematics and shapes the page
+    draws), read back bounded and checked against the compiled scene by `mbsfmu animate`. Nothing when it is
+    larger than limits.DRAWING_BYTES (large nodal data): such FMUs are animated with --scene."""
+    from ..scene.limits import DRAWING_BYTES
+    data = json.dumps(spec, separators=(",", ":")).encode("utf-8")
+    if len(data) > DRAWING_BYTES:
+        warnings.warn(f"{spec['name']}: no drawing description in the FMU ({len(data)} bytes, at most "
+                      f"{DRAWING_BYTES}); animate it with --scene", RuntimeWarning, stacklevel=3)
+        return {}
+    return {f"resources/{DRAWING_FILE}": data}
 
 
 def _pythonfmu_binaries(name: str) -> dict[str, bytes]:

@@ -7,6 +7,7 @@ An FMU holds
 * ``binaries/linux64/<id>.so`` (``cc``) and ``binaries/win64/<id>.dll`` when a MinGW-w64 cross compiler
   (``x86_64-w64-mingw32-gcc``) is installed,
 * ``resources/scene.bin``: the compiled scene (``engine.compile.compile_scene``) with the FMU's GUID,
+* ``resources/mbsfmu_drawing.json``: the scene for ``mbsfmu animate`` (``build.drawing_resource``),
 * ``sources/``: exactly the C files compiled into the binaries (the engine parts the scene needs, fmi2.c,
   the headers they include), listed in ``<SourceFiles>``, plus a CMakeLists.txt and a README,
 * ``modelDescription.xml`` from the same writer as the pythonfmu kind (``build.model_description``).
@@ -29,6 +30,7 @@ ENGINE = Path(__file__).resolve().parent.parent / "engine"
 FMI_LAYER = ENGINE / "fmi2.c"
 SHARED = ("-shared", "-fvisibility=hidden")  # with the engine's CFLAGS: the numbers of the in-process library
 MINGW = "x86_64-w64-mingw32-gcc"
+SCENE_FILE = "scene.bin"  # in resources/: the compiled scene fmi2.c reads
 _INCLUDE = re.compile(rb'^\s*#\s*include\s+"([^"]+)"', re.M)
 
 # Co-simulation capabilities that differ from the pythonfmu kind.
@@ -152,7 +154,7 @@ def build_native(scene, outdir) -> Path:
     """Write ``<outdir>/<name>.fmu`` (native kind) for a loaded scene; returns its path."""
     from ..engine.compile import compile_scene
     from ..simulation import Simulation
-    from .build import _version, model_description
+    from .build import _version, drawing_resource, model_description
 
     spec = json.loads(json.dumps(scene.spec if hasattr(scene, "spec") else scene))
     name = spec["name"]
@@ -166,14 +168,16 @@ def build_native(scene, outdir) -> Path:
     xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
                             source_files=c_names(sources))
     dest = Path(outdir) / f"{name}.fmu"
-    for n in package(dest, name, sources, blob, xml):
+    for n in package(dest, name, sources, blob, xml, drawing_resource(spec)):
         warnings.warn(f"native FMU {name}: {n}", RuntimeWarning, stacklevel=3)
     return dest
 
 
-def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: bytes, xml: bytes) -> list[str]:
+def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: bytes, xml: bytes,
+            extra: dict[str, bytes] | None = None) -> list[str]:
     """Compile the sources into binaries/linux64 (and win64 with MinGW-w64) and write the FMU ``dest``
-    with sources/, resources/scene.bin and the modelDescription. Returns build notes (what is missing)."""
+    with sources/, resources/scene.bin, the modelDescription and the `extra` members. Returns build notes
+    (what is missing)."""
     cc = compiler()
     if cc is None:
         raise RuntimeError("a native FMU needs a C compiler (cc, gcc or clang, or $CC); none was found. "
@@ -189,7 +193,7 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
         src.mkdir()
         for fname, data in sources.items():
             (src / fname).write_bytes(data)
-        members = {"modelDescription.xml": xml, "resources/scene.bin": scene_bin}
+        members = {"modelDescription.xml": xml, f"resources/{SCENE_FILE}": scene_bin, **(extra or {})}
         with ThreadPoolExecutor(2) as pool:  # the two compilers side by side
             jobs = {f"binaries/linux64/{identifier}.so": pool.submit(_binary, src, sources, cc, False)}
             if mingw:
