@@ -10,7 +10,9 @@ import math
 import os
 import sys
 
+from . import __version__
 from .errors import IntegrationError, ModelError, printable
+from .scene.limits import RESULT_POINTS, TABLE_ROWS
 
 EPILOG = """examples:
   mbsfmu build models/double_pendulum.yaml -o out/        # writes out/double_pendulum.fmu
@@ -28,15 +30,42 @@ EPILOG = """examples:
 
 documentation: docs/README.md (scene format, FMU interface, Python API, integrators, this command line)
 """
-TABLE_ROWS = 20  # rows the stdout table shows at most (every n-th row beyond that)
-MAX_POINTS = 10_000_000  # communication points one simulate command may ask for
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse whose usage errors are one line."""
+class CommandParser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line, naming the (sub)command's own help, with the closest option
+    for an unknown one. Every command's parser is one of these (subcommands, bench and stress too)."""
 
     def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        import re
+        if message.startswith(_UNKNOWN):
+            message += self.suggestions(w.split("=")[0] for w in message[len(_UNKNOWN):].split() if w.startswith("-"))
+        choice = re.match(r"argument .*: invalid choice: '(.*)' \(choose from (.*)\)$", message)
+        if choice:  # a mistyped command or --kind/--method value
+            message += self.suggestions([choice.group(1)], re.findall(r"'([^']*)'", choice.group(2)))
+        self.exit(2, printable(f"{self.prog}: error: {message} (see {self.prog} --help)") + "\n")
+
+    def suggestions(self, words, valid=None):
+        """' (did you mean --stop?)' for the mistyped `words` among `valid` (default: this parser's options)."""
+        import difflib
+        valid = list(valid if valid is not None else (o for o in self._option_string_actions if o.startswith("--")))
+        close = [m[0] for w in words for m in [difflib.get_close_matches(w, valid, n=1, cutoff=0.6)] if m]
+        return f" (did you mean {', '.join(close)}?)" if close else ""
+
+    def unknown_before_command(self, argv):
+        """Refuse options before the command that this parser does not know (prefixes of its own are fine):
+        otherwise argparse only says that the command is missing."""
+        head = []
+        for a in argv:
+            if not a.startswith("-"):
+                break
+            head.append(a)
+        unknown = [a for a in head if not any(o.startswith(a.split("=")[0]) for o in self._option_string_actions)]
+        if unknown:
+            self.error(_UNKNOWN + " ".join(unknown))
+
+
+_UNKNOWN = "unrecognized arguments: "
 
 
 def _seconds(text):
@@ -140,8 +169,8 @@ def _check_times(start, stop, step):
         raise ValueError(f"--stop {stop:g} must come after the start time {start:g}")
     if step > stop - start:
         raise ValueError(f"--step {step:g} is longer than the run ({start:g} to {stop:g} s)")
-    if (stop - start) / step > MAX_POINTS:
-        raise ValueError(f"{(stop - start) / step:.3g} communication points: use a larger --step (at most {MAX_POINTS:g} points)")
+    if (stop - start) / step > RESULT_POINTS:
+        raise ValueError(f"{(stop - start) / step:.3g} communication points: use a larger --step (at most {RESULT_POINTS:,} points)")
 
 
 def _run_scene(path, args):
@@ -205,18 +234,11 @@ def _run_fmu(path, args):
 
 
 def _read_input_csv(path, md):
-    """A structured array for fmpy's ``input=``: a ``time`` column plus FMU input names."""
-    import numpy as np
-    data = np.genfromtxt(path, delimiter=",", names=True, deletechars="", dtype=float)
-    names = data.dtype.names or ()
-    if not names or names[0] != "time":
-        raise ValueError(f"{path}: the first column must be 'time' (got {names[:1]})")
-    inputs = {v.name for v in md.modelVariables if v.causality == "input"}
-    unknown = [n for n in names[1:] if n not in inputs]
-    if unknown:
-        raise ValueError(f"{path}: not inputs of {md.modelName}: {', '.join(unknown)} "
-                         f"(inputs: {', '.join(sorted(inputs)) or 'none'})")
-    return np.atleast_1d(data)
+    """A structured array for fmpy's ``input=``: a ``time`` column plus FMU input names, every cell a number."""
+    from .csvfile import check_inputs, read_csv
+    names, _, data = read_csv(path, "input")
+    check_inputs(path, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
+    return data
 
 
 def _select(names, patterns):
@@ -236,7 +258,7 @@ def _select(names, patterns):
 def _print_table(t, cols, names):
     import numpy as np
     n = len(t)
-    every = max(1, math.ceil((n - 1) / TABLE_ROWS))
+    every = max(1, math.ceil((n - 1) / (TABLE_ROWS - 1)))  # with the last row: at most TABLE_ROWS
     rows = sorted(set(range(0, n, every)) | {n - 1})
     if every > 1:
         last = " and the last" if (n - 1) % every else ""
@@ -305,9 +327,11 @@ def _allow_outside(p):
 
 
 def parser():
-    top = _Parser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
+    top = CommandParser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
                   epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    top.add_argument("--version", action="version", version=f"mbsfmu {__version__}")
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    top.commands = sub.choices  # name → the command's parser: its errors name its help
     p = sub.add_parser("build", help="build FMUs from scene files")
     p.add_argument("scene", nargs="+", help="scene files (.yaml)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
@@ -322,7 +346,8 @@ def parser():
     p.set_defaults(run=_check)
     p = sub.add_parser("simulate", help="simulate a scene (in-process) or an FMU (fmpy)",
                        description="Simulate a scene in-process, or an FMU with fmpy. Without --csv or --plot "
-                                   f"a table of at most {TABLE_ROWS} rows goes to stdout.")
+                                   f"a table of at most {TABLE_ROWS} rows goes to stdout. A run keeps at most "
+                                   f"{RESULT_POINTS:,} communication points ((stop - start) / step).")
     p.add_argument("model", help="scene file (.yaml) or FMU (.fmu)")
     p.add_argument("--stop", type=_seconds, default=None, help="end time in s (default: the experiment's stop)")
     p.add_argument("--step", type=_seconds, default=None,
@@ -371,16 +396,30 @@ def parser():
 def parse(argv=None):
     """Command line → argparse namespace (`bench` and `stress` keep their arguments for their own parsers)."""
     top = parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    top.unknown_before_command(argv)
     args, extra = top.parse_known_args(argv)
     if args.command in ("bench", "stress"):  # their own parsers read options, --help included
         args.rest = extra + list(args.rest)
-    elif extra:
-        top.error(f"unrecognized arguments: {' '.join(extra)}")
+    elif extra:  # told by the command's parser: its help, its options
+        top.commands[args.command].error(_UNKNOWN + " ".join(extra))
     return args
 
 
 def main(argv=None):
+    import warnings
     args = parse(argv)
+    with warnings.catch_warnings():
+        warnings.showwarning = _note  # restored on return
+        return _run(args)
+
+
+def _note(message, category, filename, lineno, file=None, line=None):
+    """A warning (no MinGW for win64 binaries, ...) is a note to the user: one plain line, no source line."""
+    print(printable(f"note: {message}"), file=sys.stderr)
+
+
+def _run(args):
     try:
         status = args.run(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit

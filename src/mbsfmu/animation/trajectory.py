@@ -7,29 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-
-
-def read_csv(path, what):
-    """A CSV with a header row whose first column is 'time' → (names, time, columns)."""
-    try:
-        data = np.genfromtxt(path, delimiter=",", names=True, deletechars="", dtype=float)
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{path}: cannot read the {what} CSV: {e}") from None
-    data = np.atleast_1d(data)
-    names = data.dtype.names or ()
-    if not names or names[0] != "time":
-        raise ValueError(f"{path}: the first column of the {what} CSV must be 'time' (got {names[:1]})")
-    t = data["time"]
-    if len(t) == 0 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
-        raise ValueError(f"{path}: the {what} CSV's times must be finite and non-decreasing")
-    return list(names[1:]), t, data
-
-
-def _check_inputs(path, names, valid, model_name):
-    unknown = [n for n in names if n not in valid]
-    if unknown:
-        raise ValueError(f"{path}: not inputs of {model_name}: {', '.join(unknown)} (inputs: {', '.join(sorted(valid)) or 'none'})")
+from ..csvfile import check_inputs, read_csv
 
 
 def from_scene(spec, stop=None, input_csv=None):
@@ -38,7 +16,7 @@ def from_scene(spec, stop=None, input_csv=None):
     inputs = None
     if input_csv:
         names, t_in, data = read_csv(input_csv, "input")
-        _check_inputs(input_csv, names, compile(spec).inputs, spec["name"])
+        check_inputs(input_csv, names, compile(spec).inputs, spec["name"])
         inputs = lambda t: {n: float(np.interp(t, t_in, data[n])) for n in names}  # noqa: E731
     return simulate(spec, stop=stop, inputs=inputs)
 
@@ -88,7 +66,7 @@ def from_fmu(path, coordinates, stop=None, input_csv=None):
     inp = None
     if input_csv:
         names, _, inp = read_csv(input_csv, "input")
-        _check_inputs(input_csv, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
+        check_inputs(input_csv, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
     outputs = [f"y.{c}" for c in coordinates]
     missing = set(outputs) - {v.name for v in md.modelVariables if v.causality == "output"}
     if missing:

@@ -238,7 +238,8 @@ def markdown(rows, quick):
 
 
 def stress_main(argv=None):
-    p = argparse.ArgumentParser(prog="mbsfmu stress", description="Numerical stability suite")
+    from ..cli import CommandParser
+    p = CommandParser(prog="mbsfmu stress", description="Numerical stability suite")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--quick", action="store_true", help="shorter runs and fewer methods")
     p.add_argument("--cases", nargs="+", default=None, help="subset of: " + " ".join(c.name for c in cases()))

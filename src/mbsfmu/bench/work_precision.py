@@ -478,7 +478,8 @@ def summary(rows, spec, ts, ref_cpu, floor, notes, head=None):
 
 
 def bench_main(argv=None):
-    p = argparse.ArgumentParser(prog="mbsfmu bench", description="Work-precision benchmark of one scene")
+    from ..cli import CommandParser
+    p = CommandParser(prog="mbsfmu bench", description="Work-precision benchmark of one scene")
     p.add_argument("scene")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--quick", action="store_true", help="3 tolerances, 2 fixed steps")

@@ -1,4 +1,5 @@
-"""Bounds on the work a scene file may ask for (issue 12): every hostile input is refused early and cheaply.
+"""Bounds on the work a scene file (or a command) may ask for (issue 12): every hostile input is refused early
+and cheaply. The one source of these numbers: messages, `--help` and docs/ quote them from here.
 
 Each limit is far above what a hand-written scene or a real elastic body needs.
 """
@@ -24,6 +25,8 @@ RTOL = (1e-14, 1.0)             # integrator.rtol: below 1e-14 no double-precisi
 MAGNITUDE = (1e-100, 1e100)     # a nonzero constant (a mass, a length, a tolerance): its products stay finite and normal
 AXIS_LENGTH = (1e-9, 1e100)     # joint and rotation axes: a direction needs a length that squares safely
 COMMUNICATION_POINTS = 1e8      # (stop - start) / step of the experiment
+RESULT_POINTS = 10_000_000      # communication points a run keeps in memory (`mbsfmu simulate`, a sweep case)
+TABLE_ROWS = 21                 # rows the table of `mbsfmu simulate` shows at most (every n-th and the last)
 DOMAIN_SAMPLES = 257            # times in [start, stop] at which drives and forces (and derivatives) are evaluated
 
 

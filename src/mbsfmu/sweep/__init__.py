@@ -10,7 +10,6 @@ import math
 from pathlib import Path
 
 RESERVED = ("case", "status", "wall_time")  # result columns besides the varied names and the outputs
-MAX_POINTS = 10_000_000                     # communication points per case: bounded work and memory
 
 
 def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outputs=None, inputs=None,
@@ -173,6 +172,7 @@ def _times(info, stop, step):
         raise ValueError(f"step must be positive, got {step}")
     import numpy as np
     n = math.ceil((stop - t0) / step - 1e-9)
-    if n > MAX_POINTS:
-        raise ValueError(f"{n} communication points per case (stop {stop}, step {step}); at most {MAX_POINTS}")
+    from ..scene.limits import RESULT_POINTS  # bounded work and memory per case
+    if n > RESULT_POINTS:
+        raise ValueError(f"{n} communication points per case (stop {stop}, step {step}); at most {RESULT_POINTS:,}")
     return np.linspace(t0, stop, n + 1)

@@ -1,0 +1,7 @@
+"""`python -m mbsfmu ...`: the `mbsfmu` command (cli.py)."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())
