@@ -197,3 +197,41 @@ def test_native_fmu_validates_and_has_the_same_variables(tmp_path):
     assert validate_fmu(str(native)) == []
     python = mbsfmu.build_fmu(path, tmp_path / "python")
     assert _variables(native) == _variables(python)
+
+
+def test_limits_are_quoted_from_scene_limits(capsys):
+    """`simulate --help`, docs/cli.md and the README state the table rows and result points of scene/limits.py
+    (one source), and the table shows at most that many rows."""
+    from mbsfmu.cli import _print_table
+    from mbsfmu.scene import limits
+    with pytest.raises(SystemExit):
+        parse(["simulate", "--help"])
+    helptext = " ".join(capsys.readouterr().out.split())
+    cli_md = " ".join((DOCS / "cli.md").read_text(encoding="utf-8").split())
+    readme = " ".join((REPO / "README.md").read_text(encoding="utf-8").split())
+    for text in (helptext, cli_md):
+        assert f"at most {limits.TABLE_ROWS} rows" in text and f"at most {limits.RESULT_POINTS:,} communication points" in text
+    assert f"keeps at most {limits.RESULT_POINTS:,}" in readme
+    exponent = "".join("⁰¹²³⁴⁵⁶⁷⁸⁹"[int(d)] for d in str(round(math.log10(limits.COMMUNICATION_POINTS))))
+    assert f"≤ 10{exponent} communication points" in readme
+    for n in (1, 2, 20, 21, 22, 41, 201, 1000, 1001):
+        _print_table(np.arange(n, dtype=float), np.zeros((n, 0)), [])
+        rows = capsys.readouterr().out.splitlines()
+        shown = [r for r in rows if not r.startswith("#")][1:]  # after the header
+        assert shown[-1] == f"{n - 1:g}" and (len(shown) == n if n <= limits.TABLE_ROWS else len(shown) <= limits.TABLE_ROWS)
+        assert n <= limits.TABLE_ROWS or rows[0].startswith(f"# showing {len(shown)} of {n} rows")
+
+
+def test_no_python_block_writes_one_fmu_twice():
+    """An FMU is named after its scene: two build_fmu calls of one scene into one folder (say, both kinds into
+    out/) silently replace the first; no documented block does that."""
+    import ast
+    for page in PAGES:
+        for code in blocks(page, "python"):
+            targets = []
+            for call in ast.walk(ast.parse(code)):
+                if isinstance(call, ast.Call) and getattr(call.func, "attr", None) == "build_fmu":
+                    args = [a.value for a in call.args[:2] if isinstance(a, ast.Constant)]
+                    if len(args) == 2:
+                        targets.append((Path(args[0]).stem, Path(args[1])))
+            assert len(targets) == len(set(targets)), f"{page.name}: {targets}"

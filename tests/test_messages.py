@@ -3,6 +3,7 @@ control, format and bidi characters as escapes, so nothing from a file acts on t
 one plain line."""
 
 import contextlib
+import re
 import io
 
 import pytest
@@ -95,3 +96,55 @@ def test_the_cli_line_is_escaped(tmp_path):
 def test_plain_text_is_unchanged():
     e = ModelError("unknown key 'ä → ü 😀'", file="C:\\scenes\\x.yaml", line=3, key="bodies.Übung", hint="valid: a")
     assert str(e) == "C:\\scenes\\x.yaml:3: bodies.Übung: unknown key 'ä → ü 😀' (valid: a)"
+
+
+# -- numeric fields: what was expected, in plain words ------------------------------------------------------
+
+def _numeric_leaves(node, path=()):
+    """Paths of every number in a scene document (each sits in a numeric field)."""
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _numeric_leaves(v, path + (k,))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _numeric_leaves(v, path + (i,))
+    elif isinstance(node, (int, float)) and not isinstance(node, bool) and path != ("mbsfmu",):
+        yield path
+
+
+def _key(path):
+    return "".join(f"[{k}]" if isinstance(k, int) else f".{k}" for k in path).lstrip(".")
+
+
+NOT_NUMBERS = {"[1.0]": [1.0], "empty": None, "yes": True, "{a: 1}": {"a": 1}}
+
+
+@pytest.mark.parametrize("model", ["spring_damper", "flexible_pendulum", "pendulum_with_shape"])
+def test_every_numeric_field_says_what_was_expected(model):
+    """Each number of a shipped scene replaced by a list, nothing, `yes` or a mapping: the message names that
+    field and says in words what was expected (never a reader's type name such as Seq, NoneType or True)."""
+    import yaml
+    from pathlib import Path
+    models = Path(__file__).resolve().parent.parent / "models"
+    text = (models / f"{model.replace('_with_shape', '')}.yaml").read_text()
+    if model.endswith("_with_shape"):
+        text = text.replace("    mass: m_bob\n", "    mass: m_bob\n    shape: {type: box, size: [0.1, 0.1, 0.1], at: [0, 0, 0.1],"
+                            " rotation: {axis: [0, 0, 1], angle: 0.5}, opacity: 0.5}\n")
+    doc = yaml.safe_load(text)
+    paths = list(_numeric_leaves(doc))
+    assert len(paths) > 20
+    for path in paths:
+        for shown, bad in NOT_NUMBERS.items():
+            broken = yaml.safe_load(text)
+            parent = broken
+            for k in path[:-1]:
+                parent = parent[k]
+            parent[path[-1]] = bad
+            if bad is None and path[-1] == "node":
+                continue  # null: no node (a rigid point), a valid value
+            with pytest.raises(ModelError) as e:
+                mbsfmu.loads(yaml.safe_dump(broken))
+            msg = str(e.value)
+            assert e.value.key == _key(path) or _key(path).startswith((e.value.key + "[", e.value.key + ".")), (path, msg)
+            assert re.search(r"a number or an expression was expected|must be a finite number|integer", msg), (path, shown, msg)
+            assert not re.search(r"\b(Seq|Map|NoneType|None|True|False|bool|dict)\b", e.value.message), (path, shown, msg)

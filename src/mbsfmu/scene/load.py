@@ -103,6 +103,28 @@ _EXPR_HINT = ("an expression may use numbers, parameters, pi, + - * / ^ ** and p
               + ", ".join(FUNCTIONS) + "; it is parsed, never executed")
 
 
+_NUMBER_HINT = "write a number (1.5, 2e-3) or an expression over parameters (m_rod/2, pi/6)"
+
+
+def _shown(value):
+    """A YAML value as the file gave it, for messages: what was written, never the reader's type names."""
+    if value is None:
+        return "nothing (an empty value or null)"
+    if isinstance(value, bool):  # YAML 1.1: yes/no, true/false, on/off
+        return f"{'true' if value else 'false'} (YAML reads yes/no, on/off and true/false so)"
+    if isinstance(value, Date):
+        return f"the date '{value}'"
+    if isinstance(value, list):
+        return f"a list ({_brief(json.dumps(value, default=str))})"
+    if isinstance(value, dict):
+        return f"a mapping ({_brief(json.dumps(value, default=str))})"
+    return f"'{_brief(str(value))}'" if isinstance(value, str) else _brief(repr(value))
+
+
+def _brief(text, n=60):
+    return text if len(text) <= n else text[:n - 5] + " … "
+
+
 def _known(name, names):
     """`name` is one of `names` (a dict or set); a list or mapping given as a name is not."""
     return isinstance(name, str) and name in names
@@ -169,6 +191,8 @@ class _Checker:
         value = parent[key]
         if isinstance(value, Date):
             self.fail(parent, key, path, f"'{value}' reads as a date, not a number", "write the number; quote an expression that looks like a date")
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            self.fail(parent, key, path, f"a number or an expression was expected, got {_shown(value)}", _NUMBER_HINT)
         if isinstance(value, str) and len(value) > limits.EXPRESSION_CHARS:
             self.fail(parent, key, path, f"an expression of {len(value):,} characters (at most {limits.EXPRESSION_CHARS})")
         if isinstance(value, str) and not value.isascii():
@@ -208,7 +232,7 @@ class _Checker:
     def vector(self, parent, key, path, n=3, nonzero=False, allow_t=False):
         v = parent[key]
         if not isinstance(v, list) or len(v) != n:
-            self.fail(parent, key, path, f"expected a list of {n} numbers, got {v!r}")
+            self.fail(parent, key, path, f"a list of {n} numbers or expressions was expected, got {_shown(v)}", _NUMBER_HINT)
         out = [self.number(v, i, f"{path}[{i}]", allow_t=allow_t, magnitude=not nonzero) for i in range(n)]
         if nonzero:  # a direction: normalized by the run time, so its length must square without under- or overflow
             length = math.hypot(*[self.value(x) for x in out])
@@ -240,7 +264,17 @@ class _Checker:
             return {"matrix": m}
         if "axis" not in node or "angle" not in node:
             self.fail(parent, key, path, "a rotation needs 'axis' and 'angle' (radians), or 'matrix'")
-        return {"axis": self.vector(node, "axis", path + ".axis", nonzero=True), "angle": self.number(node, "angle", path + ".angle")}
+        return {"axis": self.vector(node, "axis", path + ".axis", nonzero=True), "angle": self.angle(node, "angle", path + ".angle")}
+
+    def angle(self, parent, key, path):
+        """An angle, in radians. A value beyond a full turn not written in terms of pi (90, a parameter of 45)
+        is most likely meant in degrees: refused, with the radians to write."""
+        value = self.number(parent, key, path)
+        v = self.value(value)
+        if abs(v) > 2 * math.pi and "pi" not in re.findall(r"[A-Za-z_]\w*", str(value)):
+            self.fail(parent, key, path, f"{v:g} is more than a full turn: angles are in radians",
+                      f"for {v:g} degrees write {v:g}*pi/180; several turns in radians: write them with pi (e.g. 4*pi)")
+        return value
 
     def name(self, parent, key, path, pattern=_NAME, what="a name"):
         v = parent[key]
@@ -316,7 +350,7 @@ class _Checker:
                 except ValueError:
                     pass
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                self.fail(node, name, path, f"a parameter value must be a finite number, got {v!r}",
+                self.fail(node, name, path, f"a parameter value must be a finite number, got {_shown(v)}",
                           "a parameter is a plain number such as 1.5 or 2e-3; expressions belong in the fields that use it")
             self.params[name] = float(v)
             out.append({"name": name, "value": float(v), "description": desc, **({"unit": unit} if unit else {})})
@@ -493,7 +527,8 @@ class _Checker:
                 if c == "rotation" and kind in ("spherical", "free"):
                     out["initial_rotation"] = self.rotation(ini, "rotation", path + ".initial.rotation")
                 elif c in pos and not (quat and c in pos[-4:]):
-                    out["initial"][c] = self.number(ini, c, f"{path}.initial.{c}")
+                    is_angle = _default_coordinates(kind, "", param)[0][pos.index(c)] in _ANGLE_NAMES
+                    out["initial"][c] = (self.angle if is_angle else self.number)(ini, c, f"{path}.initial.{c}")
                 else:
                     valid = [p for p in pos if not (quat and p in pos[-4:])] + (["rotation"] if kind in ("spherical", "free") else [])
                     self.fail(ini, c, f"{path}.initial.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
@@ -559,7 +594,7 @@ class _Checker:
             for k, default, most in (("elements", 10, limits.BEAM_ELEMENTS), ("modes", 4, None)):
                 v = b.get(k, default)
                 if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                    self.fail(b, k, f"{bp}.{k}", f"must be a positive integer, got {v!r}")
+                    self.fail(b, k, f"{bp}.{k}", f"must be a positive integer, got {_shown(v)}")
                 if most and v > most:
                     self.fail(b, k, f"{bp}.{k}", f"at most {most} elements (the generator's FE matrices are dense)",
                               "a few dozen elements resolve the lowest modes; or give nodal data from an FE program")
@@ -629,8 +664,10 @@ class _Checker:
     def node_index(self, parent, key, path, body, node):
         """A `node:` index on elastic body `body`: in [-N, N - 1] (negative counts from the end)."""
         N = self.node_count.get(body)
-        if N is None or isinstance(node, bool) or not isinstance(node, int):
-            self.fail(parent, key, path, f"node {node!r} on '{body}': nodes exist only on elastic bodies, as integer indices")
+        if N is None:
+            self.fail(parent, key, path, f"'{body}' has no nodes: nodes exist only on elastic bodies")
+        if isinstance(node, bool) or not isinstance(node, int):
+            self.fail(parent, key, path, f"a node index (an integer) was expected, got {_shown(node)}", f"use 0 … {N - 1}, or -1 … {-N} from the end")
         if not -N <= node < N:
             self.fail(parent, key, path, f"node {node} does not exist: '{body}' has {N} nodes", f"use 0 … {N - 1}, or -1 … {-N} from the end")
         return node
@@ -819,6 +856,9 @@ class _Checker:
             (var, first, first_path), (_, second, second_path) = clash
             self.fail_at(second_path, f"{second} and {first} both make the FMU variable '{var}' (line {self.line_of(first_path)})",
                          "rename one of them")
+
+
+_ANGLE_NAMES = {".angle", ".angle1", ".angle2", ".a", ".b", ".c"}  # the default names of angle coordinates
 
 
 def _default_coordinates(kind, name, param):
