@@ -226,3 +226,93 @@ def test_stress_without_out_writes_a_fresh_folder(tmp_path):
     made = [p for p in tmp_path.iterdir() if p.name.startswith("stress-")]
     assert len(made) == 1 and (made[0] / "stress.md").is_file()
     assert f"output folder: {made[0].name}/" in r.stdout
+
+
+# -- what a new user hit -------------------------------------------------------------------------------------
+
+def test_version_and_python_dash_m():
+    """`mbsfmu --version` and `python -m mbsfmu` (same command) print the installed distribution's version."""
+    from importlib.metadata import version
+    r = subprocess.run([sys.executable, "-m", "mbsfmu", "--version"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.strip() == f"mbsfmu {version('mbsfmu')}", r
+    r = subprocess.run([sys.executable, "-m", "mbsfmu", "check", str(PENDULUM)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.startswith("pendulum: 2 bodies"), r
+
+
+def _commands():
+    """Every command with arguments that reach its option parsing, and one of its long options."""
+    from mbsfmu.cli import parser
+    top = parser()
+    for name, p in top.commands.items():
+        if name in ("bench", "stress"):
+            continue
+        positional = [str(PENDULUM)] * sum(1 for a in p._actions if not a.option_strings and a.nargs != 0)
+        options = sorted(o for o in p._option_string_actions if o.startswith("--") and o != "--help")
+        yield name, positional, options
+    yield "bench", [str(PENDULUM)], ["--quick", "--methods", "--out"]
+    yield "stress", [], ["--quick", "--cases", "--methods"]
+
+
+@pytest.mark.parametrize("name, positional, options", list(_commands()), ids=lambda x: x if isinstance(x, str) else "")
+def test_a_mistyped_option_points_to_the_commands_help(name, positional, options, capsys, tmp_path, monkeypatch):
+    """Every command, every long option with one letter dropped (--stp): one line naming the command's own
+    help and the option meant."""
+    from mbsfmu.cli import main
+    monkeypatch.chdir(tmp_path)  # bench and stress name a fresh folder here (not created on a usage error)
+    for option in options:
+        typo = option[:3] + option[4:]
+        if any(o.startswith(typo) for o in options):  # argparse takes unambiguous prefixes as they are
+            continue
+        with pytest.raises(SystemExit) as e:
+            main([name, *positional, typo])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and err.count("\n") == 1, err
+        assert err.startswith(f"mbsfmu {name}: error: unrecognized arguments: {typo}") and f"did you mean {option}?" in err, err
+        assert err.rstrip().endswith(f"(see mbsfmu {name} --help)"), err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("args, meant", [(["--verison"], "--version"), (["simulat", "x"], "simulate"),
+                                         (["build", "--kind", "natve", "x"], "native")])
+def test_mistyped_commands_and_choices_get_a_suggestion(args, meant, capsys):
+    from mbsfmu.cli import main
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and f"did you mean {meant}?" in err, err
+
+
+@pytest.mark.parametrize("cell, words", [("abc", "'abc' is not a finite number"), ("", "an empty cell"),
+                                         ("nan", "'nan' is not a finite number"), ("1e999", "'1e999'")])
+def test_input_csv_cells_must_be_numbers(cell, words, fmu, tmp_path, capsys):
+    """A cell that is not a number stops `simulate --input` (scene and FMU) and `animate --input/--result`
+    with its row and column: it never becomes NaN, and nothing is written."""
+    from mbsfmu.cli import main
+    bad = tmp_path / "in.csv"
+    bad.write_text(f"time,q.phi1\n0,1\n0.5,{cell}\n1,0\n")
+    out = tmp_path / "out.csv"
+    for args in (["simulate", str(fmu), "--input", str(bad), "--csv", str(out)],
+                 ["simulate", str(MODEL), "--input", str(bad), "--csv", str(out)],
+                 ["animate", str(MODEL), "--input", str(bad), "-o", str(tmp_path / "a.html")]):
+        assert main(args) == 1
+        err = capsys.readouterr().err
+        assert f"{bad}:3: column 'q.phi1'" in err and words in err and err.count("\n") == 1, err
+    result = tmp_path / "r.csv"
+    result.write_text(f"time,y.phi1,y.phi2\n0,0,0\n0.1,{cell},0\n")
+    assert main(["animate", str(MODEL), "--result", str(result), "-o", str(tmp_path / "a.html")]) == 1
+    assert f"{result}:3: column 'y.phi1'" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.csv", "r.csv"]
+
+
+def test_missing_mingw_is_one_plain_note(tmp_path, monkeypatch, capsys):
+    """Building a native FMU without the Windows cross compiler: a note of one line, no Python warning
+    text or source line."""
+    import shutil as sh
+    from mbsfmu.cli import main
+    from mbsfmu.fmu import native
+    which = sh.which
+    monkeypatch.setattr(native.shutil, "which", lambda name, *a, **k: None if name == native.MINGW else which(name, *a, **k))
+    assert main(["build", "--kind", "native", str(PENDULUM), "-o", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("note: native FMU pendulum: no binaries/win64"), err
+    assert "Warning" not in err and ".py:" not in err

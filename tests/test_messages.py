@@ -5,6 +5,7 @@ one plain line."""
 import contextlib
 import re
 import io
+import math
 
 import pytest
 
@@ -148,3 +149,73 @@ def test_every_numeric_field_says_what_was_expected(model):
             assert e.value.key == _key(path) or _key(path).startswith((e.value.key + "[", e.value.key + ".")), (path, msg)
             assert re.search(r"a number or an expression was expected|must be a finite number|integer", msg), (path, shown, msg)
             assert not re.search(r"\b(Seq|Map|NoneType|None|True|False|bool|dict)\b", e.value.message), (path, shown, msg)
+
+
+# -- angles: radians, and no silent degrees -----------------------------------------------------------------
+
+JOINT = """mbsfmu: 1
+name: j
+parameters: {a45: 45, L: 0.5}
+gravity: [0, 0, -9.81]
+bodies:
+  b:
+    parent: world
+    joint: {type: KIND, EXTRA, initial: {INITIAL}}
+    mass: 1
+    inertia: {xx: 1, yy: 1, zz: 1}
+"""
+# the contract's table (docs/scene-format.md): position coordinates in order, True for an angle
+COORDINATES = {
+    "revolute": ("axis: [0, 0, 1]", {"b.angle": True}),
+    "prismatic": ("axis: [0, 0, 1]", {"b.s": False}),
+    "cylindrical": ("axis: [0, 0, 1]", {"b.s": False, "b.angle": True}),
+    "universal": ("axes: [[1, 0, 0], [0, 1, 0]]", {"b.angle1": True, "b.angle2": True}),
+    "planar": ("axes: [[1, 0, 0], [0, 1, 0]]", {"b.x": False, "b.y": False, "b.angle": True}),
+    "spherical": ("parameterization: cardan", {"b.a": True, "b.b": True, "b.c": True}),
+    "free": ("parameterization: cardan", {"b.x": False, "b.y": False, "b.z": False, "b.a": True, "b.b": True, "b.c": True}),
+}
+
+
+def _joint(kind, initial, extra=None):
+    return (JOINT.replace("KIND", kind).replace("EXTRA", extra or COORDINATES[kind][0])
+            .replace("INITIAL", initial))
+
+
+@pytest.mark.parametrize("kind", COORDINATES)
+def test_angle_coordinates_refuse_degrees_and_take_radians(kind):
+    """Every angle coordinate: 90 (degrees, surely) is refused with the radians to write; pi/2, 4*pi and 6 are
+    taken as radians (the initial state holds them); a length coordinate takes 90 (metres)."""
+    for coord, is_angle in COORDINATES[kind][1].items():
+        for value in ("90", "-180", "a45"):
+            text = _joint(kind, f"{coord}: {value}")
+            if not is_angle:
+                mbsfmu.loads(text)
+                continue
+            with pytest.raises(ModelError) as e:
+                mbsfmu.loads(text)
+            assert e.value.key == f"bodies.b.joint.initial.{coord}" and "radians" in str(e.value), str(e.value)
+            assert re.search(r"write -?\d+\*pi/180", str(e.value)), str(e.value)
+        if is_angle:
+            for value, radians in (("pi/2", math.pi / 2), ("4*pi", 4 * math.pi), ("6", 6.0)):
+                ev = mbsfmu.compile(mbsfmu.loads(_joint(kind, f"{coord}: {value}")))
+                assert ev.initial_state()[0][ev.coordinates.index(coord)] == pytest.approx(radians, rel=1e-15)
+
+
+@pytest.mark.parametrize("where", ["joint", "shape", "initial"])
+def test_rotation_angles_refuse_degrees(where):
+    """Every {axis, angle} rotation (joint frames, shapes, initial rotations) reads radians; 90 is refused."""
+    def scene(angle):
+        rot = f"{{axis: [0, 0, 1], angle: {angle}}}"
+        if where == "joint":
+            return _joint("revolute", "", f"axis: [0, 0, 1], rotation: {rot}"), "bodies.b.joint.rotation.angle"
+        if where == "initial":
+            return _joint("spherical", f"rotation: {rot}", "parameterization: quaternion"), "bodies.b.joint.initial.rotation.angle"
+        return (_joint("revolute", "") + f"    shape: {{type: sphere, radius: L, rotation: {rot}}}\n",
+                "bodies.b.shape.rotation.angle")
+    for bad in ("90", "a45", "-7"):
+        text, key = scene(bad)
+        with pytest.raises(ModelError) as e:
+            mbsfmu.loads(text)
+        assert e.value.key == key and "radians" in str(e.value)
+    for good in ("pi/2", "6.2", "-2*pi"):
+        mbsfmu.loads(scene(good)[0])

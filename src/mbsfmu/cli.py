@@ -52,17 +52,22 @@ class CommandParser(argparse.ArgumentParser):
         close = [m[0] for w in words for m in [difflib.get_close_matches(w, valid, n=1, cutoff=0.6)] if m]
         return f" (did you mean {', '.join(close)}?)" if close else ""
 
-    def unknown_before_command(self, argv):
-        """Refuse options before the command that this parser does not know (prefixes of its own are fine):
-        otherwise argparse only says that the command is missing."""
-        head = []
-        for a in argv:
-            if not a.startswith("-"):
-                break
-            head.append(a)
-        unknown = [a for a in head if not any(o.startswith(a.split("=")[0]) for o in self._option_string_actions)]
+    def refuse_unknown(self, words):
+        """Refuse the options among `words` that this parser does not know (argparse's unambiguous prefixes are
+        known), before argparse would report a missing argument instead of the typo behind it."""
+        unknown = [w for w in words if _is_option(w)
+                   and not any(o.startswith(w.split("=")[0]) for o in self._option_string_actions)]
         if unknown:
             self.error(_UNKNOWN + " ".join(unknown))
+
+
+def _is_option(word):
+    """'--stp' or '-x', not '-' or a negative number (a value)."""
+    try:
+        float(word)
+        return False
+    except ValueError:
+        return word.startswith("-") and word != "-"
 
 
 _UNKNOWN = "unrecognized arguments: "
@@ -397,7 +402,11 @@ def parse(argv=None):
     """Command line → argparse namespace (`bench` and `stress` keep their arguments for their own parsers)."""
     top = parser()
     argv = sys.argv[1:] if argv is None else list(argv)
-    top.unknown_before_command(argv)
+    at = next((i for i, w in enumerate(argv) if not w.startswith("-")), len(argv))  # the command
+    top.refuse_unknown(argv[:at])
+    if at < len(argv) and argv[at] in top.commands and argv[at] not in ("bench", "stress"):
+        words = argv[at + 1:]
+        top.commands[argv[at]].refuse_unknown(words[:words.index("--")] if "--" in words else words)
     args, extra = top.parse_known_args(argv)
     if args.command in ("bench", "stress"):  # their own parsers read options, --help included
         args.rest = extra + list(args.rest)
