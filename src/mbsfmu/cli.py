@@ -8,6 +8,7 @@ tools do. The scene format, the FMU interface and every command are described in
 import argparse
 import math
 import os
+import re
 import sys
 
 from . import __version__
@@ -37,7 +38,6 @@ class CommandParser(argparse.ArgumentParser):
     for an unknown one. Every command's parser is one of these (subcommands, bench and stress too)."""
 
     def error(self, message):
-        import re
         if message.startswith(_UNKNOWN):
             message += self.suggestions(w.split("=")[0] for w in message[len(_UNKNOWN):].split() if w.startswith("-"))
         choice = re.match(r"argument .*: invalid choice: '(.*)' \(choose from (.*)\)$", message)
@@ -333,7 +333,7 @@ def _allow_outside(p):
 
 def parser():
     top = CommandParser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
-                  epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     top.add_argument("--version", action="version", version=f"mbsfmu {__version__}")
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     top.commands = sub.choices  # name → the command's parser: its errors name its help
