@@ -2,6 +2,7 @@
 CSV and a plot, crosscheck layout accepted by fmpy's cross-check validation, fmutool -check."""
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import sys
@@ -316,3 +317,20 @@ def test_missing_mingw_is_one_plain_note(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("note: native FMU pendulum: no binaries/win64"), err
     assert "Warning" not in err and ".py:" not in err
+
+
+def test_info_escapes_what_the_fmu_says(fmu, tmp_path, capsys):
+    """`mbsfmu info` quotes a foreign file (the modelDescription): bidi overrides and C1 controls, which XML
+    allows, reach the terminal as escapes."""
+    import zipfile
+    from mbsfmu.cli import main
+    hostile = tmp_path / "h.fmu"
+    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(hostile, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                data = re.sub(rb'description="[^"]*"', 'description="evil\u202e\u009b2J"'.encode(), data, count=2)
+            zout.writestr(item, data)
+    assert main(["info", str(hostile)]) == 0
+    out = capsys.readouterr().out
+    assert "evil\\u202e\\x9b2J" in out and all(line.isprintable() for line in out.splitlines()), out

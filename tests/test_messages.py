@@ -75,6 +75,14 @@ def test_file_and_data_file_names_are_escaped(tmp_path, ch):
         mbsfmu.load(path)
     _shown_safely(str(e.value), ch)
     assert "data" in str(e.value)
+    mesh = SCENE.replace("    KEY: 1\n", f"    shape: {{type: mesh, file: {_yaml('mesh' + ch + '.stl')}}}\n")
+    for k, v in GOOD.items():
+        mesh = mesh.replace(k, v)
+    path.write_text(mesh, encoding="utf-8")
+    with pytest.raises(ModelError) as e:
+        mbsfmu.load(path)
+    _shown_safely(str(e.value), ch)
+    assert "bodies.link.shape.file" in str(e.value)
 
 
 def test_the_cli_line_is_escaped(tmp_path):
