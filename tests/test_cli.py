@@ -334,3 +334,14 @@ def test_info_escapes_what_the_fmu_says(fmu, tmp_path, capsys):
     assert main(["info", str(hostile)]) == 0
     out = capsys.readouterr().out
     assert "evil\\u202e\\x9b2J" in out and all(line.isprintable() for line in out.splitlines()), out
+
+
+@pytest.mark.parametrize("args, words", [(["--input", "q.theta=abc", "--vary", "L=1,2"], "--input q.theta=abc: 'abc'"),
+                                         (["--vary", "L=nan,1"], "--vary L=nan,1: 'nan'"),
+                                         (["--vary", "L=0.5:inf:3"], "--vary L=0.5:inf:3: 'inf'")])
+def test_sweep_numbers_must_be_finite(args, words, capsys):
+    """The sweep's numbers from the command line: never a NaN case, one line naming the option."""
+    from mbsfmu.cli import main
+    assert main(["sweep", str(PENDULUM), *args, "--stop", "0.1"]) == 1
+    err = capsys.readouterr().err
+    assert err == f"error: {words} is not a finite number\n", err

@@ -27,7 +27,7 @@ def parse_values(name, spec):
         lo, hi = _number(name, spec, parts[0]), _number(name, spec, parts[1])
         count = _count(name, spec, parts[2])
         return np.linspace(lo, hi, count).tolist()
-    values = [_word_or_number(v.strip()) for v in text.split(",") if v.strip()]
+    values = [_word_or_number(name, spec, v.strip()) for v in text.split(",") if v.strip()]
     if not values:
         raise ValueError(f"--vary {name}={spec}: no values")
     return values
@@ -89,11 +89,19 @@ def make_cases(vary, samples=None, seed=None):
     return latin_hypercube({name: parse_range(name, spec) for name, spec in vary.items()}, n, seed)
 
 
-def _number(name, spec, text):
+def finite_number(text, where):
+    """A number from the command line; 'abc', 'nan' and 'inf' are refused, naming `where` (never a NaN case)."""
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
-        raise ValueError(f"--vary {name}={spec}: '{text}' is not a number") from None
+        value = math.nan
+    if not math.isfinite(value):
+        raise ValueError(f"{where}: '{text}' is not a finite number")
+    return value
+
+
+def _number(name, spec, text):
+    return finite_number(text, f"--vary {name}={spec}")
 
 
 def _count(name, spec, text):
@@ -106,8 +114,9 @@ def _count(name, spec, text):
     return count
 
 
-def _word_or_number(text):
+def _word_or_number(name, spec, text):
     try:
-        return float(text)
+        float(text)
     except ValueError:
-        return text
+        return text  # a word, such as an integrator method
+    return _number(name, spec, text)

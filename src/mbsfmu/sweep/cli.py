@@ -38,8 +38,9 @@ def configure(p):
 
 def run(args):
     from . import sweep
+    from .cases import finite_number
     vary = dict(_pair(v, "--vary") for v in args.vary)
-    inputs = {k: float(v) for k, v in (_pair(i, "--input") for i in args.input)}
+    inputs = {k: finite_number(v, f"--input {k}={v}") for k, v in (_pair(i, "--input") for i in args.input)}
     for path in (args.out, args.series):
         if path:
             _format(path)
