@@ -191,18 +191,21 @@ def _joint(kind, initial, extra=None):
 
 @pytest.mark.parametrize("kind", COORDINATES)
 def test_angle_coordinates_refuse_degrees_and_take_radians(kind):
-    """Every angle coordinate: 90 (degrees, surely) is refused with the radians to write; pi/2, 4*pi and 6 are
-    taken as radians (the initial state holds them); a length coordinate takes 90 (metres)."""
+    """Every angle coordinate (its initial value, a joint spring's offset on it): 90 (degrees, surely) is refused
+    with the radians to write; pi/2, 4*pi and 6 are taken as radians (the initial state holds them); a length
+    coordinate takes 90 (metres)."""
     for coord, is_angle in COORDINATES[kind][1].items():
         for value in ("90", "-180", "a45"):
-            text = _joint(kind, f"{coord}: {value}")
-            if not is_angle:
-                mbsfmu.loads(text)
-                continue
-            with pytest.raises(ModelError) as e:
-                mbsfmu.loads(text)
-            assert e.value.key == f"bodies.b.joint.initial.{coord}" and "radians" in str(e.value), str(e.value)
-            assert re.search(r"write -?\d+\*pi/180", str(e.value)), str(e.value)
+            spring = f"forces:\n  - {{type: joint_spring_damper, coordinate: {coord}, stiffness: 1, offset: {value}}}\n"
+            for text, key in ((_joint(kind, f"{coord}: {value}"), f"bodies.b.joint.initial.{coord}"),
+                              (_joint(kind, "") + spring, "forces[0].offset")):
+                if not is_angle:
+                    mbsfmu.loads(text)
+                    continue
+                with pytest.raises(ModelError) as e:
+                    mbsfmu.loads(text)
+                assert e.value.key == key and "radians" in str(e.value), str(e.value)
+                assert re.search(r"write -?\d+\*pi/180", str(e.value)), str(e.value)
         if is_angle:
             for value, radians in (("pi/2", math.pi / 2), ("4*pi", 4 * math.pi), ("6", 6.0)):
                 ev = mbsfmu.compile(mbsfmu.loads(_joint(kind, f"{coord}: {value}")))

@@ -527,8 +527,8 @@ class _Checker:
                 if c == "rotation" and kind in ("spherical", "free"):
                     out["initial_rotation"] = self.rotation(ini, "rotation", path + ".initial.rotation")
                 elif c in pos and not (quat and c in pos[-4:]):
-                    is_angle = _default_coordinates(kind, "", param)[0][pos.index(c)] in _ANGLE_NAMES
-                    out["initial"][c] = (self.angle if is_angle else self.number)(ini, c, f"{path}.initial.{c}")
+                    read = self.angle if _is_angle(kind, param, pos.index(c)) else self.number
+                    out["initial"][c] = read(ini, c, f"{path}.initial.{c}")
                 else:
                     valid = [p for p in pos if not (quat and p in pos[-4:])] + (["rotation"] if kind in ("spherical", "free") else [])
                     self.fail(ini, c, f"{path}.initial.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
@@ -724,7 +724,8 @@ class _Checker:
                 g["coordinate"] = c
                 g["stiffness"] = self.number(f, "stiffness", path + ".stiffness", nonneg=True) if "stiffness" in f else 0.0
                 g["damping"] = self.number(f, "damping", path + ".damping", nonneg=True) if "damping" in f else 0.0
-                g["offset"] = self.number(f, "offset", path + ".offset") if "offset" in f else 0.0
+                angle = _is_angle(j["type"], j.get("parameterization"), j["coordinates"].index(c))
+                g["offset"] = (self.angle if angle else self.number)(f, "offset", path + ".offset") if "offset" in f else 0.0
             else:
                 self.keys(f, path, ("type", "body", "at", "node", "value", "input", "frame"), required=("body",))
                 b = f["body"]
@@ -858,7 +859,9 @@ class _Checker:
                          "rename one of them")
 
 
-_ANGLE_NAMES = {".angle", ".angle1", ".angle2", ".a", ".b", ".c"}  # the default names of angle coordinates
+def _is_angle(kind, param, i):
+    """Whether position coordinate i of a joint is an angle (radians): the contract's default names say so."""
+    return _default_coordinates(kind, "", param)[0][i] in {".angle", ".angle1", ".angle2", ".a", ".b", ".c"}
 
 
 def _default_coordinates(kind, name, param):
