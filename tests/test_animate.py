@@ -520,7 +520,15 @@ def test_foreign_drawing_descriptions_are_refused(orphans, tmp_path, capsys):
     huge_beam["bodies"][1]["elastic"] = {"beam": {"length": 1.0, "EI": [1.0, 1.0], "rhoA": 1.0, "elements": 10**6,
                                                   "modes": 2, "clamped": "start"}, "coordinates": ["q1", "q2"],
                                         "damping_ratio": 0.0, "dynamic_stiffening": True, "initial": {}, "initial_velocity": {}}
-    cases = {None: "carries no drawing description", json.dumps(longer): "not the scene it runs",
+    def shaped(**change):  # shapes are drawing only: the scene file's shape rules check them
+        s = json.loads(json.dumps(spec))
+        s["bodies"][1]["shape"][0].update(change)
+        return json.dumps(s)
+    cases = {shaped(type="banana"): "unknown shape type", shaped(size=[1, -1, 1]): "positive",
+             shaped(opacity=5): "opacity", shaped(color="url(javascript:x)"): "colour",
+             shaped(type="mesh", file="../../etc/passwd", size=None): "outside the scene's folder",
+             shaped(rotation={"axis": [0, 0, 1], "angle": 90}): "radians",
+             None: "carries no drawing description", json.dumps(longer): "not the scene it runs",
              json.dumps(huge_beam): "at most 200", "\x80not json": "cannot read", "[" * 100_000: "cannot read",
              " " * (100 * 2**20): "larger than", json.dumps([spec]): "cannot read",
              json.dumps({**spec, "bodies": "x"}): "cannot read", "1" * 10_000: "cannot read"}

@@ -24,10 +24,12 @@ def from_scene(spec, stop=None, input_csv=None):
 def fmu_spec(path):
     """The normalized scene an mbsfmu FMU carries for drawing (fmu/build.py: drawing_resource). Foreign data:
     read bounded, parsed as JSON (never unpickled or executed) and accepted only if it compiles to the very
-    scene the FMU runs (its compiled scene, GUID included)."""
+    scene the FMU runs (its compiled scene, GUID included) and its shapes (drawing only, not compiled) pass
+    the scene file's shape rules."""
     from fmpy import read_model_description
     from ..fmu.build import DRAWING_FILE, SCENE_FILE
     from ..fmu.native import SCENE_FILE as NATIVE_SCENE_FILE
+    from ..scene.load import check_shapes_again
     from ..simulation import compiled
     member, spec, problem = f"resources/{DRAWING_FILE}", None, None
     try:
@@ -42,6 +44,8 @@ def fmu_spec(path):
             spec = json.loads(text)
             if blob is None or compiled(spec, read_model_description(path).guid)[0] != blob:
                 problem = "its drawing description is not the scene it runs (altered, or built by another mbsfmu version)"
+            else:
+                check_shapes_again(spec, Path(path).parent, f"{path}:{member}")
     except Exception as e:  # noqa: BLE001 - whatever the bytes hold, the answer is one message
         problem = f"cannot read its drawing description ({type(e).__name__}: {e})"
     if problem:

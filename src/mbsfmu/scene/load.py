@@ -886,3 +886,23 @@ def _plain(v):
     if isinstance(v, np.ndarray):
         return v.tolist()
     return v
+
+
+def check_shapes_again(spec, base, file):
+    """The bodies' `shape` entries of a normalized scene that comes from elsewhere (an FMU's drawing description),
+    checked by the rules of a scene file: each is read back as `shape:` input (mesh files next to `base`) and
+    must normalize to itself. Raises ModelError."""
+    ck = _Checker(file, Path(base))
+    ck.params = {p["name"]: float(p["value"]) for p in spec["parameters"]}
+    for b in spec["bodies"]:
+        if "shape" in b and check_shapes(ck, Map(shape=_as_input(b["shape"])), f"bodies.{b['name']}") != b["shape"]:
+            raise ModelError("is not a shape list as mbsfmu writes it", file=file, key=f"bodies.{b['name']}.shape")
+
+
+def _as_input(v):
+    """Plain JSON data → the reader's Map/Seq nodes; keys a normalized scene sets to null are left out."""
+    if isinstance(v, dict):
+        return Map({k: _as_input(x) for k, x in v.items() if x is not None})
+    if isinstance(v, list):
+        return Seq(_as_input(x) for x in v)
+    return v
