@@ -3,9 +3,9 @@ control, format and bidi characters as escapes, so nothing from a file acts on t
 one plain line."""
 
 import contextlib
-import re
 import io
 import math
+import re
 
 import pytest
 
@@ -21,7 +21,7 @@ bodies:
     joint: {type: TYPE, axis: [0, 1, 0], coordinates: [phi]}
     mass: MASS
     inertia: {xx: 0.1, yy: 0.1, zz: 0.1}
-    KEY: 1
+    KEY: [0, 0, 0]
 """
 GOOD = {"NAME": "link", "TYPE": "revolute", "MASS": "1.0", "KEY": "center_of_mass"}
 
@@ -45,7 +45,16 @@ def _refusal(tmp_path, file="scene.yaml", **place):
     path.write_text(text, encoding="utf-8")
     with pytest.raises(ModelError) as e:
         mbsfmu.load(path)
-    return str(e.value), path
+    return str(e.value), e.value.key, path
+
+
+def test_the_template_scene_loads(tmp_path):
+    path = tmp_path / "ok.yaml"
+    text = SCENE
+    for k, v in GOOD.items():
+        text = text.replace(k, v)
+    path.write_text(text, encoding="utf-8")
+    assert mbsfmu.load(path).name == "demo"
 
 
 def _shown_safely(line, raw):
@@ -56,18 +65,20 @@ def _shown_safely(line, raw):
 
 @pytest.mark.parametrize("ch", HOSTILE, ids=[f"U+{ord(c[0]):04X}{'…' if len(c) > 1 else ''}" for c in HOSTILE])
 def test_names_keys_and_values_are_escaped(tmp_path, ch):
-    for place in ({"NAME": _yaml(f"hook{ch}")}, {"KEY": _yaml(f"key{ch}")}, {"TYPE": _yaml(f"revolute{ch}")},
-                  {"MASS": _yaml(f"m{ch}")}, {"MASS": _yaml(f"1.0 + m{ch}")}):
-        line, _ = _refusal(tmp_path, **place)
+    for place, key in (({"NAME": _yaml(f"hook{ch}")}, "bodies"), ({"KEY": _yaml(f"key{ch}")}, "bodies.link"),
+                       ({"TYPE": _yaml(f"revolute{ch}")}, "bodies.link.joint"), ({"MASS": _yaml(f"m{ch}")}, "bodies.link.mass"),
+                       ({"MASS": _yaml(f"1.0 + m{ch}")}, "bodies.link.mass")):
+        line, where, _ = _refusal(tmp_path, **place)
         _shown_safely(line, ch)
+        assert where.startswith(key), (where, line)  # refused where the character is
 
 
 @pytest.mark.parametrize("ch", ["\r", "\n", "\x1b[2J", "\x9b", "\u202e", "\x7f", "\t"])
 def test_file_and_data_file_names_are_escaped(tmp_path, ch):
-    line, path = _refusal(tmp_path, file=f"scene{ch}.yaml", MASS="-1")  # a refusal that names the file
+    line, _, path = _refusal(tmp_path, file=f"scene{ch}.yaml", MASS="-1")  # a refusal that names the file
     _shown_safely(line, ch)
     assert "scene" in line and ":7: bodies.link.mass" in line
-    elastic = SCENE.replace("    KEY: 1\n", f"    elastic: {{nodal: {{file: {_yaml('data' + ch + '.npz')}}}}}\n")
+    elastic = SCENE.replace("    KEY: [0, 0, 0]\n", f"    elastic: {{nodal: {{file: {_yaml('data' + ch + '.npz')}}}}}\n")
     for k, v in GOOD.items():
         elastic = elastic.replace(k, v)
     path.write_text(elastic, encoding="utf-8")
@@ -75,7 +86,7 @@ def test_file_and_data_file_names_are_escaped(tmp_path, ch):
         mbsfmu.load(path)
     _shown_safely(str(e.value), ch)
     assert "data" in str(e.value)
-    mesh = SCENE.replace("    KEY: 1\n", f"    shape: {{type: mesh, file: {_yaml('mesh' + ch + '.stl')}}}\n")
+    mesh = SCENE.replace("    KEY: [0, 0, 0]\n", f"    shape: {{type: mesh, file: {_yaml('mesh' + ch + '.stl')}}}\n")
     for k, v in GOOD.items():
         mesh = mesh.replace(k, v)
     path.write_text(mesh, encoding="utf-8")
