@@ -182,7 +182,7 @@ CASES = {
     # names
     "yaml11_on_key": (base("  L: 1.0", "  L: 1.0\n  on: 2.0"), "  on:", "parameters.on", ["boolean", 'quote it: "on":']),
     "yaml11_yes_key": (base("  L: 1.0", "  L: 1.0\n  yes: 2.0"), "  yes:", "parameters.yes", ["boolean"]),
-    "version_true": (base("mbsfmu: 1", "mbsfmu: true"), 1, "mbsfmu", ["version True", "mbsfmu: 1"]),
+    "version_true": (base("mbsfmu: 1", "mbsfmu: true"), 1, "mbsfmu", ["version true", "mbsfmu: 1"]),
     "version_float": (base("mbsfmu: 1", "mbsfmu: 1.5"), 1, "mbsfmu", ["version 1.5"]),
     "input_q_vs_coordinate_x": (base("coordinates: [phi]", "coordinates: [x]") + "forces:\n  - {type: force, body: arm, input: q}\n",
                                 "input: q", "forces[0].input", ["input 'q'", "coordinate 'x'", "'q.x'"]),

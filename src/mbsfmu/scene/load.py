@@ -279,7 +279,7 @@ class _Checker:
     def name(self, parent, key, path, pattern=_NAME, what="a name"):
         v = parent[key]
         if not isinstance(v, str) or not pattern.fullmatch(v):
-            self.fail(parent, key, path, f"{v!r} is not valid as {what}", "letters, digits, underscore; starts with a letter")
+            self.fail(parent, key, path, f"{_shown(v)} is not valid as {what}", "letters, digits, underscore; starts with a letter")
         if len(v) > limits.NAME_CHARS:
             self.fail(parent, key, path, f"{what} of {len(v):,} characters (at most {limits.NAME_CHARS})", "use a shorter name")
         return v
@@ -287,7 +287,7 @@ class _Checker:
     def key_name(self, node, name, path, what, exclude=()):
         """A name given as a key of `node` (a parameter, a body): the rule `name` applies to values."""
         if not isinstance(name, str) or not _NAME.fullmatch(name) or len(name) > limits.NAME_CHARS or name in exclude:
-            self.fail(node, name, path, f"{name!r} is not valid as {what}",
+            self.fail(node, name, path, f"{_shown(name)} is not valid as {what}",
                       f"letters, digits, underscore; starts with a letter; at most {limits.NAME_CHARS} characters"
                       + "".join(f"; not '{x}'" for x in exclude))
 
@@ -307,7 +307,7 @@ class _Checker:
         self.root = root
         self.keys(root, "", TOP_KEYS, required=("mbsfmu", "name", "bodies"))
         if type(root["mbsfmu"]) is not int or root["mbsfmu"] != 1:  # `true` is not the version 1
-            self.fail(root, "mbsfmu", "mbsfmu", f"unsupported format version {root['mbsfmu']!r}", "this mbsfmu reads version 1: write 'mbsfmu: 1'")
+            self.fail(root, "mbsfmu", "mbsfmu", f"unsupported format version {_shown(root['mbsfmu'])}", "this mbsfmu reads version 1: write 'mbsfmu: 1'")
         spec = {"mbsfmu": 1, "name": self.name(root, "name", "name", what="a model name")}
         spec["description"] = self.text(root, "description", "description")
         spec["parameters"] = self.parameters(root)
@@ -342,7 +342,7 @@ class _Checker:
                 if "unit" in v:
                     unit = v["unit"]
                     if not isinstance(unit, str) or not re.fullmatch(r"[A-Za-z0-9_.*/^()+-]{1,32}", unit):
-                        self.fail(v, "unit", path + ".unit", f"a unit is a short name such as N/m, kg.m2 or rad/s, got {unit!r}")
+                        self.fail(v, "unit", path + ".unit", f"a unit is a short name such as N/m, kg.m2 or rad/s, got {_shown(unit)}")
                 desc, v = self.text(v, "description", path + ".description"), v["value"]
             if isinstance(v, str) and v.isascii() and not isinstance(v, Date):  # YAML 1.1 reads 1.0e8 or 1e8 as a string
                 try:
@@ -422,7 +422,7 @@ class _Checker:
         self.keys(node, path, ("parent", "joint", "mass", "center_of_mass", "inertia", "elastic", "description", "shape"), required=("parent", "joint"))
         parent = node["parent"]
         if not isinstance(parent, str):
-            self.fail(node, "parent", path + ".parent", f"expected a body name, got {parent!r}")
+            self.fail(node, "parent", path + ".parent", f"expected a body name, got {_shown(parent)}")
         if parent != "world" and parent not in bodies:
             self.fail(node, "parent", path + ".parent", f"unknown parent '{parent}'", _suggest(parent, ["world"] + list(bodies)))
         if parent == name:
@@ -510,7 +510,7 @@ class _Checker:
             if kind in ("spherical", "free") and param == "quaternion":
                 self.fail(j, "coordinates", path + ".coordinates", "quaternion joints use fixed coordinate names", "names are " + ", ".join(pos) + "; or use parameterization: cardan")
             if not isinstance(given, list) or len(given) != len(pos):
-                self.fail(j, "coordinates", path + ".coordinates", f"a {kind} joint has {len(pos)} coordinate(s), got {given!r}", "e.g. " + str(pos))
+                self.fail(j, "coordinates", path + ".coordinates", f"a {kind} joint has {len(pos)} coordinate(s), got {_shown(given)}", "e.g. " + str(pos))
             for i, c in enumerate(given):
                 self.name(given, i, f"{path}.coordinates[{i}]", pattern=_COORD, what="a coordinate name")
             if len(set(given)) != len(given):
@@ -601,7 +601,7 @@ class _Checker:
                 beam[k] = v
             beam["clamped"] = b.get("clamped", "start")
             if beam["clamped"] not in ("start", "none"):
-                self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition {beam['clamped']!r}", _suggest(beam["clamped"], ("start", "none")))
+                self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition {_shown(beam['clamped'])}", _suggest(beam["clamped"], ("start", "none")))
             out["beam"] = beam
         else:
             out["nodal"] = self.nodal(e, path)

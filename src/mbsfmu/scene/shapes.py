@@ -109,5 +109,6 @@ def _color(ck, s, path):
         return COLORS[c.lower()]
     if isinstance(c, list) and len(c) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 1 for x in c):
         return "#" + "".join(f"{round(255 * x):02x}" for x in c)
-    ck.fail(s, "color", path + ".color", f"not a colour: {c!r}",
+    from .load import _shown
+    ck.fail(s, "color", path + ".color", f"not a colour: {_shown(c)}",
             "give '#rrggbb', [r, g, b] in 0..1, or a name: " + ", ".join(sorted(COLORS)))
