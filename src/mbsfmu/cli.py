@@ -11,7 +11,7 @@ import os
 import re
 import sys
 
-from . import __version__
+from . import __version__, files
 from .errors import IntegrationError, ModelError, printable
 from .scene.limits import RESULT_POINTS, TABLE_ROWS
 
@@ -112,16 +112,25 @@ def _need_fmu(path):
 
 # -- commands ----------------------------------------------------------------------------------------
 def _build(args):
+    """Every scene is loaded and every FMU's path checked against the scenes and the other FMUs before the
+    first build: two scenes with one model name would write one FMU."""
     import time
     from . import build_fmu, load
-    n = len(args.scene)
-    for i, scene in enumerate(args.scene, 1):
-        _need_scene(scene)
+    from .fmu.build import fmu_path
+    scenes = []
+    for path in args.scene:
+        _need_scene(path)
+        scenes.append(load(path, allow_outside=args.allow_outside))
+    files.check({f"the FMU of {path}": fmu_path(s, args.output) for path, s in zip(args.scene, scenes)},
+                {f"the scene {path}": path for path in args.scene},
+                hint="give the models different names (name:) or build them into different folders")
+    n = len(scenes)
+    for i, (path, scene) in enumerate(zip(args.scene, scenes), 1):
         t0 = time.perf_counter()
         if n > 1:
-            print(f"[{i}/{n}] {scene} ...", end=" ", flush=True)
-        path = build_fmu(load(scene, allow_outside=args.allow_outside), args.output, kind=args.kind)
-        print(f"{path}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
+            print(f"[{i}/{n}] {path} ...", end=" ", flush=True)
+        out = build_fmu(scene, args.output, kind=args.kind)
+        print(f"{out}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
 
 
 def _check(args):
@@ -147,6 +156,7 @@ def _crosscheck(args):
 def _simulate(args):
     import tempfile
     is_fmu = _is_fmu(args.model)
+    files.check({"--csv": args.csv, "--plot": args.plot}, {"the model": args.model, "--input": args.input})
     if args.input and not is_fmu:  # inputs from a CSV go through an FMU built in a temporary folder
         from . import build_fmu, load
         with tempfile.TemporaryDirectory(prefix="mbsfmu_sim_") as tmp:
@@ -158,8 +168,9 @@ def _simulate(args):
     cols, names, units = cols[:, keep], [names[k] for k in keep], [units[k] for k in keep]
     if args.csv:
         import numpy as np
-        np.savetxt(args.csv, np.column_stack([t, cols]), delimiter=",", header=",".join(["time"] + names),
-                   comments="", fmt="%.17g")
+        with files.replacing(args.csv) as tmp:
+            np.savetxt(tmp, np.column_stack([t, cols]), delimiter=",", header=",".join(["time"] + names),
+                       comments="", fmt="%.17g")
         print(f"wrote {args.csv}")
     if args.plot:
         from .plot import plot_result

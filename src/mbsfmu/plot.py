@@ -4,6 +4,8 @@ Curves of one panel cycle through 10 colours with a solid line, then the same co
 dash-dotted: 40 curves per panel before a style repeats.
 """
 
+from . import files
+
 QUANTITY = {"rad": "angle", "rad/s": "angular velocity", "m": "position", "m/s": "velocity",
             "1": "dimensionless", "1/s": "rate", "N": "force", "N.m": "torque"}
 LINESTYLES = ("-", "--", ":", "-.")
@@ -44,5 +46,6 @@ def plot_result(path, t, cols, names, units, title):
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(title)
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / height))  # 0.35 in for the title
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    with files.replacing(path) as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight")
     plt.close(fig)

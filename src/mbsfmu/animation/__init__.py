@@ -31,9 +31,13 @@ def animate(source, output="animation.html", stop=None, input_csv=None, result_c
     `result_csv` (written by `mbsfmu simulate --csv`: 'time' and 'y.<coordinate>' columns). `scene`: the scene
     an FMU was built from (without it, the drawing description the FMU carries; shape files are read next to
     the scene, else next to the FMU)."""
+    from .. import files
     from ..equations.model import Model
     from . import drawing, frames, page, trajectory
     spec, base, fmu = trajectory.load_source(source, scene)
+    inputs = {"the model": getattr(source, "path", source), "the input CSV": input_csv, "the result CSV": result_csv,
+              "the scene": scene, **{f"the mesh file {f}": base / f for f in drawing.mesh_files(spec)}}
+    files.check({"the page": output}, inputs)
     model = Model(spec)
     if result_csv:
         t, Y, YD = trajectory.from_result(result_csv, model.coordinates)
@@ -49,7 +53,4 @@ def animate(source, output="animation.html", stop=None, input_csv=None, result_c
         raise ValueError("the motion has non-finite positions (did the simulation fail?)")
     scene_data = drawing.describe(model, layout, F, base)
     html = page.render(spec["name"], spec.get("description", ""), t, F, scene_data)
-    out = Path(output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(html, encoding="utf-8")
-    return out
+    return Path(files.write_text(output, html))

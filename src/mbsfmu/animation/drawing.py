@@ -42,6 +42,11 @@ def link_points(model, i):
     return out
 
 
+def mesh_files(spec):
+    """The mesh files the shapes of a scene name (relative to its folder)."""
+    return [s["file"] for b in spec["bodies"] for s in b.get("shape") or () if s.get("type") == "mesh"]
+
+
 def shapes(model, i, base):
     """Body i's `shape:` entries with numbers evaluated, rotations as quaternions (x, y, z, w), meshes read."""
     env, out = model.env, []

@@ -32,6 +32,8 @@ from pathlib import Path
 from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
+from .. import files
+
 KINDS = ("pythonfmu", "native")
 SCENE_FILE = "mbsfmu_scene.bin"
 DRAWING_FILE = "mbsfmu_drawing.json"  # in resources/: what `mbsfmu animate FMU` draws from (animation/trajectory.py)
@@ -177,14 +179,14 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     if kind not in KINDS:
         raise ValueError(f"unknown FMU kind {kind!r}: {' or '.join(KINDS)}")
     scene = _load_scene(scene_or_path)
+    dest = fmu_path(scene, outdir)
+    files.check({"the FMU": dest}, {"the scene": getattr(scene, "path", None)})
     if kind == "native":
         from .native import build_native
-        return build_native(scene, outdir)
+        return build_native(scene, dest)
     spec = scene.spec if hasattr(scene, "spec") else scene
     spec = json.loads(json.dumps(spec))  # plain JSON data, exactly what the FMU will read
-    name = getattr(scene, "name", None) or spec["name"]
-    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):
-        raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
+    name = dest.stem
     root = Path(runtime_root) if runtime_root is not None else PACKAGE_ROOT
     files = _runtime_files(root)
     bad = forbidden_imports(files)
@@ -206,10 +208,6 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
               .replace("@MODEL_NAME@", name)
               .replace("@MBSFMU_VERSION@", version))
 
-    outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
-    dest = outdir / f"{name}.fmu"
-
     from ..simulation import compiled
     blob, variables, _ = compiled(spec, guid)
     members = {f"resources/{rt_package}/{rel}": content for rel, content in files.items()}
@@ -219,12 +217,27 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     members.update(drawing_resource(spec))
     members.update(_pythonfmu_binaries(name))
     _slave_loads(members, module_name, rt_package)
-    with zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as z:
+    with files.replacing(dest) as tmp:  # a build that fails or is killed leaves the previous FMU intact
+        write_zip(tmp, members)
+        if shim:
+            _attach_shim(Path(tmp), name)
+    return dest
+
+
+def fmu_path(scene, outdir) -> Path:
+    """``<outdir>/<model name>.fmu``, where both kinds write the FMU of a loaded scene (or spec)."""
+    spec = scene.spec if hasattr(scene, "spec") else scene
+    name = getattr(scene, "name", None) or spec["name"]
+    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):  # the modelIdentifier names the binary: a C identifier
+        raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
+    return Path(outdir) / f"{name}.fmu"
+
+
+def write_zip(path, members: dict[str, bytes]) -> None:
+    """An FMU archive at ``path`` (a temporary file of files.replacing) with the members (name → bytes)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
         for member, data in members.items():
             z.writestr(member, data)
-    if shim:
-        _attach_shim(dest, name)
-    return dest
 
 
 def drawing_resource(spec: dict) -> dict[str, bytes]:

@@ -22,9 +22,10 @@ import shutil
 import tempfile
 import uuid
 import warnings
-import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+
+from .. import files
 
 ENGINE = Path(__file__).resolve().parent.parent / "engine"
 FMI_LAYER = ENGINE / "fmi2.c"
@@ -150,16 +151,15 @@ def guid_for(spec: dict, version: str) -> str:
     return "{" + str(uuid.UUID(h.hexdigest()[:32])) + "}"
 
 
-def build_native(scene, outdir) -> Path:
-    """Write ``<outdir>/<name>.fmu`` (native kind) for a loaded scene; returns its path."""
+def build_native(scene, dest: Path) -> Path:
+    """Write the FMU ``dest`` (``build.fmu_path``: ``<outdir>/<name>.fmu``, native kind) for a loaded scene;
+    returns its path."""
     from ..engine.compile import compile_scene
     from ..simulation import Simulation
     from .build import _version, drawing_resource, model_description
 
     spec = json.loads(json.dumps(scene.spec if hasattr(scene, "spec") else scene))
-    name = spec["name"]
-    if not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", name):  # the modelIdentifier names the binary: a C identifier
-        raise ValueError(f"invalid model name {name!r}: letters, digits, underscore; starts with a letter")
+    name = dest.stem
     version = _version()
     guid = guid_for(spec, version)
     variables = Simulation(spec).variables  # value reference = row of the engine's variable table
@@ -167,7 +167,6 @@ def build_native(scene, outdir) -> Path:
     sources = source_files(blob)
     xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
                             source_files=c_names(sources))
-    dest = Path(outdir) / f"{name}.fmu"
     for n in package(dest, name, sources, blob, xml, drawing_resource(spec)):
         warnings.warn(f"native FMU {name}: {n}", RuntimeWarning, stacklevel=3)
     return dest
@@ -187,7 +186,6 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
     if mingw is None:
         notes.append(f"no binaries/win64: {MINGW} (Debian gcc-mingw-w64-x86-64) was not found on the build machine")
     names = c_names(sources)
-    dest.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="mbsfmu_native_") as tmp:
         src = Path(tmp) / "sources"  # compiled from the very files that ship
         src.mkdir()
@@ -202,9 +200,7 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
         members.update({f"sources/{f}": d for f, d in sorted(sources.items())})
         members["sources/CMakeLists.txt"] = cmake_lists(identifier, names).encode()
         members["sources/README"] = readme(identifier, names, notes).encode()
-        tmp_fmu = Path(tmp) / "out.fmu"
-        with zipfile.ZipFile(tmp_fmu, "w", zipfile.ZIP_DEFLATED) as z:
-            for member, data in members.items():
-                z.writestr(member, data)
-        shutil.move(str(tmp_fmu), dest)
+    from .build import write_zip
+    with files.replacing(dest) as out:  # a build that fails or is killed leaves the previous FMU intact
+        write_zip(out, members)
     return notes
