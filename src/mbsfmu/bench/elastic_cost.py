@@ -27,6 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import files
+from . import output
+
 MODES = (2, 5, 10, 20, 40)
 M_TIP, LENGTH, TARGET = 0.2, 1.0, 1e-6
 SCENE = """
@@ -259,8 +262,7 @@ def plot(costs, path):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=120)
 
 
 def markdown(costs, rows, floor, h2h, cmd):
@@ -319,7 +321,7 @@ def main(argv=None):
         print(f"{fam:7s} {r['method']} {r['setting']}: {cpu * 1e3:.1f} ms, error {r['error']:.1e}")
     plot(costs, out / "elastic_cost.png")
     cmd = "python -m mbsfmu.bench.elastic_cost" + (" --quick" if a.quick else "")
-    (out / "elastic_cost.md").write_text(markdown(costs, rows, floor, h2h, cmd))
+    files.write_text(out / "elastic_cost.md", markdown(costs, rows, floor, h2h, cmd))
     return costs, h2h
 
 

@@ -9,6 +9,8 @@ import time
 
 import numpy as np
 
+from .. import files
+
 
 def _time_per_call(fn, args_list, min_time=0.5):
     """Best-of-3 mean µs per call over the argument list (repeated until ≥ min_time/3 per trial)."""
@@ -82,8 +84,7 @@ def benchmark_equations(scene_path, out_dir=None, n_states=20, fmu=True, stop=No
         res.update(_fmu_run(scene_path, spec, stop, res["notes"]))
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
-        with open(os.path.join(out_dir, "equations.md"), "w") as fh:
-            fh.write(markdown(res))
+        files.write_text(os.path.join(out_dir, "equations.md"), markdown(res))
     return res
 
 

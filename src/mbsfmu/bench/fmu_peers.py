@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import files
 from . import output
 from .work_precision import REPEATS, TARGET_ERROR, _best_of, build_exudyn, comm_points, exudyn_supported, reference, \
     run_mbsfmu, run_scipy
@@ -500,8 +501,7 @@ def plot(res, path):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, ncol=3, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=100)
 
 
 def markdown(results, command):
@@ -568,7 +568,7 @@ def main(argv=None):
             plot(res, out / f"fmu_peers.{name}.png")
             results.append(res)
     output.write_csv([r for res in results for r in csv_rows(res)], out / "fmu_peers.csv", COLUMNS, 5)
-    (out / "fmu_peers.md").write_text(markdown(results, command.strip()), encoding="utf-8")
+    files.write_text(out / "fmu_peers.md", markdown(results, command.strip()))
     print(out / "fmu_peers.md")
 
 

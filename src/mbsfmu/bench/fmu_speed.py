@@ -29,6 +29,8 @@ import uuid
 from typing import NamedTuple
 from pathlib import Path
 
+from .. import files
+
 HERE = Path(__file__).resolve().parent
 HOST_SOURCE = HERE.parents[2] / "tests" / "c" / "fmu_host.c"  # benchmarks run from a source checkout
 TRIVIAL_SOURCE = HERE / "fmu_trivial.c"
@@ -260,7 +262,7 @@ def report(scenes, outdir: Path, runs: int, n: int) -> Path:
                           f"the states."]
     lines += [""]
     md = outdir / "fmu_speed.md"
-    md.write_text("\n".join(lines), encoding="utf-8")
+    files.write_text(md, "\n".join(lines))
     return md
 
 

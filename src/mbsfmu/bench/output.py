@@ -1,6 +1,9 @@
-"""What the benchmark commands share: a progress bar over their runs and the CSV writer."""
+"""What the benchmark commands share: a progress bar over their runs and the report writers (atomic, through
+mbsfmu.files: a run that fails or is killed leaves the previous report)."""
 
 import csv
+
+from .. import files
 
 
 def progress(jobs, desc, label, enabled=True):
@@ -18,8 +21,16 @@ def progress(jobs, desc, label, enabled=True):
 
 def write_csv(rows, path, columns, digits):
     """rows (dicts) → CSV with the given columns, floats to `digits` significant digits."""
-    with open(path, "w", newline="") as fh:
+    with files.replacing(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow({k: (f"{r[k]:.{digits}g}" if isinstance(r[k], float) else r[k]) for k in columns})
+
+
+def save_figure(fig, path, **kw):
+    """Save the matplotlib figure `fig` as `path` (savefig's keywords), then close it."""
+    import matplotlib.pyplot as plt
+    with files.replacing(path) as tmp:
+        fig.savefig(tmp, **kw)
+    plt.close(fig)

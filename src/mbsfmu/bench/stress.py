@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import files
 from . import output
 
 METHODS = ("auto", "dopri5", "dop853", "radau5", "rk4", "gen_alpha")
@@ -198,8 +199,7 @@ def run(out_dir=None, quick=False, progress=True, only=None, methods=None):
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
         output.write_csv(rows, os.path.join(out_dir, "stress.csv"), COLUMNS, 4)
-        with open(os.path.join(out_dir, "stress.md"), "w") as fh:
-            fh.write(markdown(rows, quick))
+        files.write_text(os.path.join(out_dir, "stress.md"), markdown(rows, quick))
     return rows
 
 

@@ -21,6 +21,9 @@ import statistics
 import time
 from pathlib import Path
 
+from .. import files
+from . import output
+
 MODEL = Path(__file__).resolve().parents[3] / "models" / "double_pendulum.yaml"
 VARY = {"L": "0.5:1.5", "m": "0.5:2.0"}
 
@@ -145,7 +148,7 @@ def _summary(walls, counts):
 def write_report(walls, cold_wall, counts, stop, out, load_before, load_after, command, first=None, noop=None):
     first, noop = first or {}, noop or {}
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "sweep.csv", "w", newline="") as fh:
+    with files.replacing(out / "sweep.csv") as tmp, open(tmp, "w", newline="") as fh:
         w_csv = csv.writer(fh)
         w_csv.writerow(["cases", "configuration", "workers", "repeat", "wall_s", "cases_per_s"])
         for n, w in walls.items():
@@ -228,7 +231,7 @@ def write_report(walls, cold_wall, counts, stop, out, load_before, load_after, c
         "![throughput](sweep.png)",
         "",
     ]
-    (out / "sweep.md").write_text("\n".join(lines))
+    files.write_text(out / "sweep.md", "\n".join(lines))
     _plot(walls, counts, out / "sweep.png")
     return speedup, ratio
 
@@ -251,8 +254,7 @@ def _plot(walls, counts, path):
     ax.legend()
     ax.set_title("double pendulum, 2 s per case: sweep on a LocalCluster")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=120)
 
 
 def main(argv=None):

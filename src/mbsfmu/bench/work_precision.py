@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from .. import files
 from . import output
 
 COLUMNS = ["method", "setting", "cpu_seconds", "error", "steps", "rhs_evaluations"]
@@ -346,8 +347,7 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
         os.makedirs(out_dir, exist_ok=True)
         output.write_csv(rows, os.path.join(out_dir, "work_precision.csv"), COLUMNS, 6)
         plot(rows, os.path.join(out_dir, "work_precision.png"), name, ts)
-        with open(os.path.join(out_dir, "summary.md"), "w") as fh:
-            fh.write(summary(rows, spec, ts, ref_cpu, floor, notes, head))
+        files.write_text(os.path.join(out_dir, "summary.md"), summary(rows, spec, ts, ref_cpu, floor, notes, head))
     return rows
 
 
@@ -409,8 +409,7 @@ def plot(rows, path, name, ts):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, ncol=2, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=110)
 
 
 def best_at(rows, family, target=TARGET_ERROR):

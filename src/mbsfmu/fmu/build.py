@@ -188,17 +188,17 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
     spec = json.loads(json.dumps(spec))  # plain JSON data, exactly what the FMU will read
     name = dest.stem
     root = Path(runtime_root) if runtime_root is not None else PACKAGE_ROOT
-    files = _runtime_files(root)
-    bad = forbidden_imports(files)
+    runtime = _runtime_files(root)
+    bad = forbidden_imports(runtime)
     if bad:
         warnings.warn("mbsfmu runtime imports modules not available/wanted at FMU run time: "
                       + "; ".join(bad), RuntimeWarning, stacklevel=2)
 
     version = _version()
     spec_bytes = json.dumps(spec, indent=1, sort_keys=True).encode("utf-8")
-    rt_hash = _hash(*[p.encode() + b"\0" + c for p, c in sorted(files.items())])
+    rt_hash = _hash(*[p.encode() + b"\0" + c for p, c in sorted(runtime.items())])
     rt_package = f"mbsfmu_rt_{rt_hash[:16]}"
-    files = _rename_absolute_imports(files, rt_package)
+    runtime = _rename_absolute_imports(runtime, rt_package)
     template = TEMPLATE.read_text(encoding="utf-8")
     fmu_hash = _hash(rt_hash.encode(), spec_bytes, template.encode(), version.encode())
     guid = "{" + str(uuid.UUID(fmu_hash[:32])) + "}"
@@ -210,7 +210,7 @@ def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None,
 
     from ..simulation import compiled
     blob, variables, _ = compiled(spec, guid)
-    members = {f"resources/{rt_package}/{rel}": content for rel, content in files.items()}
+    members = {f"resources/{rt_package}/{rel}": content for rel, content in runtime.items()}
     members.update({f"resources/{SCENE_FILE}": blob, f"resources/{module_name}.py": script.encode("utf-8"),
                     "resources/slavemodule.txt": module_name.encode(),
                     "modelDescription.xml": model_description(spec, name, variables, version, guid=guid)})

@@ -201,6 +201,6 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
         members["sources/CMakeLists.txt"] = cmake_lists(identifier, names).encode()
         members["sources/README"] = readme(identifier, names, notes).encode()
     from .build import write_zip
-    with files.replacing(dest) as out:  # a build that fails or is killed leaves the previous FMU intact
-        write_zip(out, members)
+    with files.replacing(dest) as tmp:  # a build that fails or is killed leaves the previous FMU intact
+        write_zip(tmp, members)
     return notes

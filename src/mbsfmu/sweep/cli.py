@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+from .. import files
+
 HELP = """examples:
   mbsfmu sweep models/pendulum.yaml --vary L=0.5:1.5:11 --vary m_bob=0.5,1,2 --stop 5 --out grid.csv
   mbsfmu sweep models/double_pendulum.yaml --vary L=0.5:1.5 --vary m=0.5:2 --samples 200 --seed 1 \\
@@ -44,6 +46,7 @@ def run(args):
     for path in (args.out, args.series):
         if path:
             _format(path)
+    files.check({"--out": args.out, "--series": args.series, "--plot": args.plot}, {"the model": args.model})
     res = sweep(args.model, vary=vary, samples=args.samples, seed=args.seed, stop=args.stop, step=args.step,
                 outputs=args.outputs, inputs=inputs, scheduler=args.scheduler, workers=args.workers,
                 series=bool(args.series), progress=not args.quiet)
@@ -87,8 +90,9 @@ def _format(path):
 
 
 def _write(df, path):
-    if _format(path) == ".parquet":
-        df.to_parquet(path, index=False)
-    else:
-        df.to_csv(path, index=False)
+    with files.replacing(path) as tmp:
+        if _format(path) == ".parquet":
+            df.to_parquet(tmp, index=False)
+        else:
+            df.to_csv(tmp, index=False)
     print(f"wrote {path}")

@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 
+from .. import files
+
 MAX_PANELS = 12
 
 
@@ -29,7 +31,8 @@ def plot(table, against, outputs, path):
     failed = len(table) - len(ok)
     fig.suptitle(f"{len(ok)} cases" + (f", {failed} failed (not shown)" if failed else ""), fontsize="medium")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with files.replacing(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)
 
 
