@@ -57,74 +57,116 @@ def batches(n, slots, cost=None, contiguous=False):
 
 
 def _on_cluster(client, model, cases, setup, bar):
-    """The first case runs here, in the calling process: its row counts and its time sizes the batches. Each
-    worker then runs batches through its Station (below), two in flight per worker thread, the next sent as one
-    ends (slow workers get fewer). A batch whose station fails (its worker died, say) runs once more as an
-    ordinary Dask task, which Dask places on a living worker; if that fails too, its cases record why."""
+    """The first case runs alone on a worker: its time sizes the batches. Each worker then runs batches through
+    its Station (below), two in flight per worker thread, the next sent as one ends (slow workers get fewer).
+    Nothing runs in this process: a case that kills its process (a crash in an FMU) takes a worker, never the
+    sweep. When a station's call fails (its worker died), its batches' cases run once more, each alone, one at
+    a time per worker, on the workers alive then (the nanny restarts dead ones); a case that fails alone again
+    is recorded as failed, and the sweep goes on."""
     n_out = len(setup.outputs)
-    parts, rest, cost = [], np.arange(len(cases)), None
-    try:
-        first = run_batch(model, cases.take(rest[:1]), setup)
-        if first.status[0] == "ok":  # a failed case's time says little about the others'
-            cost = float(first.wall[0])
-        parts, rest = [first], rest[1:]
-        bar.update(1)
-    except Exception:  # the model does not load here (e.g. an FMU for the workers' platform): the workers say why
-        pass
-    threads = _threads(client)
-    chunks = [cases.take(rest[p]) for p in batches(len(rest), sum(threads.values()), cost)]
-    if not chunks:
-        return Rows.join(parts, n_out)
-    stations = _stations(client, threads)
-    sent = model
-    if len(model.data) > LARGE_MODEL:  # a large model (an FMU) goes to each station once, then by its key
-        client.sync(asyncio.gather, *(s.keep(model) for s in stations.values()))
-        sent = model._replace(data=None)
-    slots = [a for _ in range(AHEAD) for a, n in threads.items() for _ in range(n)]  # one round over all first
-    done, failed = client.sync(_drive, stations, slots, sent, chunks, setup, bar)
+    parts, retry = [], []
+    done, failed = _rounds(client, model, [cases.take([0])], setup, bar, ahead=1)
+    cost = float(done[0].wall[0]) if done and done[0].status[0] == "ok" else None  # a failure says little
     parts += done
-    if failed:
-        retry = client.map(run_batch, [model] * len(failed), [chunks[k] for k in failed], [setup] * len(failed),
-                           pure=False)
-        for k, fut in zip(failed, retry):
-            try:
-                parts.append(fut.result())
-            except (KeyboardInterrupt, SystemExit):
-                raise
-            except BaseException as e:  # the task failed or its worker died as well
-                c = chunks[k]
-                parts.append(Rows(c.index, [f"worker failed: {type(e).__name__}: {e}"] * len(c),
-                                  np.full(len(c), math.nan), np.full((len(c), n_out), math.nan), [None] * len(c)))
-            bar.update(len(chunks[k]))
+    retry += [c for c, _ in failed]
+    rest = np.arange(1, len(cases))
+    chunks = [cases.take(rest[p]) for p in batches(len(rest), sum(_threads(client).values()), cost)]
+    done, failed = _rounds(client, model, chunks, setup, bar, ahead=AHEAD)
+    parts += done
+    retry += [c for c, _ in failed]
+    alone = [c.take([k]) for c in retry for k in range(len(c))]
+    done, failed = _rounds(client, model, alone, setup, bar, ahead=1, per_process=True)
+    parts += done + [_failed_rows(c, e, n_out) for c, e in failed]
+    bar.update(sum(len(c) for c, _ in failed))
     return Rows.join(parts, n_out)
 
 
-async def _drive(stations, slots, model, chunks, setup, bar):
-    """On the client's event loop: keep every slot busy, the next batch to whichever station finished one.
-    → (Rows of the batches done, numbers of the batches whose station failed)."""
-    todo, running, done, failed = collections.deque(range(len(chunks))), {}, [], []
+def _rounds(client, model, chunks, setup, bar, ahead, per_process=False):
+    """Run the batches on the stations of the workers alive, again on those alive then for batches no station
+    took (all that were sent to died) → (Rows done, [(batch, why)] whose station call failed). per_process:
+    one call in flight per worker process, so that a failure belongs to its one case."""
+    done, failed, todo = [], [], list(chunks)
+    while todo:
+        try:
+            threads = _living(client)
+        except TimeoutError as e:  # no worker came back: what is left fails with the reason
+            return done, failed + [(c, f"worker failed: {e}") for c in todo]
+        stations = _stations(client, threads)
+        sent = _send(client, model, stations)
+        per = {a: 1 if per_process else n for a, n in threads.items() if a in stations}
+        slots = [a for _ in range(ahead) for a, n in per.items() for _ in range(n)]  # one round over all first
+        if not slots:
+            return done, failed + [(c, "worker failed: no Dask worker took the case") for c in todo]
+        ok, lost, todo = client.sync(_drive, stations, slots, sent, todo, setup, bar)
+        done += ok
+        unreachable = {addr for _, e, addr in lost if isinstance(e, OSError)}  # no answer: did the process die?
+        gone = unreachable - _forget(client, unreachable)
+        failed += [(c, "the worker process died running it" if addr in gone
+                    else f"worker failed: {type(e).__name__}: {e}".rstrip(": ")) for c, e, addr in lost]
+    return done, failed
 
-    async def call(addr, k):
-        return await stations[addr].run(model, chunks[k], setup)
+
+def _forget(client, dead, wait=10.0):
+    """Wait (a bounded time) until the scheduler no longer lists the workers whose stations failed: the next
+    round must not send a case to a station that is gone, and blame the case."""
+    import time
+    end = time.monotonic() + wait
+    while dead & set(client.nthreads()) and time.monotonic() < end:
+        time.sleep(0.05)
+    return dead & set(client.nthreads())  # those still there: the call failed, not the process
+
+
+def _living(client):
+    """{worker: threads} of the workers alive now (asked of the scheduler), waiting for one if none is."""
+    threads = client.nthreads()
+    if not threads:
+        client.wait_for_workers(1, timeout=WAIT_FOR_WORKERS)
+        threads = client.nthreads()
+    return threads
+
+
+def _send(client, model, stations):
+    """A large model (an FMU) goes to each station once, then travels by its key."""
+    if len(model.data) <= LARGE_MODEL:
+        return model
+    client.sync(asyncio.gather, *(s.keep(model) for s in stations.values()))
+    return model._replace(data=None)
+
+
+def _failed_rows(cases, why, n_out):
+    n = len(cases)
+    return Rows(cases.index, [f"{why} (twice; the second time the case ran alone)"] * n,
+                np.full(n, math.nan), np.full((n, n_out), math.nan), [None] * n)
+
+
+async def _drive(stations, slots, model, chunks, setup, bar):
+    """On the client's event loop: keep every slot busy, the next batch to whichever station finished one; a
+    station whose call failed gets no more. → (Rows of the batches done, [(batch, error, worker)] whose station
+    call failed, batches never sent: every station failed)."""
+    todo, running, done, failed, dead = collections.deque(chunks), {}, [], [], set()
+
+    async def call(addr, chunk):
+        return await stations[addr].run(model, chunk, setup)
 
     def start(addr):
-        k = todo.popleft()
-        running[asyncio.ensure_future(call(addr, k))] = (addr, k)
+        chunk = todo.popleft()
+        running[asyncio.ensure_future(call(addr, chunk))] = (addr, chunk)
 
     for addr in slots[:len(todo)]:
         start(addr)
     while running:
         finished, _ = await asyncio.wait(running, return_when=asyncio.FIRST_COMPLETED)
         for task in finished:
-            addr, k = running.pop(task)
+            addr, chunk = running.pop(task)
             if task.exception() is None:
                 done.append(task.result())
-                bar.update(len(chunks[k]))
+                bar.update(len(chunk))
             else:
-                failed.append(k)
-            if todo:
+                failed.append((chunk, task.exception(), addr))
+                dead.add(addr)
+            if todo and addr not in dead:
                 start(addr)
-    return done, failed
+    return done, failed, list(todo)
 
 
 class Station:
