@@ -347,3 +347,48 @@ def test_sweeps_before_and_after_a_cluster_restart():
         live = [f.status for _, f in dispatch._STATIONS[client].values()]
     assert (after["status"] == "ok").all() and after["y.theta"].tolist() == before["y.theta"].tolist()
     assert live == ["finished"]  # a new station, not the lost one (whose batches would go the slow way)
+
+
+CRASH = """#include <signal.h>
+int mbs_do_step(MbsInstance *s, double t, double h) {
+    if (s->a < 0) {  /* this test's model: a case with a < 0 logs its a and kills its process */
+        FILE *log = fopen(getenv("MBSFMU_TEST_CRASH_LOG"), "a");
+        if (log) fprintf(log, "%g\\n", s->a), fclose(log);
+        raise(SIGSEGV);
+    }"""
+
+
+@pytest.fixture(scope="module")
+def crashing_fmu(tmp_path_factory):
+    """A native FMU (bench/fmu_trivial.c: x' = -a x, x(0) = 1, RK4 at 1 ms) whose step segfaults for a < 0:
+    a model that kills the process running it in some cases. Built here only, from a patched copy."""
+    from mbsfmu.bench import fmu_speed
+    out = tmp_path_factory.mktemp("crash")
+    src = fmu_speed.TRIVIAL_SOURCE.read_text()
+    head = "int mbs_do_step(MbsInstance *s, double t, double h) {"
+    assert head in src
+    (out / "fmu_trivial.c").write_text(src.replace(head, CRASH))
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(fmu_speed, "TRIVIAL_SOURCE", out / "fmu_trivial.c")
+        return fmu_speed.build_trivial_fmu(out)
+
+
+def test_a_case_that_kills_its_worker_is_retried_once_then_recorded(crashing_fmu, tmp_path, monkeypatch, capsys):
+    """Cases that segfault their worker (the first case among them, which once ran in the calling process and
+    took the sweep along): each runs exactly twice (the crash log), then its row says the worker process died;
+    every other case ends ok at the closed form exp(-a t); the command writes its table."""
+    log = tmp_path / "crashes.txt"
+    monkeypatch.setenv("MBSFMU_TEST_CRASH_LOG", str(log))  # the workers inherit it
+    a = [-1.0, 1.0, 2.0, -2.0, 0.5, 3.0, 0.25, 1.5]
+    out = tmp_path / "t.csv"
+    assert main(["sweep", str(crashing_fmu), "--vary", "a=" + ",".join(map(str, a)), "--stop", "0.5",
+                 "--step", "0.1", "--workers", "2", "--out", str(out), "-q"]) == 0
+    table = pd.read_csv(out)
+    assert table["case"].tolist() == list(range(len(a))) and table["a"].tolist() == a
+    crashed = table["a"] < 0
+    assert table.loc[crashed, "status"].str.contains("worker process died").all()
+    assert table.loc[crashed, "status"].str.contains("twice").all() and table.loc[crashed, "y.x1"].isna().all()
+    assert (table.loc[~crashed, "status"] == "ok").all()
+    assert np.allclose(table.loc[~crashed, "y.x1"], np.exp(-table.loc[~crashed, "a"] * 0.5), rtol=1e-10, atol=0)
+    assert sorted(map(float, log.read_text().split())) == [-2.0, -2.0, -1.0, -1.0]  # each crash case twice
+    assert f"{len(a)} cases, 2 failed" in capsys.readouterr().out

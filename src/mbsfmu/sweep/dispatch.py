@@ -106,7 +106,7 @@ def _rounds(client, model, chunks, setup, bar, ahead, per_process=False):
     return done, failed
 
 
-def _forget(client, dead, wait=10.0):
+def _forget(client, dead, wait=3.0):
     """Wait (a bounded time) until the scheduler no longer lists the workers whose stations failed: the next
     round must not send a case to a station that is gone, and blame the case."""
     import time
