@@ -41,6 +41,7 @@ REF_RTOL = 1e-13
 TARGET_ERROR = 1e-6
 # short runs are repeated (at most REPEATS times, within REPEAT_CPU seconds in all); the fastest counts
 REPEATS, REPEAT_CPU = 25, 0.3
+REPORT_FILES = ("work_precision.csv", "work_precision.png", "summary.md")  # what run() writes into out_dir
 
 
 class Budget(Exception):
@@ -309,6 +310,8 @@ def plan(spec, methods, quick, ts):
 
 def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None, budget=None):
     """Run the work-precision sweep; write work_precision.csv/.png and summary.md in out_dir; return the rows."""
+    if out_dir is not None:  # before hours of runs: no report over the scene
+        files.check({f"the report {f}": os.path.join(out_dir, f) for f in REPORT_FILES}, {"the scene": scene_path})
     spec = _spec(scene_path)
     name = spec["name"]
     ts = comm_points(spec, stop=stop)
@@ -345,9 +348,10 @@ def run(scene_path, out_dir, methods=None, quick=False, progress=True, stop=None
     head = head_to_head(spec, ts, rows, kws)
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
-        output.write_csv(rows, os.path.join(out_dir, "work_precision.csv"), COLUMNS, 6)
-        plot(rows, os.path.join(out_dir, "work_precision.png"), name, ts)
-        files.write_text(os.path.join(out_dir, "summary.md"), summary(rows, spec, ts, ref_cpu, floor, notes, head))
+        csv_file, png, md = (os.path.join(out_dir, f) for f in REPORT_FILES)
+        output.write_csv(rows, csv_file, COLUMNS, 6)
+        plot(rows, png, name, ts)
+        files.write_text(md, summary(rows, spec, ts, ref_cpu, floor, notes, head))
     return rows
 
 

@@ -29,9 +29,14 @@ def write_crosscheck(scene, out) -> Path:
     from fmpy import read_model_description, simulate_fmu
 
     out = Path(out)
+    from .build import _load_scene, fmu_path
+    scene = _load_scene(scene)
+    name = fmu_path(scene, out).stem
+    files.check({f"the cross-check file {f}": out / f for f in (f"{name}.fmu", f"{name}_ref.opt", f"{name}_in.csv",
+                                                                   f"{name}_ref.csv", "ReadMe.txt")},
+                {"the scene": getattr(scene, "path", None)})
     out.mkdir(parents=True, exist_ok=True)
     fmu = build_fmu(scene, out)
-    name = fmu.stem
     md = read_model_description(str(fmu))
     de = md.defaultExperiment
     start = float(de.startTime) if de and de.startTime is not None else 0.0
