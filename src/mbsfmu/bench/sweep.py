@@ -220,7 +220,7 @@ def write_report(walls, cold_wall, counts, stop, out, load_before, load_after, c
         "## What a sweep does",
         "",
         "The plain loop is what a user writes by hand: one `Simulation`, then per case `reset`, `set`, `initialize`,"
-        " `run`, `get` of the four outputs. A sweep on a cluster adds: the first case run in the calling process"
+        " `run`, `get` of the four outputs. A sweep on a cluster adds: the first case run alone on a worker"
         " (its time sizes the batches), the rest in batches of about 0.2 s of work (at most one per worker for a"
         " short sweep), a whole number per worker, every batch taking every k-th case. Each batch goes with the"
         " scene's JSON, cases and results as columns (numpy arrays), as a call to the worker's Station (a Dask"
