@@ -63,7 +63,7 @@ def _is_binary_stl(data):
     count × 50 + 84 bytes; any other file that does not start with 'solid' is a binary one too (a broken one)."""
     if len(data) >= 84 and len(data) == 84 + 50 * struct.unpack_from("<I", data, 80)[0]:
         return True
-    return not data.lstrip().startswith(b"solid")
+    return data.lstrip()[:5].lower() != b"solid"
 
 
 def _binary_stl(data):
