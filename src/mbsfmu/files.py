@@ -55,7 +55,9 @@ def replacing(path):
     a pipe) is written directly: it cannot be replaced, and it holds no file to lose."""
     target = os.path.realpath(os.fspath(path))
     st = _stat(target)
-    if st is not None and not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode):
+    if st is not None and stat.S_ISDIR(st.st_mode):  # before the writer's work, not at the rename
+        raise IsADirectoryError(21, "is a folder, not a file", os.fspath(path))
+    if st is not None and not stat.S_ISREG(st.st_mode):
         yield target
         return
     folder, name = os.path.split(target)
