@@ -143,3 +143,17 @@ def test_stl_triangle_counts(tmp_path, monkeypatch):
     short.write_bytes(b"binary".ljust(80, b"\0") + struct.pack("<I", 5) + body)
     with pytest.raises(mbsfmu.ModelError, match=r"header counts 5 triangles \(334 bytes\).* 284 bytes"):
         mesh.read_mesh(short)
+
+
+@pytest.mark.parametrize("text, words", [
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999\n", "cannot read mesh"),  # past int64
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -99999999999999999\n", "vertex that does not exist"),
+    ("v 1e400 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "non-finite"),
+    ("v 0 0 0\nf 1 2\n", "three vertices"),
+    ("v 0 0\n", "three numbers"),
+])
+def test_malformed_obj_is_a_model_error(tmp_path, text, words):
+    path = tmp_path / "w.obj"
+    path.write_text(text)
+    with pytest.raises(mbsfmu.ModelError, match=words):
+        mesh.read_mesh(path)

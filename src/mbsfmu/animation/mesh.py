@@ -44,7 +44,7 @@ def read_mesh(path):
             tris = _ascii_stl(data)
     except _Limit as e:
         raise ModelError(f"the mesh has {e}", file=str(path), hint="simplify the mesh") from None
-    except (ValueError, IndexError, struct.error) as e:
+    except (ValueError, IndexError, OverflowError, struct.error) as e:
         raise ModelError(f"cannot read mesh: {e}", file=str(path)) from None
     if not len(tris):
         raise ModelError("the mesh has no triangles", file=str(path))
