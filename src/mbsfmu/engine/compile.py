@@ -37,7 +37,7 @@ FN2 = {"atan2": 0, "min": 1, "max": 2}
 V_KINDS = {n: i for i, n in enumerate("PARAM METHOD RTOL ATOL MAX_STEP STEP QIN FIN Y YD OUT".split())}
 METHODS = ("rk4", "dopri5", "dop853", "radau5", "gen_alpha", "auto")
 MAXSTACK = 64
-MAX_WORKSPACE = 2 ** 30  # bytes of per-instance workspace
+MAX_WORKSPACE = 2 ** 30  # bytes of per-instance workspace (mbs_model.h: MBS_MAX_WORKSPACE, the loader's limit)
 
 
 class _Programs:

@@ -382,6 +382,12 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
         if (off > m->n_elastic_d) FAIL("corrupt elastic section (data of body %d)", el);
     }
     if (off + nfix != m->n_elastic_d) FAIL("corrupt elastic section (data length)");
+    /* and back: a body names the row that names it (or none), so rows and elastic bodies pair one to one */
+    for (int i = 0; i < nb; i++) {
+        const int el = m->ib[i * IB + IB_ELASTIC];
+        if (el >= 0 && (el >= ne || row(m, el)[EI_BODY] != i))
+            FAIL("corrupt body table (body %d names elastic data %d; the scene has %d, and that one belongs to another body)", i, el, ne);
+    }
     const int32_t *fix = I + EH + EI * ne;  /* structural parameters */
     for (int k = 0; k < nfix; k++) if (!in_range(fix[k], 0, m->hdr[H_NPARAM])) FAIL("corrupt elastic section (parameter)");
     /* node indices wherever a node is named */

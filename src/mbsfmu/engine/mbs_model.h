@@ -69,6 +69,9 @@ enum { FN_SIN, FN_COS, FN_TAN, FN_ASIN, FN_ACOS, FN_ATAN, FN_SINH, FN_COSH, FN_T
        FN_ABS, FN_N1 };
 enum { FN_ATAN2, FN_MIN, FN_MAX, FN_N2 };
 #define MBS_MAXSTACK 64
+/* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py: MAX_WORKSPACE
+ * refuses a larger scene first, with its size) */
+#define MBS_MAX_WORKSPACE (1 << 30)
 
 struct MbsModel {
     char guid[64];

@@ -18,8 +18,8 @@ static const void *section(const unsigned char *b, size_t len, const Section *ta
         if (tab[s].id != id) continue;
         size_t size = kind == 1 ? 8 : kind == 2 ? 1 : 4;
         if (tab[s].kind != kind || tab[s].offset < 0 || tab[s].count < 0 || tab[s].count > (int64_t)(len / size) ||
-            (size_t)tab[s].offset > len - (size_t)tab[s].count * size || (tab[s].offset % size) ||
-            (want >= 0 && tab[s].count != want))
+            tab[s].count > INT32_MAX || (size_t)tab[s].offset > len - (size_t)tab[s].count * size ||
+            (tab[s].offset % size) || (want >= 0 && tab[s].count != want))
             return NULL;
         if (count) *count = (int)tab[s].count;
         return b + tab[s].offset;
@@ -27,7 +27,121 @@ static const void *section(const unsigned char *b, size_t len, const Section *ta
     return want == 0 ? b : NULL;  /* an absent section is an empty one */
 }
 
-static int in(int v, int lo, int hi) { return v >= lo && v < hi; }
+static int in(int64_t v, int64_t lo, int64_t hi) { return v >= lo && v < hi; }
+
+/* The checks below return 1 with a message in err. Sums and products of file values are taken in 64 bits. */
+#define BAD(...) do { snprintf(err, errlen, __VA_ARGS__); return 1; } while (0)
+
+/* position and velocity coordinates each joint type moves (kinematics/joints.py) */
+static const int8_t joint_npos[] = {0, 1, 1, 2, 2, 3, 4, 3, 7, 6};
+static const int8_t joint_nvel[] = {0, 1, 1, 2, 2, 3, 3, 3, 6, 6};
+
+/* Header counts: non-negative and each bounded by bytes of the file. The body, force, output, coordinate and
+ * parameter counts size the number layout of D, whose length the D section must match (so D's bytes bound
+ * them); the other counts size their own sections (checked as they are found); vector slots belong to force
+ * elements and drives to driven coordinates (check_bodies). The per-instance workspace has the same limit as
+ * compile.py's. */
+static int check_header(const int32_t *H, char *err, size_t errlen)
+{
+    for (int k = 0; k < H_SIZE; k++) if (H[k] < 0) BAD("corrupt header (field %d is %d, a count or offset >= 0)", k, (int)H[k]);
+    const int64_t nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], nf = H[H_NFORCE];
+    if (!(H[H_D_PARAM] == 0 && H[H_D_CONST] == H[H_NPARAM] && H[H_D_CONST] <= H[H_D_BODY] &&
+          H[H_D_FORCE] == H[H_D_BODY] + nb * DB && H[H_D_G] == H[H_D_FORCE] + nf * DF && H[H_D_X0] == H[H_D_G] + 3 &&
+          H[H_D_OUT] == (int64_t)H[H_D_X0] + np + nv && H[H_D_INTEG] == H[H_D_OUT] + 3 * (int64_t)H[H_NOUT] &&
+          H[H_ND] == (int64_t)H[H_D_INTEG] + DI))
+        BAD("corrupt number layout (the header's counts and offsets into D disagree)");
+    if (!in(H[H_METHOD], 0, MBS_NMETHODS)) BAD("corrupt header (integrator %d, valid 0..%d)", (int)H[H_METHOD], MBS_NMETHODS - 1);
+    if (4 * (int64_t)H[H_NQUAT] > np) BAD("corrupt header (%d quaternions need %lld coordinates, the scene has %lld)",
+                                           (int)H[H_NQUAT], 4 * (long long)H[H_NQUAT], (long long)np);
+    if (H[H_NVEC] > nf || H[H_NINPUT] > H[H_NVEC])
+        BAD("corrupt header (%d force inputs, %d vector slots, %lld force elements: inputs <= slots <= elements)",
+            (int)H[H_NINPUT], (int)H[H_NVEC], (long long)nf);
+    if (H[H_FEATURES] & ~(F_EXPR | F_ELASTIC)) BAD("corrupt header (unknown feature bits %#x)", (unsigned)H[H_FEATURES]);
+#ifndef MBS_WITH_ELASTIC
+    if (H[H_FEATURES] & F_ELASTIC) BAD("the scene has elastic bodies but this engine was built without them (rebuild the FMU)");
+#endif
+    const double work = 8.0 * (double)nb * (26.0 + 6.0 * (double)nv) + 8.0 * (double)nv * (double)nv;
+    if (work > MBS_MAX_WORKSPACE)
+        BAD("scene too large for the engine: %lld bodies with %lld velocity coordinates need %.3g GiB of workspace "
+            "(limit %.0f GiB)", (long long)nb, (long long)nv, work / (1 << 30), (double)MBS_MAX_WORKSPACE / (1 << 30));
+    return 0;
+}
+
+/* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range,
+ * and every drive slot a driven coordinate. Elastic data and nodes are named only by a scene with the elastic
+ * feature (whose tables mbs_elastic_validate checks against them). */
+static int check_bodies(const MbsModel *m, char *err, size_t errlen)
+{
+    const int32_t *H = m->hdr;
+    const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], ndrv = H[H_NDRV], elastic = H[H_FEATURES] & F_ELASTIC;
+    int64_t driven = 0;
+    for (int i = 0; i < nb; i++) {
+        const int32_t *ib = m->ib + i * IB;
+        const int t = ib[IB_JTYPE];
+        if (!in(ib[IB_PARENT], -1, i)) BAD("corrupt body table (body %d: parent %d, valid -1..%d)", i, (int)ib[IB_PARENT], i - 1);
+        if (!in(t, J_FIXED, J_FREE_CARDAN + 1) || ib[IB_NPOS] != joint_npos[t] || ib[IB_NVEL] != joint_nvel[t])
+            BAD("corrupt body table (body %d: joint type %d with %d/%d coordinates)", i, t, (int)ib[IB_NPOS], (int)ib[IB_NVEL]);
+        if (!in(ib[IB_ROT], 0, 3) || !in(ib[IB_IROT], 0, 3)) BAD("corrupt body table (body %d: rotation code)", i);
+        for (int k = 0; k < ib[IB_NPOS]; k++) {
+            if (!in(ib[IB_POS + k], -1, np)) BAD("corrupt body table (body %d: coordinate %d, valid -1..%d)", i, (int)ib[IB_POS + k], np - 1);
+            if (ib[IB_POS + k] < 0 && !in(ib[IB_DRV + k], 0, ndrv)) BAD("corrupt body table (body %d: drive %d of %d)", i, (int)ib[IB_DRV + k], ndrv);
+            driven += ib[IB_POS + k] < 0;
+        }
+        for (int k = 0; k < ib[IB_NVEL]; k++) {
+            if (!in(ib[IB_VEL + k], -1, nv)) BAD("corrupt body table (body %d: velocity %d, valid -1..%d)", i, (int)ib[IB_VEL + k], nv - 1);
+            if (ib[IB_VEL + k] < 0 && !in(ib[IB_DRV + k], 0, ndrv)) BAD("corrupt body table (body %d: drive %d of %d)", i, (int)ib[IB_DRV + k], ndrv);
+        }
+        if (ib[IB_ELASTIC] < -1 || ib[IB_NODE] < -1 || (!elastic && (ib[IB_ELASTIC] >= 0 || ib[IB_NODE] >= 0)))
+            BAD("corrupt body table (body %d: elastic data %d, node %d in a scene %s elastic bodies)", i,
+                (int)ib[IB_ELASTIC], (int)ib[IB_NODE], elastic ? "with" : "without");
+    }
+    if (ndrv > driven) BAD("corrupt header (%d drives for %lld driven coordinates)", ndrv, (long long)driven);
+    return 0;
+}
+
+/* Force elements: type, the coordinates or bodies they act on, their value slot; nodes only with elastic bodies. */
+static int check_forces(const MbsModel *m, char *err, size_t errlen)
+{
+    const int32_t *H = m->hdr;
+    const int nb = H[H_NB], elastic = H[H_FEATURES] & F_ELASTIC;
+    const int64_t ntd = 3 * ((int64_t)H[H_NDRV] + H[H_NVEC]);
+    for (int e = 0; e < H[H_NFORCE]; e++) {
+        const int32_t *fi = m->iforce + e * IF;
+        int ok = in(fi[IF_TYPE], 0, 4) && (fi[IF_SRC] == -1 || in(fi[IF_SRC], 0, ntd - 2)) && fi[IF_NODE_A] >= -1 &&
+                 fi[IF_NODE_B] >= -1 && (elastic || (fi[IF_NODE_A] < 0 && fi[IF_NODE_B] < 0));
+        if (fi[IF_TYPE] == FE_JOINT_SPRING) ok = ok && in(fi[IF_A], 0, H[H_NPOS]) && in(fi[IF_B], 0, H[H_NVEL]);
+        else if (fi[IF_TYPE] == FE_SPRING) ok = ok && in(fi[IF_A], -1, nb) && in(fi[IF_B], -1, nb);
+        else ok = ok && in(fi[IF_A], 0, nb);
+        if (!ok) BAD("corrupt force table (element %d)", e);
+    }
+    return 0;
+}
+
+/* Quaternion and plain coordinate lists, variables, outputs: every index inside what it indexes. */
+static int check_tables(const MbsModel *m, char *err, size_t errlen)
+{
+    const int32_t *H = m->hdr;
+    const int np = H[H_NPOS], nv = H[H_NVEL], elastic = H[H_FEATURES] & F_ELASTIC;
+    for (int j = 0; j < H[H_NQUAT]; j++)
+        for (int k = 0; k < 7; k++)
+            if (!in(m->quat[7 * j + k], 0, k < 4 ? np : nv)) BAD("corrupt quaternion table (quaternion %d)", j);
+    for (int k = 0; k < H[H_NPLAIN]; k++)
+        if (!in(m->plain[k], 0, np) || !in(m->plain[H[H_NPLAIN] + k], 0, nv)) BAD("corrupt coordinate table (entry %d)", k);
+    for (int k = 0; k < H[H_NVARS]; k++) {
+        const int kind = m->vars[2 * k], idx = m->vars[2 * k + 1];
+        static const int hi_of[] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0};
+        const int64_t hi = kind == MBS_V_PARAM ? H[H_NPARAM] : kind == MBS_V_QIN || kind == MBS_V_YD ? nv :
+                           kind == MBS_V_Y ? np : kind == MBS_V_FIN ? 3 * (int64_t)H[H_NINPUT] :
+                           kind == MBS_V_OUT ? 6 * (int64_t)H[H_NOUT] : in(kind, 0, 11) ? hi_of[kind] : 0;
+        if (!in(idx, 0, hi)) BAD("corrupt variable table (row %d: kind %d, index %d)", k, kind, idx);
+    }
+    for (int k = 0; k < H[H_NOUT]; k++) {
+        const int32_t *o = m->out + 3 * k;
+        if (!in(o[0], 0, H[H_NB]) || o[1] < -1 || (!elastic && o[1] >= 0) || !in(o[2], 0, 4))
+            BAD("corrupt output table (output %d)", k);
+    }
+    return 0;
+}
 
 MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen)
 {
@@ -54,18 +168,12 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     if (!h) FAIL("missing header");
     memcpy(m->hdr, h, sizeof m->hdr);
     const int32_t *H = m->hdr;
-    const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], nf = H[H_NFORCE];
-    for (int k = 0; k < H_SIZE; k++) if (H[k] < 0) FAIL("corrupt header (field %d)", k);
-    if (nb > 1000000 || np > 1000000 || nv > 100000 || nf > 1000000) FAIL("scene too large");
-    if (!(H[H_D_PARAM] == 0 && H[H_D_CONST] == H[H_NPARAM] && H[H_D_CONST] <= H[H_D_BODY] &&
-          H[H_D_FORCE] == H[H_D_BODY] + nb * DB && H[H_D_G] == H[H_D_FORCE] + nf * DF && H[H_D_X0] == H[H_D_G] + 3 &&
-          H[H_D_OUT] == H[H_D_X0] + np + nv && H[H_D_INTEG] == H[H_D_OUT] + 3 * H[H_NOUT] && H[H_ND] == H[H_D_INTEG] + DI))
-        FAIL("corrupt number layout");
-    if (!in(H[H_METHOD], 0, MBS_NMETHODS) || H[H_NQUAT] * 4 > np) FAIL("corrupt header");
+    if (check_header(H, err, errlen)) goto fail;
+    const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL];
     int ne_i = 0, ne_d = 0;
 #define SEC(ptr, id, kind, want) if (!(ptr = section(b, len, tab, nsec, id, kind, want, NULL))) FAIL("missing or corrupt section %d", id)
     SEC(m->ib, S_BODY_I, 0, (int64_t)nb * IB);
-    SEC(m->iforce, S_FORCE_I, 0, (int64_t)nf * IF);
+    SEC(m->iforce, S_FORCE_I, 0, (int64_t)H[H_NFORCE] * IF);
     SEC(m->quat, S_QUAT, 0, (int64_t)H[H_NQUAT] * 7);
     SEC(m->plain, S_PLAIN, 0, 2 * (int64_t)H[H_NPLAIN]);
     SEC(m->vars, S_VARS, 0, 2 * (int64_t)H[H_NVARS]);
@@ -77,47 +185,12 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     m->elastic_d = section(b, len, tab, nsec, S_ELASTIC_D, 1, -1, &ne_d);
     m->n_elastic_i = m->elastic_i ? ne_i : 0;
     m->n_elastic_d = m->elastic_d ? ne_d : 0;
-    const int ntd = 3 * (H[H_NDRV] + H[H_NVEC]);
-    for (int i = 0; i < nb; i++) {
-        const int32_t *ib = m->ib + i * IB;
-        const int t = ib[IB_JTYPE], npj = ib[IB_NPOS], nvj = ib[IB_NVEL];
-        if (!in(ib[IB_PARENT], -1, i) || !in(t, J_FIXED, J_FREE_CARDAN + 1) || !in(npj, 0, 8) || !in(nvj, 0, 7) ||
-            !in(ib[IB_ROT], 0, 3) || !in(ib[IB_IROT], 0, 3) || !in(ib[IB_ELASTIC], -1, nb) || ib[IB_NODE] < -1)
-            FAIL("corrupt body table (body %d)", i);
-        for (int k = 0; k < npj; k++)
-            if (!in(ib[IB_POS + k], -1, np) || (ib[IB_POS + k] < 0 && !in(3 * ib[IB_DRV + k], 0, ntd))) FAIL("corrupt body %d coordinates", i);
-        for (int k = 0; k < nvj; k++)
-            if (!in(ib[IB_VEL + k], -1, nv) || (ib[IB_VEL + k] < 0 && !in(3 * ib[IB_DRV + k], 0, ntd))) FAIL("corrupt body %d velocities", i);
-#ifndef MBS_WITH_ELASTIC
-        if (ib[IB_ELASTIC] >= 0 || ib[IB_NODE] >= 0)
-            FAIL("the scene has elastic bodies but this engine was built without them (rebuild the FMU)");
-#endif
-    }
-    for (int e = 0; e < nf; e++) {
-        const int32_t *fi = m->iforce + e * IF;
-        int ok = in(fi[IF_TYPE], 0, 4) && in(fi[IF_SRC], -1, ntd - 2 > 0 ? ntd - 2 : 0) && fi[IF_NODE_A] >= -1 && fi[IF_NODE_B] >= -1;
-        if (fi[IF_TYPE] == FE_JOINT_SPRING) ok = ok && in(fi[IF_A], 0, np) && in(fi[IF_B], 0, nv);
-        else if (fi[IF_TYPE] == FE_SPRING) ok = ok && in(fi[IF_A], -1, nb) && in(fi[IF_B], -1, nb);
-        else ok = ok && in(fi[IF_A], 0, nb);
-        if (!ok) FAIL("corrupt force table (element %d)", e);
-    }
-    for (int k = 0; k < 4 * H[H_NQUAT]; k++) if (!in(m->quat[(k / 4) * 7 + k % 4], 0, np)) FAIL("corrupt quaternion table");
-    for (int k = 0; k < 3 * H[H_NQUAT]; k++) if (!in(m->quat[(k / 3) * 7 + 4 + k % 3], 0, nv)) FAIL("corrupt quaternion table");
-    for (int k = 0; k < H[H_NPLAIN]; k++)
-        if (!in(m->plain[k], 0, np) || !in(m->plain[H[H_NPLAIN] + k], 0, nv)) FAIL("corrupt coordinate table");
-    for (int k = 0; k < H[H_NVARS]; k++) {
-        int kind = m->vars[2 * k], idx = m->vars[2 * k + 1];
-        static const int hi_of[] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0};
-        int hi = kind == MBS_V_PARAM ? H[H_NPARAM] : kind == MBS_V_QIN || kind == MBS_V_YD ? nv : kind == MBS_V_Y ? np :
-                 kind == MBS_V_FIN ? 3 * H[H_NINPUT] : kind == MBS_V_OUT ? 6 * H[H_NOUT] : in(kind, 0, 11) ? hi_of[kind] : 0;
-        if (!in(idx, 0, hi)) FAIL("corrupt variable table (row %d)", k);
-    }
-    if (3 * H[H_NINPUT] > ntd) FAIL("corrupt input count");
-    for (int k = 0; k < H[H_NOUT]; k++)
-        if (!in(m->out[3 * k], 0, nb) || m->out[3 * k + 1] < -1 || !in(m->out[3 * k + 2], 0, 4)) FAIL("corrupt output table");
+    if (check_bodies(m, err, errlen) || check_forces(m, err, errlen) || check_tables(m, err, errlen)) goto fail;
     int nnames = 0;
     const char *names = section(b, len, tab, nsec, S_NAMES, 2, -1, &nnames);
-    m->coord_name = calloc((size_t)np + nb + H[H_NVARS] + 1, sizeof(char *));
+    const size_t nstr = (size_t)np + (size_t)nb + (size_t)H[H_NVARS];
+    if (nstr > (size_t)nnames) FAIL("corrupt name table (%zu names needed)", nstr);  /* one byte each at least */
+    m->coord_name = calloc(nstr + 1, sizeof(char *));
     int32_t *read = malloc(((size_t)H[H_NVARS] + 1) * sizeof *read);
     m->read = read;
     if (!m->coord_name || !read) FAIL("out of memory");
@@ -127,11 +200,11 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     }
     m->body_name = m->coord_name + np;
     m->var_name = m->body_name + nb;
-    for (int k = 0, pos = 0; k < np + nb + H[H_NVARS]; k++) {
-        const char *end = names ? memchr(names + pos, 0, (size_t)(nnames - pos)) : NULL;
+    for (size_t k = 0, pos = 0; k < nstr; k++) {
+        const char *end = pos < (size_t)nnames ? memchr(names + pos, 0, (size_t)nnames - pos) : NULL;
         if (!end) FAIL("corrupt name table");
         m->coord_name[k] = names + pos;
-        pos = (int)(end - names) + 1;
+        pos = (size_t)(end - names) + 1;
     }
 #ifdef MBS_WITH_EXPR
     if (mbs_validate_code(m, err, errlen)) goto fail;
