@@ -48,7 +48,7 @@ def build(out: Path, feats=("expr", "elastic")) -> Path | None:
     if subprocess.run([cc, *SAN, str(probe), "-o", str(out.parent / "probe")], capture_output=True).returncode:
         return None
     srcs, _, defs = sources(feats)
-    cmd = [cc, "-O1", "-g", "-std=c99", "-D_POSIX_C_SOURCE=200809L", *SAN, *defs, f"-I{ENGINE}", "-o", str(out),
+    cmd = [cc, "-O1", "-g", "-std=c99", *SAN, *defs, f"-I{ENGINE}", "-o", str(out),
            str(REPO / "tests" / "c" / "scene_fuzz.c"), *map(str, srcs), "-lm"]
     res = subprocess.run(cmd, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-3000:]
@@ -79,10 +79,10 @@ def fuzz(harness: Path, scenes: list[Path], work: Path) -> dict:
         res = subprocess.run([str(harness), str(first), *map(str, scenes)], capture_output=True, text=True, env=env,
                              timeout=600)
         bad += [line for line in res.stdout.splitlines() if line.startswith("FUZZ-BAD")]
-        done = re.search(r"^FUZZ cases (\d+) refused (\d+) ran (\d+) failed (\d+) maxms ([\d.]+) maxalloc (\d+)",
-                         res.stdout, re.M)
+        done = re.search(r"^FUZZ cases (\d+) refused (\d+) ran (\d+) failed (\d+) abandoned (\d+) maxms ([\d.]+) "
+                         r"maxalloc (\d+)", res.stdout, re.M)
         if done:
-            for key, v in zip(("cases", "refused", "ran", "failed", "maxms", "maxalloc"), done.groups()):
+            for key, v in zip(("cases", "refused", "ran", "failed", "abandoned", "maxms", "maxalloc"), done.groups()):
                 v = float(v) if key == "maxms" else int(v)
                 totals[key] = max(totals.get(key, 0), v) if key.startswith("max") else totals.get(key, 0) + v
             break

@@ -10,7 +10,11 @@
  * sections) set to edge values, random bit flips, truncations, section rows swapped, special doubles.
  * Case k is the same mutant on every run (FIRST skips the ones before), so a report is reproducible.
  */
+#define _DEFAULT_SOURCE  /* setitimer, sigsetjmp, pwrite */
 #include <limits.h>
+#include <setjmp.h>
+#include <signal.h>
+#include <sys/time.h>
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -30,10 +34,13 @@ size_t __sanitizer_get_current_allocated_bytes(void);
 #define N_TRUNC 120
 #define N_DOUBLES 200
 #define STEPS 3
-#define STEP_H 1e-4
+#define STEP_H 1e-6
 #define ALLOC_PER_BYTE 64       /* an instance may own this many bytes per byte of its compiled scene ... */
 #define ALLOC_BASE (1 << 20)    /* ... plus this */
-#define SLOW_MS 2000.0
+#define SLOW_MS 5000.0          /* a case slower than this (wall time, on a shared machine) is a defect ... */
+#define STEP_CPU_S 0.5          /* ... but its steps may use this much CPU, then they are abandoned (a scene that needs
+                                 * many integrator steps is slow by its physics: up to max_steps per step) ... */
+#define MIN_EVALS 1000          /* ... if they went into at least this many right-hand sides */
 
 typedef struct { size_t off; int width; } Field;   /* a 4- or 8-byte integer of the file */
 typedef struct { unsigned char *b; size_t len; Field *f; int nf; int32_t counts[16]; int ncounts;
@@ -97,7 +104,8 @@ static void scan(Scene *s)
     }
 }
 
-static int cases_of(const Scene *s) { return 10 * s->nf + N_FLIPS + N_TRUNC + 2 * s->nsec * s->nsec + N_DOUBLES; }
+#define N_EDGES 8
+static int cases_of(const Scene *s) { return N_EDGES * s->nf + N_FLIPS + N_TRUNC + 2 * s->nsec * s->nsec + N_DOUBLES; }
 
 static void put(unsigned char *b, Field f, int64_t v)
 {
@@ -115,15 +123,15 @@ static size_t mutate(const Scene *s, int k, unsigned char *buf)
 {
     memcpy(buf, s->b, s->len);
     rng_state = (uint64_t)k * 2654435761ull + s->len;
-    if (k < 10 * s->nf) {                        /* one field to an edge value */
-        Field f = s->f[k / 10];
-        int64_t v = get(s->b, f), big = f.width == 4 ? INT_MAX : INT64_MAX, small = f.width == 4 ? INT_MIN : INT64_MIN;
-        int64_t n = s->counts[rnd() % (unsigned)s->ncounts];
-        const int64_t edge[10] = {0, -1, 1, v - 1, v + 1, big, small, n - 1, n, n + 1};
-        put(buf, f, edge[k % 10]);
+    if (k < N_EDGES * s->nf) {                   /* one field to an edge value; n: one of the header's counts */
+        Field f = s->f[k / N_EDGES];
+        const int64_t n = s->counts[rnd() % (unsigned)s->ncounts];
+        const int64_t edge[N_EDGES] = {0, -1, 1, n - 1, n, n + 1, f.width == 4 ? INT_MAX : INT64_MAX,
+                                       f.width == 4 ? INT_MIN : INT64_MIN};
+        put(buf, f, edge[k % N_EDGES]);
         return s->len;
     }
-    k -= 10 * s->nf;
+    k -= N_EDGES * s->nf;
     if (k < N_FLIPS) {                           /* 1 to 4 random bits */
         int nbits = 1 + (int)(rnd() % 4);
         for (int i = 0; i < nbits; i++) { size_t bit = rnd() % (s->len * 8); buf[bit / 8] ^= (unsigned char)(1u << (bit % 8)); }
@@ -168,10 +176,19 @@ static void complain(const char *what, long k, const char *detail)
     bad++;
 }
 
+static sigjmp_buf abandon;
+static long n_abandoned = 0;
+static void on_timer(int sig) { (void)sig; siglongjmp(abandon, 1); }
+static void cpu_timer(double seconds)
+{
+    struct itimerval t = {{0, 0}, {(time_t)seconds, (suseconds_t)((seconds - (double)(time_t)seconds) * 1e6)}};
+    setitimer(ITIMER_PROF, &t, NULL);
+}
+
 static void logger(void *env, int status, const char *msg) { (void)env; (void)status; (void)strlen(msg); }
 
 /* What a host does with a loaded scene. Returns 1 if it ran its steps, 0 if refused with a message. */
-static int run(const MbsModel *m, long k, size_t base, size_t len, size_t *peak)
+static int run(const MbsModel *m, long k, size_t base, size_t len, size_t *peak, long *evals)
 {
     MbsInstance *s = mbs_instance_new(m, logger, NULL);
     if (!s) { complain("instance", k, "mbs_instance_new returned NULL"); return 0; }
@@ -184,12 +201,31 @@ static int run(const MbsModel *m, long k, size_t base, size_t len, size_t *peak)
         if (name) (void)strlen(name);
         mbs_get_real(s, i, &x);
     }
-    int ok = mbs_initialize(s, 0.0) == MBS_OK, steps = 0;
-    for (double t = 0.0; ok && steps < STEPS; steps++, t += STEP_H) {
-        if (mbs_do_step(s, t, STEP_H) != MBS_OK) break;
-        mbs_get_reals(s, vr, (size_t)nv, val);
+    const int ok = mbs_initialize(s, 0.0) == MBS_OK;
+    volatile int steps = 0, abandoned = 0;
+    if (ok) {
+        if (sigsetjmp(abandon, 1)) abandoned = 1;
+        else {
+            cpu_timer(STEP_CPU_S);
+            for (double t = 0.0; steps < STEPS; steps++, t += STEP_H) {
+                if (mbs_do_step(s, t, STEP_H) != MBS_OK) break;
+                mbs_get_reals(s, vr, (size_t)nv, val);
+            }
+        }
+        cpu_timer(0.0);
     }
     const int ran = ok && steps == STEPS;
+    long stats[6];
+    mbs_stats(s, stats, NULL);
+    *evals = stats[2];
+    if (abandoned) {
+        n_abandoned++;
+        if (stats[2] < MIN_EVALS) complain("slow", k, "a few steps took long with few right-hand side evaluations");
+        mbs_instance_free(s);  /* stopped inside a step: nothing of it is read again */
+        free(vr);
+        free(val);
+        return 0;
+    }
     if (!ran && !mbs_message(s)[0]) complain("silent", k, "initialization or a step failed without a message");
     size_t used = __sanitizer_get_current_allocated_bytes() - base;
     if (used > *peak) *peak = used;
@@ -211,9 +247,11 @@ static int run(const MbsModel *m, long k, size_t base, size_t len, size_t *peak)
 int main(int argc, char **argv)
 {
     if (argc < 3) { fprintf(stderr, "usage: scene_fuzz FIRST scene.bin...\n"); return 2; }
+    setvbuf(stdout, NULL, _IOLBF, 0);
+    signal(SIGPROF, on_timer);
     const char *pf = getenv("FUZZ_PROGRESS");
     if (pf) progress = open(pf, O_WRONLY | O_CREAT | O_TRUNC, 0600);
-    const long first = atol(argv[1]);
+    const long first = atol(argv[1]), last = getenv("FUZZ_LAST") ? atol(getenv("FUZZ_LAST")) : -1;
     const int nscenes = argc - 2;
     Scene *sc = calloc((size_t)nscenes, sizeof *sc);
     size_t maxlen = 0;
@@ -229,32 +267,47 @@ int main(int argc, char **argv)
     for (int i = 0; i < nscenes; i++) {
         const int n = cases_of(&sc[i]);
         for (int c = 0; c < n; c++, k++) {
-            if (k < first) continue;
+            if (k < first || (last >= 0 && k > last)) continue;
             mark(k);
             size_t len = mutate(&sc[i], c, buf);
             /* the loader gets exactly len bytes: a copy of that size, so ASan sees any read past them */
             unsigned char *exact = malloc(len ? len : 1);
             memcpy(exact, buf, len);
+            if (last >= 0) {  /* one case at a time: what it changed and what came of it */
+                printf("case %ld (scene %d mutant %d", k, i, c);
+                if (c < N_EDGES * sc[i].nf)
+                    printf(", byte %zu: %lld -> %lld", sc[i].f[c / N_EDGES].off, (long long)get(sc[i].b, sc[i].f[c / N_EDGES]),
+                           (long long)get(buf, sc[i].f[c / N_EDGES]));
+                for (size_t j = 0; c >= N_EDGES * sc[i].nf && j < len && j < sc[i].len; j++)
+                    if (buf[j] != sc[i].b[j]) printf(", byte %zu: %#x -> %#x", j, sc[i].b[j], buf[j]);
+                printf(")\n");
+            }
             char err[512] = "";
+            long evals = 0;
             double t0 = now_ms();
             size_t base = __sanitizer_get_current_allocated_bytes();
             MbsModel *m = mbs_model_load(exact, len, err, sizeof err);
             total++;
+            if (last >= 0) printf("  %s\n", m ? "loaded" : err);
             if (!m) {
                 refused++;
                 if (!err[0]) complain("silent", k, "refused without a message");
             } else {
-                if (run(m, k, base, len, &peak)) ran++;
+                if (run(m, k, base, len, &peak, &evals)) ran++;
                 else failed++;
                 mbs_model_free(m);
             }
             free(exact);
             double ms = now_ms() - t0;
+            if (last >= 0) printf("  %.1f ms, %ld evaluations\n", ms, evals);
             if (ms > maxms) maxms = ms;
             if (ms > SLOW_MS) { char d[64]; snprintf(d, sizeof d, "%.0f ms", ms); complain("slow", k, d); }
         }
     }
-    printf("FUZZ cases %ld refused %ld ran %ld failed %ld maxms %.1f maxalloc %zu bad %d\n", total, refused, ran,
-           failed, maxms, peak, bad);
+    printf("FUZZ cases %ld refused %ld ran %ld failed %ld abandoned %ld maxms %.1f maxalloc %zu bad %d\n", total,
+           refused, ran, failed, n_abandoned, maxms, peak, bad);
+    for (int i = 0; i < nscenes; i++) { free(sc[i].b); free(sc[i].f); }
+    free(sc);
+    free(buf);
     return bad ? 1 : 0;
 }
