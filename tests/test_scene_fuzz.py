@@ -20,6 +20,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -93,6 +94,163 @@ def fuzz(harness: Path, scenes: list[Path], work: Path) -> dict:
     totals["reports"] = len(reports)
     totals["cases"] = totals.get("cases", 0) + len(reports)
     return {"totals": totals, "reports": reports, "bad": bad}
+
+
+# ---- the classes of defect one by one, in-process (the engine library): tables that disagree, counts that
+# nothing in the file bounds. Each rule is the compiled-scene layout's (mbs_model.h, elastic_tables.py).
+
+def _compiled(name):
+    sys.path.insert(0, str(REPO / "src"))
+    import mbsfmu
+    from mbsfmu.simulation import compiled
+
+    blob, _, model = compiled(mbsfmu.load(REPO / "models" / f"{name}.yaml").spec)
+    return blob, model
+
+
+def _sections(blob):
+    nsec = struct.unpack_from("<i", blob, 72)[0]
+    return {sid: (row, kind, off, cnt) for row, (sid, kind, off, cnt) in
+            ((76 + 24 * s, struct.unpack_from("<iiqq", blob, 76 + 24 * s)) for s in range(nsec))}
+
+
+def _patch(blob, sid, index, value):
+    """blob with int32 entry `index` of section `sid` set to value."""
+    _, kind, off, _ = _sections(blob)[sid]
+    assert kind == 0
+    b = bytearray(blob)
+    struct.pack_into("<i", b, off + 4 * index, value)
+    return bytes(b)
+
+
+def _refused(blob, *words):
+    from mbsfmu.engine import EngineError, Instance
+
+    with pytest.raises(EngineError) as e:
+        Instance(blob)
+    for w in words:
+        assert w in str(e.value), str(e.value)
+    return str(e.value)
+
+
+def _c():
+    from mbsfmu.engine import compile as c
+    return c
+
+
+def _header(blob, field, value):
+    c = _c()
+    return _patch(blob, c.S_HEADER, c.H_FIELDS.index(field), value)
+
+
+def test_elastic_references_pair_with_the_elastic_rows():
+    """A body's elastic index names the elastic row that names that body (rows and elastic bodies pair one to
+    one): an index on a rigid body, one past the table, and the elastic body's own index moved are refused."""
+    c = _c()
+    blob, model = _compiled("robot_arm_elastic")
+    elastic = [i for i, b in enumerate(model.bodies) if b.elastic]
+    rigid = [i for i, b in enumerate(model.bodies) if not b.elastic]
+    assert len(elastic) == 1
+    for body, value in [(rigid[0], 0), (rigid[-1], 0), (elastic[0], 1), (elastic[0], 2 ** 31 - 1), (elastic[0], -2)]:
+        _refused(_patch(blob, c.S_BODY_I, body * c.IB + c.IB_ELASTIC, value), "elastic", f"body {body}")
+
+
+def test_nodes_only_on_elastic_bodies():
+    """A joint, a force end or an output sits at a node only of an elastic body: at a node of a rigid parent or
+    rigid body, and anywhere in a scene without elastic bodies, it is refused."""
+    c = _c()
+    blob, model = _compiled("robot_arm_elastic")
+    on_rigid_parent = [i for i, b in enumerate(model.bodies) if b.parent >= 0 and not model.bodies[b.parent].elastic]
+    _refused(_patch(blob, c.S_BODY_I, on_rigid_parent[0] * c.IB + c.IB_NODE, 0), "node")
+    rigid_out = [o for o, spec in enumerate(model.outputs) if not model.bodies[model.index[spec["body"]]].elastic]
+    _refused(_patch(blob, c.S_OUT_I, 3 * rigid_out[0] + 1, 0), f"output {rigid_out[0]}")
+    rigid_force = [n for n, fe in enumerate(model.bound_forces) if fe["type"] == "torque"
+                   and not model.bodies[fe["body_index"]].elastic]
+    _refused(_patch(blob, c.S_FORCE_I, rigid_force[0] * c.IF + c.IF_NODE_A, 0), "force")
+    blob, model = _compiled("spring_damper")  # no elastic bodies at all
+    _refused(_patch(blob, c.S_BODY_I, 1 * c.IB + c.IB_NODE, 0), "without elastic")
+    _refused(_patch(blob, c.S_OUT_I, 1, 0), "output 0")
+    spring = [n for n, fe in enumerate(model.bound_forces) if fe["type"] == "spring_damper"][0]
+    for end in (c.IF_NODE_A, c.IF_NODE_B):
+        _refused(_patch(blob, c.S_FORCE_I, spring * c.IF + end, 0), f"element {spring}")
+
+
+def test_elastic_feature_bit_cleared_while_elastic_tables_are_used():
+    """Without the elastic feature bit the engine does not check or run elastic tables: a scene that still names
+    elastic data is refused (it used to reach elastic.c without its workspace)."""
+    c = _c()
+    blob, _ = _compiled("robot_arm_elastic")
+    features = struct.unpack_from("<i", blob, _sections(blob)[c.S_HEADER][2] + 4 * c.H_FIELDS.index("FEATURES"))[0]
+    assert features & c.F_ELASTIC
+    _refused(_header(blob, "FEATURES", features & ~c.F_ELASTIC), "without elastic bodies")
+    _refused(_header(blob, "FEATURES", features | 4), "feature bits")
+
+
+@pytest.mark.parametrize("name, body, change", [
+    ("double_pendulum", 0, {"IB_NPOS": 0}), ("double_pendulum", 1, {"IB_NVEL": 6}),
+    ("double_pendulum", 1, {"IB_JTYPE": 8}),      # revolute → free quaternion: 7/6 coordinates, it has 1/1
+    ("free_body", 0, {"IB_NPOS": 6}), ("spinning_top", 0, {"IB_JTYPE": 1}),
+])
+def test_joint_type_and_its_coordinate_counts_agree(name, body, change):
+    """A joint type moves a fixed number of coordinates (kinematics/joints.py); a body table that gives other
+    counts would send the kinematics and the initial rotation through slots that are not coordinates."""
+    c = _c()
+    blob, _ = _compiled(name)
+    for field, value in change.items():
+        blob = _patch(blob, c.S_BODY_I, body * c.IB + getattr(c, field), value)
+    _refused(blob, f"body {body}", "joint type")
+
+
+def test_drive_slots_are_driven_coordinates():
+    """Drive slots index the drives, and there are no more drives than driven coordinates."""
+    c = _c()
+    blob, model = _compiled("driven_crank")
+    ib = struct.unpack_from(f"<{len(model.bodies) * c.IB}i", blob, _sections(blob)[c.S_BODY_I][2])
+    body, k = next((i, k) for i in range(len(model.bodies)) for k in range(ib[i * c.IB + c.IB_NPOS])
+                   if ib[i * c.IB + c.IB_POS + k] < 0)
+    ndrv = len([d for b in model.bodies for d in b.drives])
+    _refused(_patch(blob, c.S_BODY_I, body * c.IB + c.IB_DRV + k, ndrv), "drive")
+    _refused(_header(blob, "NDRV", ndrv + 1), "drives")
+
+
+@pytest.mark.parametrize("field, value", [("NDRV", 30_000_000), ("NVEC", 30_000_000), ("NINPUT", 30_000_000),
+                                          ("NDRV", 2 ** 31 - 1), ("NQUAT", 2 ** 31 - 1), ("NOUT", 2 ** 31 - 1),
+                                          ("NB", 2 ** 31 - 1), ("NVEL", 2 ** 31 - 1), ("NVARS", 2 ** 31 - 1)])
+def test_counts_are_bounded_by_the_bytes_present(field, value):
+    """A count nothing in a 2.5 kB file backs (3e7 drives made the host allocate 700 MB) is refused at load:
+    drives by the driven coordinates, vector slots by the force elements, the rest by their sections or the
+    length of the numbers they lay out."""
+    blob, _ = _compiled("cart_pole")
+    assert len(blob) < 4096
+    _refused(_header(blob, field, value), "corrupt")
+
+
+def test_workspace_limit_of_compile_py_holds_at_load():
+    """A compiled scene whose numbers do hold 20,000 velocity coordinates for its bodies (a consistent layout,
+    160 kB) would need 3 GiB of dense workspace: the loader refuses it with its size, as compile.py would."""
+    c = _c()
+    blob, model = _compiled("double_pendulum")
+    sec = _sections(blob)
+    H = list(struct.unpack_from(f"<{len(c.H_FIELDS)}i", blob, sec[c.S_HEADER][2]))
+    h = {k: i for i, k in enumerate(c.H_FIELDS)}
+    extra = 20000
+    _, _, off, cnt = sec[c.S_D]
+    D = list(struct.unpack_from(f"<{cnt}d", blob, off))
+    at = H[h["D_OUT"]]  # the x0 block ends here: the velocities' initial values grow
+    D = D[:at] + [0.0] * extra + D[at:]
+    H[h["NVEL"]] += extra
+    for k in ("D_OUT", "D_INTEG", "ND"):
+        H[h[k]] += extra
+    parts = []
+    for sid in sorted(sec):
+        _, kind, o, n = sec[sid]
+        fmt = {0: "i", 1: "d", 2: "B"}[kind]
+        arr = list(struct.unpack_from(f"<{n}{fmt}", blob, o))
+        parts.append((sid, kind, np.array(H if sid == c.S_HEADER else D if sid == c.S_D else arr,
+                                          dtype={0: np.int32, 1: float, 2: np.uint8}[kind])))
+    guid = blob[8:72].split(b"\0")[0].decode()
+    big = c._pack(parts, guid)
+    _refused(big, "scene too large", "GiB")
 
 
 @pytest.fixture(scope="module")

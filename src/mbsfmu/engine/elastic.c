@@ -377,7 +377,8 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
             N < 1 || !in_range(r[EI_STIFF], 0, 2) || r[EI_D] != off ||
             !in_range(r[EI_Q], 0, NPOS(m)) || r[EI_Q] + n > NPOS(m) || !in_range(r[EI_QD], 0, NVEL(m)) ||
             r[EI_QD] + n > NVEL(m) || N > m->n_elastic_d)
-            FAIL("corrupt elastic section (body %d)", el);
+            FAIL("corrupt elastic section (row %d for body %d: the body must name this row back; modes 1..%d, nodes >= 1, "
+                 "coordinates and data inside their tables)", el, b, MAX_MODES);
         off += block_size(n, N, r[EI_STIFF]);
         if (off > m->n_elastic_d) FAIL("corrupt elastic section (data of body %d)", el);
     }
