@@ -226,31 +226,36 @@ def test_counts_are_bounded_by_the_bytes_present(field, value):
 
 
 def test_workspace_limit_of_compile_py_holds_at_load():
-    """A compiled scene whose numbers do hold 20,000 velocity coordinates for its bodies (a consistent layout,
-    160 kB) would need 3 GiB of dense workspace: the loader refuses it with its size, as compile.py would."""
+    """A compiled scene whose tables do hold 20,000 more coordinates (consistent layout, names and coordinate
+    lists; 400 kB) would need 3 GiB of dense workspace: the loader refuses it with its size, as compile.py
+    would have."""
     c = _c()
     blob, model = _compiled("double_pendulum")
     sec = _sections(blob)
-    H = list(struct.unpack_from(f"<{len(c.H_FIELDS)}i", blob, sec[c.S_HEADER][2]))
-    h = {k: i for i, k in enumerate(c.H_FIELDS)}
-    extra = 20000
-    _, _, off, cnt = sec[c.S_D]
-    D = list(struct.unpack_from(f"<{cnt}d", blob, off))
-    at = H[h["D_OUT"]]  # the x0 block ends here: the velocities' initial values grow
-    D = D[:at] + [0.0] * extra + D[at:]
-    H[h["NVEL"]] += extra
-    for k in ("D_OUT", "D_INTEG", "ND"):
-        H[h[k]] += extra
-    parts = []
-    for sid in sorted(sec):
-        _, kind, o, n = sec[sid]
-        fmt = {0: "i", 1: "d", 2: "B"}[kind]
-        arr = list(struct.unpack_from(f"<{n}{fmt}", blob, o))
-        parts.append((sid, kind, np.array(H if sid == c.S_HEADER else D if sid == c.S_D else arr,
-                                          dtype={0: np.int32, 1: float, 2: np.uint8}[kind])))
-    guid = blob[8:72].split(b"\0")[0].decode()
-    big = c._pack(parts, guid)
-    _refused(big, "scene too large", "GiB")
+    fmt = {0: "i", 1: "d", 2: "B"}
+    arrays = {sid: list(struct.unpack_from(f"<{n}{fmt[kind]}", blob, off)) for sid, (_, kind, off, n) in sec.items()}
+    H, h = arrays[c.S_HEADER], {k: i for i, k in enumerate(c.H_FIELDS)}
+    np_, nv, extra = H[h["NPOS"]], H[h["NVEL"]], 20000
+    D, x0 = arrays[c.S_D], H[h["D_X0"]]
+    arrays[c.S_D] = D[:x0 + np_] + [0.0] * extra + D[x0 + np_:x0 + np_ + nv] + [0.0] * extra + D[x0 + np_ + nv:]
+    plain = arrays[c.S_PLAIN]
+    k = H[h["NPLAIN"]]
+    arrays[c.S_PLAIN] = plain[:k] + list(range(np_, np_ + extra)) + plain[k:] + list(range(nv, nv + extra))
+    names = bytes(arrays[c.S_NAMES]).split(b"\0")[:-1]
+    names = names[:np_] + [f"x{i}".encode() for i in range(extra)] + names[np_:]
+    arrays[c.S_NAMES] = list(b"".join(n + b"\0" for n in names))
+    for key in ("NPOS", "NVEL", "NPLAIN"):
+        H[h[key]] += extra
+    for key in ("D_OUT", "D_INTEG", "ND"):
+        H[h[key]] += 2 * extra
+    parts = [(sid, kind, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
+             for sid, (_, kind, _, _) in sorted(sec.items())]
+    big = c._pack(parts, blob[8:72].split(b"\0")[0].decode())
+    _refused(big, "scene too large", "20002 velocity coordinates", "GiB")
+    H[h["NVEL"]] -= 1  # and the same file with one count off is corrupt, not large
+    parts = [(sid, kind, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
+             for sid, (_, kind, _, _) in sorted(sec.items())]
+    _refused(c._pack(parts, "g"), "corrupt")
 
 
 @pytest.fixture(scope="module")

@@ -38,8 +38,8 @@ static const int8_t joint_nvel[] = {0, 1, 1, 2, 2, 3, 3, 3, 6, 6};
 
 /* Header counts: non-negative and each bounded by bytes of the file. The body, force, output, coordinate and
  * parameter counts size the number layout of D, whose length the D section must match (so D's bytes bound
- * them); the other counts size their own sections (checked as they are found); vector slots belong to force
- * elements and drives to driven coordinates (check_bodies). The per-instance workspace has the same limit as
+ * them); positions follow from velocities and quaternions; the other counts size their own sections (checked as
+ * they are found); vector slots belong to force elements and drives to driven coordinates (check_bodies). The per-instance workspace has the same limit as
  * compile.py's. */
 static int check_header(const int32_t *H, char *err, size_t errlen)
 {
@@ -51,8 +51,11 @@ static int check_header(const int32_t *H, char *err, size_t errlen)
           H[H_ND] == (int64_t)H[H_D_INTEG] + DI))
         BAD("corrupt number layout (the header's counts and offsets into D disagree)");
     if (!in(H[H_METHOD], 0, MBS_NMETHODS)) BAD("corrupt header (integrator %d, valid 0..%d)", (int)H[H_METHOD], MBS_NMETHODS - 1);
-    if (4 * (int64_t)H[H_NQUAT] > np) BAD("corrupt header (%d quaternions need %lld coordinates, the scene has %lld)",
-                                           (int)H[H_NQUAT], 4 * (long long)H[H_NQUAT], (long long)np);
+    /* a position coordinate per velocity coordinate, and a fourth one per quaternion; the rest are plain */
+    if (np != nv + H[H_NQUAT] || H[H_NPLAIN] != nv - 3 * (int64_t)H[H_NQUAT])
+        BAD("corrupt header (%lld positions, %lld velocities, %d quaternions, %d plain coordinates: positions = "
+            "velocities + quaternions, plain = velocities - 3 quaternions)", (long long)np, (long long)nv,
+            (int)H[H_NQUAT], (int)H[H_NPLAIN]);
     if (H[H_NVEC] > nf || H[H_NINPUT] > H[H_NVEC])
         BAD("corrupt header (%d force inputs, %d vector slots, %lld force elements: inputs <= slots <= elements)",
             (int)H[H_NINPUT], (int)H[H_NVEC], (long long)nf);
