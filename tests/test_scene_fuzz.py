@@ -76,6 +76,12 @@ def fuzz(harness: Path, scenes: list[Path], work: Path) -> dict:
     progress = work / "progress"
     env = {**os.environ, **ENV, "FUZZ_PROGRESS": str(progress)}
     first, totals, reports, bad = 0, {}, [], []
+    keys = ("cases", "refused", "ran", "failed", "abandoned", "maxms", "maxalloc")
+
+    def add(values):
+        for key, v in zip(keys, values):
+            totals[key] = max(totals.get(key, 0), v) if key.startswith("max") else totals.get(key, 0) + v
+
     while len(reports) < MAX_REPORTS:
         res = subprocess.run([str(harness), str(first), *map(str, scenes)], capture_output=True, text=True, env=env,
                              timeout=600)
@@ -83,16 +89,14 @@ def fuzz(harness: Path, scenes: list[Path], work: Path) -> dict:
         done = re.search(r"^FUZZ cases (\d+) refused (\d+) ran (\d+) failed (\d+) abandoned (\d+) maxms ([\d.]+) "
                          r"maxalloc (\d+)", res.stdout, re.M)
         if done:
-            for key, v in zip(("cases", "refused", "ran", "failed", "abandoned", "maxms", "maxalloc"), done.groups()):
-                v = float(v) if key == "maxms" else int(v)
-                totals[key] = max(totals.get(key, 0), v) if key.startswith("max") else totals.get(key, 0) + v
+            add(float(v) if "." in v else int(v) for v in done.groups())
             break
-        case = struct.unpack("<q", progress.read_bytes()[:8])[0]
+        case, refused, ran, failed, abandoned = struct.unpack("<5q", progress.read_bytes()[:40])
+        add((case - first + 1, refused, ran, failed, abandoned))  # the reported case counts as a case
         lines = [ln for ln in res.stderr.splitlines() if "ERROR" in ln or "runtime error" in ln or "#" in ln]
         reports.append((case, "\n".join(lines[:8])))
         first = case + 1
     totals["reports"] = len(reports)
-    totals["cases"] = totals.get("cases", 0) + len(reports)
     return {"totals": totals, "reports": reports, "bad": bad}
 
 

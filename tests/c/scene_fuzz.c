@@ -46,11 +46,13 @@ typedef struct { size_t off; int width; } Field;   /* a 4- or 8-byte integer of 
 typedef struct { unsigned char *b; size_t len; Field *f; int nf; int32_t counts[16]; int ncounts;
                  size_t dbl[2]; size_t ndbl[2]; int nsec; } Scene;
 
-/* the case being run, in the progress file: a sanitizer report ends the process, the driver reads where */
+/* the case being run and the counts before it, in the progress file: a sanitizer report ends the process, the
+ * driver reads where and what was counted */
 static int progress = -1;
-static void mark(long k)
+static void mark(long k, long refused, long ran, long failed, long abandoned)
 {
-    if (progress >= 0) (void)!pwrite(progress, &k, sizeof k, 0);
+    const int64_t rec[5] = {k, refused, ran, failed, abandoned};
+    if (progress >= 0) (void)!pwrite(progress, rec, sizeof rec, 0);
 }
 
 static uint64_t rng_state;
@@ -268,7 +270,7 @@ int main(int argc, char **argv)
         const int n = cases_of(&sc[i]);
         for (int c = 0; c < n; c++, k++) {
             if (k < first || (last >= 0 && k > last)) continue;
-            mark(k);
+            mark(k, refused, ran, failed, n_abandoned);
             size_t len = mutate(&sc[i], c, buf);
             /* the loader gets exactly len bytes: a copy of that size, so ASan sees any read past them */
             unsigned char *exact = malloc(len ? len : 1);
