@@ -39,8 +39,8 @@ static const int8_t joint_nvel[] = {0, 1, 1, 2, 2, 3, 3, 3, 6, 6};
 /* Header counts: non-negative and each bounded by bytes of the file. The body, force, output, coordinate and
  * parameter counts size the number layout of D, whose length the D section must match (so D's bytes bound
  * them); positions follow from velocities and quaternions; the other counts size their own sections (checked as
- * they are found); vector slots belong to force elements and drives to driven coordinates (check_bodies). The per-instance workspace has the same limit as
- * compile.py's. */
+ * they are found); vector slots belong to force elements and drives to driven coordinates (check_bodies). The
+ * per-instance workspace has the same limit as compile.py's. */
 static int check_header(const int32_t *H, char *err, size_t errlen)
 {
     for (int k = 0; k < H_SIZE; k++) if (H[k] < 0) BAD("corrupt header (field %d is %d, a count or offset >= 0)", k, (int)H[k]);
@@ -115,7 +115,8 @@ static int check_forces(const MbsModel *m, char *err, size_t errlen)
         if (fi[IF_TYPE] == FE_JOINT_SPRING) ok = ok && in(fi[IF_A], 0, H[H_NPOS]) && in(fi[IF_B], 0, H[H_NVEL]);
         else if (fi[IF_TYPE] == FE_SPRING) ok = ok && in(fi[IF_A], -1, nb) && in(fi[IF_B], -1, nb);
         else ok = ok && in(fi[IF_A], 0, nb);
-        if (!ok) BAD("corrupt force table (element %d)", e);
+        if (!ok) BAD("corrupt force table (element %d: type 0..3, its coordinates or bodies in range, value slot -1 or "
+                     "one of %lld, nodes only in a scene with elastic bodies)", e, (long long)ntd / 3);
     }
     return 0;
 }
@@ -141,7 +142,8 @@ static int check_tables(const MbsModel *m, char *err, size_t errlen)
     for (int k = 0; k < H[H_NOUT]; k++) {
         const int32_t *o = m->out + 3 * k;
         if (!in(o[0], 0, H[H_NB]) || o[1] < -1 || (!elastic && o[1] >= 0) || !in(o[2], 0, 4))
-            BAD("corrupt output table (output %d)", k);
+            BAD("corrupt output table (output %d: body %d of %d, node %d%s, quantities %d of 0..3)", k, (int)o[0],
+                (int)H[H_NB], (int)o[1], elastic ? "" : " in a scene without elastic bodies", (int)o[2]);
     }
     return 0;
 }
