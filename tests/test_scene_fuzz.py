@@ -217,6 +217,14 @@ def test_drive_slots_are_driven_coordinates():
     _refused(_header(blob, "NDRV", ndrv + 1), "drives")
 
 
+@pytest.mark.parametrize("name, value", [("spinning_top", 1), ("robot_arm_6dof", 1), ("stress/gimbal_lock", 0)])
+def test_cardan_count_is_the_body_tables(name, value):
+    """The header's count of Cardan joints (it switches the gimbal-lock checks on) is the body table's."""
+    blob, model = _compiled(name)
+    assert sum(b.kind in ("spherical", "free") and b.param == "cardan" for b in model.bodies) != value
+    _refused(_header(blob, "NCARDAN", value), "Cardan")
+
+
 @pytest.mark.parametrize("field, value", [("NDRV", 30_000_000), ("NVEC", 30_000_000), ("NINPUT", 30_000_000),
                                           ("NDRV", 2 ** 31 - 1), ("NQUAT", 2 ** 31 - 1), ("NOUT", 2 ** 31 - 1),
                                           ("NB", 2 ** 31 - 1), ("NVEL", 2 ** 31 - 1), ("NVARS", 2 ** 31 - 1)])

@@ -70,14 +70,14 @@ static int check_header(const int32_t *H, char *err, size_t errlen)
     return 0;
 }
 
-/* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range,
- * and every drive slot a driven coordinate. Elastic data and nodes are named only by a scene with the elastic
- * feature (whose tables mbs_elastic_validate checks against them). */
+/* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range;
+ * no more drives than driven coordinates, the header's Cardan count the body table's. Elastic data and nodes are
+ * named only by a scene with the elastic feature (whose tables mbs_elastic_validate checks against them). */
 static int check_bodies(const MbsModel *m, char *err, size_t errlen)
 {
     const int32_t *H = m->hdr;
     const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], ndrv = H[H_NDRV], elastic = H[H_FEATURES] & F_ELASTIC;
-    int64_t driven = 0;
+    int64_t driven = 0, cardan = 0;
     for (int i = 0; i < nb; i++) {
         const int32_t *ib = m->ib + i * IB;
         const int t = ib[IB_JTYPE];
@@ -90,6 +90,7 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
             if (ib[IB_POS + k] < 0 && !in(ib[IB_DRV + k], 0, ndrv)) BAD("corrupt body table (body %d: drive %d of %d)", i, (int)ib[IB_DRV + k], ndrv);
             driven += ib[IB_POS + k] < 0;
         }
+        cardan += t == J_SPH_CARDAN || t == J_FREE_CARDAN;
         for (int k = 0; k < ib[IB_NVEL]; k++) {
             if (!in(ib[IB_VEL + k], -1, nv)) BAD("corrupt body table (body %d: velocity %d, valid -1..%d)", i, (int)ib[IB_VEL + k], nv - 1);
             if (ib[IB_VEL + k] < 0 && !in(ib[IB_DRV + k], 0, ndrv)) BAD("corrupt body table (body %d: drive %d of %d)", i, (int)ib[IB_DRV + k], ndrv);
@@ -99,6 +100,8 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
                 (int)ib[IB_ELASTIC], (int)ib[IB_NODE], elastic ? "with" : "without");
     }
     if (ndrv > driven) BAD("corrupt header (%d drives for %lld driven coordinates)", ndrv, (long long)driven);
+    if (H[H_NCARDAN] != cardan)
+        BAD("corrupt header (%d Cardan joints, the body table has %lld)", (int)H[H_NCARDAN], (long long)cardan);
     return 0;
 }
 
