@@ -43,14 +43,16 @@ static const int8_t joint_nvel[] = {0, 1, 1, 2, 2, 3, 3, 3, 6, 6};
  * per-instance workspace has the same limit as compile.py's. */
 static int check_header(const int32_t *H, char *err, size_t errlen)
 {
-    for (int k = 0; k < H_SIZE; k++) if (H[k] < 0) BAD("corrupt header (field %d is %d, a count or offset >= 0)", k, (int)H[k]);
+    for (int k = 0; k < H_SIZE; k++)
+        if (H[k] < 0) BAD("corrupt header (field %d is %d, a count or offset >= 0)", k, (int)H[k]);
     const int64_t nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], nf = H[H_NFORCE];
     if (!(H[H_D_PARAM] == 0 && H[H_D_CONST] == H[H_NPARAM] && H[H_D_CONST] <= H[H_D_BODY] &&
           H[H_D_FORCE] == H[H_D_BODY] + nb * DB && H[H_D_G] == H[H_D_FORCE] + nf * DF && H[H_D_X0] == H[H_D_G] + 3 &&
           H[H_D_OUT] == (int64_t)H[H_D_X0] + np + nv && H[H_D_INTEG] == H[H_D_OUT] + 3 * (int64_t)H[H_NOUT] &&
           H[H_ND] == (int64_t)H[H_D_INTEG] + DI))
         BAD("corrupt number layout (the header's counts and offsets into D disagree)");
-    if (!in(H[H_METHOD], 0, MBS_NMETHODS)) BAD("corrupt header (integrator %d, valid 0..%d)", (int)H[H_METHOD], MBS_NMETHODS - 1);
+    if (!in(H[H_METHOD], 0, MBS_NMETHODS))
+        BAD("corrupt header (integrator %d, valid 0..%d)", (int)H[H_METHOD], MBS_NMETHODS - 1);
     /* a position coordinate per velocity coordinate, and a fourth one per quaternion; the rest are plain */
     if (np != nv + H[H_NQUAT] || H[H_NPLAIN] != nv - 3 * (int64_t)H[H_NQUAT])
         BAD("corrupt header (%lld positions, %lld velocities, %d quaternions, %d plain coordinates: positions = "
@@ -61,12 +63,21 @@ static int check_header(const int32_t *H, char *err, size_t errlen)
             (int)H[H_NINPUT], (int)H[H_NVEC], (long long)nf);
     if (H[H_FEATURES] & ~(F_EXPR | F_ELASTIC)) BAD("corrupt header (unknown feature bits %#x)", (unsigned)H[H_FEATURES]);
 #ifndef MBS_WITH_ELASTIC
-    if (H[H_FEATURES] & F_ELASTIC) BAD("the scene has elastic bodies but this engine was built without them (rebuild the FMU)");
+    if (H[H_FEATURES] & F_ELASTIC)
+        BAD("the scene has elastic bodies but this engine was built without them (rebuild the FMU)");
 #endif
     const double work = 8.0 * (double)nb * (26.0 + 6.0 * (double)nv) + 8.0 * (double)nv * (double)nv;
     if (work > MBS_MAX_WORKSPACE)
         BAD("scene too large for the engine: %lld bodies with %lld velocity coordinates need %.3g GiB of workspace "
             "(limit %.0f GiB)", (long long)nb, (long long)nv, work / (1 << 30), (double)MBS_MAX_WORKSPACE / (1 << 30));
+    return 0;
+}
+
+/* coordinate idx of body i in [0, n), or -1 (driven) with drive slot drv in [0, ndrv) */
+static int check_coordinate(int i, int idx, int drv, int n, int ndrv, const char *what, char *err, size_t errlen)
+{
+    if (!in(idx, -1, n)) BAD("corrupt body table (body %d: %s %d, valid -1..%d)", i, what, idx, n - 1);
+    if (idx < 0 && !in(drv, 0, ndrv)) BAD("corrupt body table (body %d: drive %d, valid 0..%d)", i, drv, ndrv - 1);
     return 0;
 }
 
@@ -81,20 +92,19 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
     for (int i = 0; i < nb; i++) {
         const int32_t *ib = m->ib + i * IB;
         const int t = ib[IB_JTYPE];
-        if (!in(ib[IB_PARENT], -1, i)) BAD("corrupt body table (body %d: parent %d, valid -1..%d)", i, (int)ib[IB_PARENT], i - 1);
+        if (!in(ib[IB_PARENT], -1, i))
+            BAD("corrupt body table (body %d: parent %d, valid -1..%d)", i, (int)ib[IB_PARENT], i - 1);
         if (!in(t, J_FIXED, J_FREE_CARDAN + 1) || ib[IB_NPOS] != joint_npos[t] || ib[IB_NVEL] != joint_nvel[t])
-            BAD("corrupt body table (body %d: joint type %d with %d/%d coordinates)", i, t, (int)ib[IB_NPOS], (int)ib[IB_NVEL]);
+            BAD("corrupt body table (body %d: joint type %d with %d/%d coordinates)", i, t, (int)ib[IB_NPOS],
+                (int)ib[IB_NVEL]);
         if (!in(ib[IB_ROT], 0, 3) || !in(ib[IB_IROT], 0, 3)) BAD("corrupt body table (body %d: rotation code)", i);
         for (int k = 0; k < ib[IB_NPOS]; k++) {
-            if (!in(ib[IB_POS + k], -1, np)) BAD("corrupt body table (body %d: coordinate %d, valid -1..%d)", i, (int)ib[IB_POS + k], np - 1);
-            if (ib[IB_POS + k] < 0 && !in(ib[IB_DRV + k], 0, ndrv)) BAD("corrupt body table (body %d: drive %d of %d)", i, (int)ib[IB_DRV + k], ndrv);
+            if (check_coordinate(i, ib[IB_POS + k], ib[IB_DRV + k], np, ndrv, "coordinate", err, errlen)) return 1;
             driven += ib[IB_POS + k] < 0;
         }
+        for (int k = 0; k < ib[IB_NVEL]; k++)
+            if (check_coordinate(i, ib[IB_VEL + k], ib[IB_DRV + k], nv, ndrv, "velocity", err, errlen)) return 1;
         cardan += t == J_SPH_CARDAN || t == J_FREE_CARDAN;
-        for (int k = 0; k < ib[IB_NVEL]; k++) {
-            if (!in(ib[IB_VEL + k], -1, nv)) BAD("corrupt body table (body %d: velocity %d, valid -1..%d)", i, (int)ib[IB_VEL + k], nv - 1);
-            if (ib[IB_VEL + k] < 0 && !in(ib[IB_DRV + k], 0, ndrv)) BAD("corrupt body table (body %d: drive %d of %d)", i, (int)ib[IB_DRV + k], ndrv);
-        }
         if (ib[IB_ELASTIC] < -1 || ib[IB_NODE] < -1 || (!elastic && (ib[IB_ELASTIC] >= 0 || ib[IB_NODE] >= 0)))
             BAD("corrupt body table (body %d: elastic data %d, node %d in a scene %s elastic bodies)", i,
                 (int)ib[IB_ELASTIC], (int)ib[IB_NODE], elastic ? "with" : "without");
