@@ -87,6 +87,9 @@ def fuzz(harness: Path, scenes: list[Path], work: Path) -> dict:
         res = subprocess.run([str(harness), str(first), *map(str, scenes)], capture_output=True, text=True, env=env,
                              timeout=600)
         bad += [line for line in res.stdout.splitlines() if line.startswith("FUZZ-BAD")]
+        if first == 0:
+            intact = dict(line.split(" ", 2)[1:] for line in res.stdout.splitlines() if line.startswith("FUZZ-INTACT"))
+            totals["intact"] = {scenes[int(i)].stem: v.strip() for i, v in intact.items()}
         done = re.search(r"^FUZZ cases (\d+) refused (\d+) ran (\d+) failed (\d+) abandoned (\d+) maxms ([\d.]+) "
                          r"maxalloc (\d+)", res.stdout, re.M)
         if done:
@@ -150,6 +153,11 @@ def _header(blob, field, value):
     return _patch(blob, c.S_HEADER, c.H_FIELDS.index(field), value)
 
 
+def _features(blob):
+    c = _c()
+    return struct.unpack_from("<i", blob, _sections(blob)[c.S_HEADER][2] + 4 * c.H_FIELDS.index("FEATURES"))[0]
+
+
 def test_elastic_references_pair_with_the_elastic_rows():
     """A body's elastic index names the elastic row that names that body (rows and elastic bodies pair one to
     one): an index on a rigid body, one past the table, and the elastic body's own index moved are refused."""
@@ -187,7 +195,7 @@ def test_elastic_feature_bit_cleared_while_elastic_tables_are_used():
     elastic data is refused (it used to reach elastic.c without its workspace)."""
     c = _c()
     blob, _ = _compiled("robot_arm_elastic")
-    features = struct.unpack_from("<i", blob, _sections(blob)[c.S_HEADER][2] + 4 * c.H_FIELDS.index("FEATURES"))[0]
+    features = _features(blob)
     assert features & c.F_ELASTIC
     _refused(_header(blob, "FEATURES", features & ~c.F_ELASTIC), "without elastic bodies")
     _refused(_header(blob, "FEATURES", features | 4), "feature bits")
@@ -290,6 +298,11 @@ def test_mutated_compiled_scenes_are_refused_or_run_without_sanitizer_reports(sc
     detail = "\n\n".join(f"case {c}:\n{text}" for c, text in r["reports"][:5]) + "\n" + "\n".join(r["bad"][:20])
     assert t["reports"] == 0 and not r["bad"], f"{t}\n{detail}"
     assert t["cases"] >= 10000 and t["refused"] > 0 and t["ran"] > 0, t
+    for path in scenes:  # the intact scenes run; a rigid engine refuses the elastic ones, saying why
+        elastic = _features(path.read_bytes()) & _c().F_ELASTIC
+        want = "refused the scene has elastic bodies but this engine was built without them" \
+            if elastic and "elastic" not in feats else "ran"
+        assert t["intact"][path.stem].startswith(want), (path.stem, t["intact"][path.stem])
 
 
 if __name__ == "__main__":  # the figures for the issue

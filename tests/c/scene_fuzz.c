@@ -262,6 +262,15 @@ int main(int argc, char **argv)
         scan(&sc[i]);
         if (sc[i].len > maxlen) maxlen = sc[i].len;
     }
+    for (int i = 0; first == 0 && i < nscenes; i++) {  /* the intact scenes first: each runs or says why not */
+        char err[512] = "";
+        long evals = 0;
+        size_t peak0 = 0, base = __sanitizer_get_current_allocated_bytes();
+        MbsModel *m = mbs_model_load(sc[i].b, sc[i].len, err, sizeof err);
+        const int ran = m && run(m, -1 - i, base, sc[i].len, &peak0, &evals);
+        printf("FUZZ-INTACT %d %s %s\n", i, ran ? "ran" : "refused", m ? "" : err);
+        mbs_model_free(m);
+    }
     unsigned char *buf = malloc(maxlen);
     long k = 0, total = 0, refused = 0, ran = 0, failed = 0;
     double maxms = 0.0;
