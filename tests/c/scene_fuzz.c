@@ -4,11 +4,14 @@
  * output points and a state round trip. Every mutant must be refused with a message or run; a sanitizer report
  * ends the process ($FUZZ_PROGRESS holds the case it was in: the driver restarts after it).
  *
- *   scene_fuzz FIRST scene.bin...     → "FUZZ cases N refused R ran K failed F maxms T maxalloc A"
+ *   scene_fuzz FIRST scene.bin...   → "FUZZ-INTACT i ran|refused why" per scene (FIRST = 0), "FUZZ-BAD ..." per
+ *                                     defect, "FUZZ cases N refused R ran K failed F abandoned A maxms T maxalloc B"
  *
  * Cases are numbered over the scenes in order; per scene: every int field (section table, header, the int
  * sections) set to edge values, random bit flips, truncations, section rows swapped, special doubles.
- * Case k is the same mutant on every run (FIRST skips the ones before), so a report is reproducible.
+ * Case k is the same mutant on every run (FIRST skips the ones before), so a report is reproducible;
+ * FUZZ_LAST=k with FIRST=k runs that one case and prints what it changed and what came of it.
+ * "failed": loaded, then initialization or a step refused with a message (or abandoned, see STEP_CPU_S).
  */
 #define _DEFAULT_SOURCE  /* setitimer, sigsetjmp, pwrite */
 #include <limits.h>
