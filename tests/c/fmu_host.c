@@ -1,7 +1,7 @@
 /* A plain FMI 2.0 co-simulation master in C: dlopen an FMU binary, run it, print outputs or timings.
  *
  *   fmu_host LIB RESOURCE_URI GUID [-n steps] [-h step] [-o vr,vr,...] [-s vr=value]... [-S vr=text]...
- *            [-p] [-m] [-T] [-L [-r chunks]]
+ *            [-p] [-m] [-T] [-L [-r chunks]] [-C cycles]
  *
  * -p  print "OUT t v1 v2 ..." (%.17g) at t0 and after every step
  * -m  print "LIBPYTHON yes|no": whether any libpython is mapped into this process (/proc/self/maps)
@@ -9,6 +9,8 @@
  * -L  loop cost: "LOOP n points_ns one_ns", each the best of -r chunks (default 20) run alternately on two
  *     instances: n steps of h with the outputs read after each, and one step of n*h (the same internal steps
  *     for fixed-step integrators) with the outputs read once
+ * -C  instantiate/free loop (optimizers, Monte Carlo): `cycles` times fmi2Instantiate, initialization, n steps,
+ *     fmi2FreeInstance; "RSS k kB" (resident set, /proc/self/statm) after cycle k = cycles/10 and k = cycles
  * Exit codes: 0 ok, 2 usage/dlopen, 3 instantiate, 4 a call failed (its status is printed).
  * Needs only libc (and libdl on old glibc); built by tests/test_fmu_native.py and bench/fmu_speed.py.
  * Also builds for Windows with MinGW-w64 (LoadLibrary for dlopen), to run a win64 DLL under wine.
@@ -74,6 +76,15 @@ static double now_ns(void) {
 static struct { vr_t vr; double v; const char *s; } sets[MAXV];
 static int nsets;
 
+/* resident set size in kB (Linux), -1 where unknown */
+static long rss_kb(void) {
+    long pages = -1, resident = -1;
+    FILE *fp = fopen("/proc/self/statm", "r");
+    if (fp && fscanf(fp, "%ld %ld", &pages, &resident) != 2) resident = -1;
+    if (fp) fclose(fp);
+    return resident < 0 ? -1 : resident * 4;  /* 4 kB pages on x86-64 Linux */
+}
+
 static int fail(const char *what, int status) {
     printf("FAIL %s %d\n", what, status);
     fflush(stdout);
@@ -82,7 +93,7 @@ static int fail(const char *what, int status) {
 
 /* instantiate, apply the -s/-S settings, initialize at t = 0 */
 static void *start(const Fmi *f, const char *uri, const char *guid, const Callbacks *cb, int *rc) {
-    void *c = f->instantiate("host", 1, guid, uri, cb, 0, 0);
+    void *c = f->instantiate("host", 1, guid, uri, cb, 0, getenv("HOST_LOGGING") != NULL);
     int i, st = 0;
     *rc = 0;
     if (!c) {
@@ -103,7 +114,7 @@ int main(int argc, char **argv) {
     const char *lib, *uri, *guid;
     vr_t out[MAXV];
     double y[MAXV], h = 0.01, t = 0, t0, t1, t2;
-    int nout = 0, n = 10, reps = 20, print = 0, maps = 0, timing = 0, loop = 0, i, k, st, rc;
+    int nout = 0, n = 10, reps = 20, print = 0, maps = 0, timing = 0, loop = 0, cycles = 0, i, k, st, rc;
     Fmi f;
     Callbacks cb = {logger, calloc, free, NULL, NULL};
     void *so, *c;
@@ -131,6 +142,7 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "-m")) maps = 1;
         else if (!strcmp(a, "-T")) timing = 1;
         else if (!strcmp(a, "-L")) loop = 1;
+        else if (!strcmp(a, "-C")) cycles = atoi(v), i++;
         else { fprintf(stderr, "unknown option %s\n", a); return 2; }
     }
 
@@ -150,6 +162,15 @@ int main(int argc, char **argv) {
     if (!f.instantiate || !f.do_step || !f.get_real || !f.free_instance) { printf("DLSYM missing\n"); return 2; }
     t1 = now_ns();
 
+    for (k = 1; k <= cycles; k++) {  /* each instance freed before the next: memory must stay flat */
+        double tc = 0;
+        c = start(&f, uri, guid, &cb, &rc);
+        if (rc) return rc;
+        for (i = 0; i < n; i++, tc += h)
+            if ((st = f.do_step(c, tc, h, 1))) return fail("fmi2DoStep", st);
+        f.free_instance(c);
+        if (k == cycles / 10 || k == cycles) printf("RSS %d %ld\n", k, rss_kb());
+    }
     c = start(&f, uri, guid, &cb, &rc);
     if (rc) return rc;
     if (print) {

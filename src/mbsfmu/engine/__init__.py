@@ -9,7 +9,7 @@ import os
 
 from ..errors import EngineUnavailable, IntegrationError
 
-__all__ = ["Instance", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD", "ERROR", "V_METHOD"]
+__all__ = ["Instance", "model_file", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD", "ERROR", "V_METHOD"]
 OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
 V_METHOD = 1  # mbs_engine.h MBS_V_*: the kind of the one String variable, integrator.method
 
@@ -39,12 +39,13 @@ class EngineError(ValueError):
 
 
 class _Model:
-    """A loaded compiled scene (immutable, shared by instances)."""
+    """A loaded compiled scene (immutable, shared by instances): from bytes, or from a file (path given)."""
 
-    def __init__(self, blob):
+    def __init__(self, blob, path=None):
         self.lib = lib = library()
-        err = ctypes.create_string_buffer(512)
-        self.ptr = lib.mbs_model_load(blob, len(blob), err, len(err))
+        err = ctypes.create_string_buffer(1024)
+        self.ptr = lib.mbs_model_load(blob, len(blob), err, len(err)) if path is None else \
+            lib.mbs_model_load_file(os.fsencode(path), err, len(err))
         if not self.ptr:
             raise EngineError(err.value.decode(errors="replace"))
         self.guid = lib.mbs_model_guid(self.ptr).decode()
@@ -62,6 +63,12 @@ class _Model:
         if getattr(self, "ptr", None):
             self.lib.mbs_model_free(self.ptr)
             self.ptr = None
+
+
+def model_file(path):
+    """The compiled scene in the file path, read by the engine (fmu_files.c: a regular file of bounded size only,
+    so a FIFO or device in its place is refused, not waited on); EngineError if it cannot be read or loaded."""
+    return _Model(None, path)
 
 
 class Instance:

@@ -8,6 +8,7 @@ LOGGER = ctypes.CFUNCTYPE(None, c_void_p, c_int, c_char_p)
 
 SIGNATURES = {
     "mbs_model_load": (c_void_p, [c_char_p, c_size_t, c_char_p, c_size_t]),
+    "mbs_model_load_file": (c_void_p, [c_char_p, c_char_p, c_size_t]),
     "mbs_model_free": (None, [c_void_p]),
     "mbs_model_guid": (c_char_p, [c_void_p]),
     "mbs_model_nvars": (c_int, [c_void_p]),

@@ -23,6 +23,7 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
+#include "fmu_files.h"
 #include "mbs_engine.h"
 
 /* ---- phases of the FMI 2.0 co-simulation state machine (bit masks, for "allowed in") ---- */
@@ -170,73 +171,6 @@ static int bad_array(Fmu *f, const void *a, const void *b, size_t n, const char 
     return 1;
 }
 
-/* ---- resources: file URI → path ---- */
-static int hexval(int ch) {
-    if (ch >= '0' && ch <= '9') return ch - '0';
-    if (ch >= 'a' && ch <= 'f') return ch - 'a' + 10;
-    if (ch >= 'A' && ch <= 'F') return ch - 'A' + 10;
-    return -1;
-}
-
-/* "file:///dir/x%20y/", "file:/dir", "file://localhost/dir" or a plain path → "dir/x y/<file>".
- * 0, or 1 with a message in err. */
-static int resource_path(const char *uri, const char *file, char *out, size_t n, char *err, size_t errlen) {
-    const char *p = uri;
-    size_t k = 0;
-    int is_uri = 0;
-    if (!uri || !*uri) {
-        snprintf(err, errlen, "no fmuResourceLocation given");
-        return 1;
-    }
-    if (strncmp(p, "file:", 5) == 0) {
-        p += 5;
-        is_uri = 1;
-        if (strncmp(p, "//", 2) == 0) {  /* authority: empty or localhost */
-            p += 2;
-            if (strncmp(p, "localhost/", 10) == 0)
-                p += 9;
-            else if (*p != '/') {
-                snprintf(err, errlen, "fmuResourceLocation %s: only local file URIs are supported", uri);
-                return 1;
-            }
-        }
-#ifdef _WIN32
-        if (p[0] == '/' && p[1] && p[2] == ':')  /* /C:/dir → C:/dir */
-            p++;
-#endif
-    } else if (strstr(p, "://")) {
-        snprintf(err, errlen, "fmuResourceLocation %s: not a file URI", uri);
-        return 1;
-    }
-    for (; *p; p++) {
-        int ch = (unsigned char)*p;
-        if (ch == '%' && is_uri) {
-            int hi = hexval(p[1]), lo = hi < 0 ? -1 : hexval(p[2]);
-            if (lo < 0 || (hi == 0 && lo == 0)) {
-                snprintf(err, errlen, "fmuResourceLocation %s: bad percent escape", uri);
-                return 1;
-            }
-            ch = hi * 16 + lo;
-            p += 2;
-        }
-        if (k + 1 >= n)
-            goto too_long;
-        out[k++] = (char)ch;
-    }
-    if (k == 0 || out[k - 1] != '/') {
-        if (k + 1 >= n)
-            goto too_long;
-        out[k++] = '/';
-    }
-    if (k + strlen(file) + 1 > n)
-        goto too_long;
-    strcpy(out + k, file);
-    return 0;
-too_long:
-    snprintf(err, errlen, "fmuResourceLocation %s: path too long", uri);
-    return 1;
-}
-
 /* ---- common functions ---- */
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 const char *fmi2GetVersion(void) { return fmi2Version; }
@@ -299,7 +233,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         emit(functions, name, fmi2Error, "fmi2Instantiate: no GUID given");
         return NULL;
     }
-    if (resource_path(fmuResourceLocation, "scene.bin", path, sizeof path, err, sizeof err)) {
+    if (mbs_resource_path(fmuResourceLocation, "scene.bin", path, sizeof path, err, sizeof err)) {
         snprintf(msg, sizeof msg, "fmi2Instantiate: %s", err);
         emit(functions, name, fmi2Error, msg);
         return NULL;

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fmu_files.h"
 #include "mbs_integrator.h"
 #include "mbs_model.h"
 
@@ -243,20 +244,10 @@ fail:
 
 MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen)
 {
-    FILE *f = fopen(path, "rb");
-    if (!f) { snprintf(err, errlen, "cannot open compiled scene '%s'", path); return NULL; }
-    MbsModel *m = NULL;
-    long len = -1;
-    if (fseek(f, 0, SEEK_END) == 0) len = ftell(f);
-    if (len <= 0 || len > (1L << 30) || fseek(f, 0, SEEK_SET)) {
-        snprintf(err, errlen, "cannot read compiled scene '%s'", path);
-    } else {
-        void *buf = malloc((size_t)len);
-        if (buf && fread(buf, 1, (size_t)len, f) == (size_t)len) m = mbs_model_load(buf, (size_t)len, err, errlen);
-        else snprintf(err, errlen, "cannot read compiled scene '%s'", path);
-        free(buf);
-    }
-    fclose(f);
+    size_t len = 0;
+    void *buf = mbs_read_regular(path, MBS_SCENE_FILE_LIMIT, &len, err, errlen);  /* regular files only, bounded */
+    MbsModel *m = buf ? mbs_model_load(buf, len, err, errlen) : NULL;
+    free(buf);
     return m;
 }
 

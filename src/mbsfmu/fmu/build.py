@@ -40,6 +40,7 @@ DRAWING_FILE = "mbsfmu_drawing.json"  # in resources/: what `mbsfmu animate FMU`
 TEMPLATE = Path(__file__).with_name("slave.py.in")
 SHIM_SOURCE = Path(__file__).with_name("shim.c")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
+ENGINE_DIR = PACKAGE_ROOT / "engine"
 
 # Runtime parts of the package copied into every FMU (missing optional entries are skipped).
 RUNTIME_ENGINE = ("errors.py", "engine/__init__.py", "engine/api.py", "engine/build.py")
@@ -359,8 +360,9 @@ def compile_shim(out: Path, real_library: str, model_description: bytes, runtime
         f"#define MBSFMU_REAL_LIBRARY {_c_string(real_library)}\n"
         + shim_model_defines(model_description)
         + SHIM_SOURCE.read_text(encoding="utf-8"), encoding="utf-8")
-    cmd = [cc, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-fvisibility=hidden", "-o", str(out), str(src),
-           "-ldl", "-lpthread"]
+    files = ENGINE_DIR / "fmu_files.c"  # the resource-location parser and file reader of native FMUs too
+    cmd = [cc, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-fvisibility=hidden", f"-I{ENGINE_DIR}", "-o", str(out),
+           str(src), str(files), "-ldl", "-lpthread"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         warnings.warn(f"compiling the FMU loader shim failed ({' '.join(cmd)}): {r.stderr.strip()[:2000]}; "

@@ -41,6 +41,11 @@
 #include <unistd.h>
 #include <wchar.h>
 
+#include "fmu_files.h"
+
+#define MODULE_NAME_LIMIT 4096   /* slavemodule.txt: one module name */
+#define SCRIPT_LIMIT (1 << 20)   /* the slave script pythonfmu reads whole */
+
 #ifndef MBSFMU_VARIABLES
 #error "compile with mbsfmu.fmu.build.compile_shim: it defines the model's GUID and variable table"
 #endif
@@ -384,31 +389,32 @@ static fmi2Status checked(Inst* in, const char* fn, fmi2Status status) {
     return fmi2Error;
 }
 
-/* pythonfmu 0.7.0 calls a NULL class object (segfault) when the resources folder lacks its slave script. Its
-   path is found as pythonfmu does (every "%20" a space, the first "file://" removed); NULL if it is there. */
-static const char* no_slave_script(const char* uri, char* why, size_t size) {
-    char path[4096], line[512];
-    size_t j = 0;
-    for (const char* p = uri; *p && j + 1 < sizeof path; p++) {
-        if (!strncmp(p, "%20", 3)) path[j++] = ' ', p += 2;
-        else path[j++] = *p;
-    }
-    path[j] = 0;
-    char* scheme = strstr(path, "file://");
-    if (scheme) memmove(scheme, scheme + 7, strlen(scheme + 7) + 1);
-    char file[sizeof path + sizeof line + 32];
-    line[0] = 0;
-    snprintf(file, sizeof file, "%s/slavemodule.txt", path);
-    FILE* f = fopen(file, "r");
-    if (f) {
-        if (!fgets(line, sizeof line, f)) line[0] = 0;
-        fclose(f);
-        line[strcspn(line, "\r\n")] = 0;
-        snprintf(file, sizeof file, "%s/%s.py", path, line);
-    }
-    if (f && line[0] && access(file, R_OK) == 0) return NULL;
-    snprintf(why, size, "%s is not this FMU's resources folder (no %s)", path, file);
-    return why;
+/* The resources folder of fmuResourceLocation `uri` (engine/fmu_files.c: the parser of the native FMU too) as the
+   plain path pythonfmu 0.7.0 is given, into dir; NULL, else why not. pythonfmu reads slavemodule.txt and the slave
+   script named there itself (std::ifstream: a FIFO hangs it, a missing script makes it call a NULL class object),
+   so both must be regular files of bounded size first. pythonfmu maps a location to a path by replacing every
+   "%20" with a space and dropping the first "file://": a plain path passes unchanged unless it holds those. */
+static const char* resources_folder(const char* uri, char* dir, size_t size, char* why, size_t whylen) {
+    char file[4096 + 512], err[1024];
+    size_t n = 0;
+    if (mbs_resource_path(uri, "", dir, size, err, sizeof err))
+        return snprintf(why, whylen, "%s", err), why;
+    if (strstr(dir, "%20") || strstr(dir, "file://"))
+        return snprintf(why, whylen, "resources folder %s: pythonfmu 0.7.0 cannot load from a path that contains "
+                        "\"%%20\" or \"file://\" (rename the folder, or use a native FMU)", dir), why;
+    if (strlen(dir) > 1) dir[strlen(dir) - 1] = 0;   /* no trailing slash, as pythonfmu appends "/name" */
+    snprintf(file, sizeof file, "%s/slavemodule.txt", dir);
+    char module[MODULE_NAME_LIMIT + 1];
+    char* text = mbs_read_regular(file, MODULE_NAME_LIMIT, &n, err, sizeof err);
+    if (!text) return snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, err), why;
+    memcpy(module, text, n);
+    free(text);
+    module[n] = 0;
+    module[strcspn(module, "\r\n")] = 0;   /* its first line, as pythonfmu reads it */
+    snprintf(file, sizeof file, "%s/%s.py", dir, module);
+    int bad = !*module || mbs_check_regular(file, SCRIPT_LIMIT, NULL, err, sizeof err);
+    if (bad) snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, *module ? err : "empty slavemodule.txt");
+    return bad ? why : NULL;
 }
 
 /* ----------------------------------------------------------------------------------- life cycle */
@@ -419,7 +425,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
                                      fmi2String resources, const fmi2CallbackFunctions* cb,
                                      fmi2Boolean visible, fmi2Boolean loggingOn) {
     const char* name = instanceName ? instanceName : "";
-    char text[8192];
+    char text[8192], dir[4096];
     const char* why = !cb || !cb->logger ? "no callback functions or no logger"
                       : !cb->allocateMemory || !cb->freeMemory ? "no allocateMemory/freeMemory callbacks"
                       : !instanceName || !*instanceName ? "no instance name"
@@ -427,7 +433,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
                       : !resources ? "no fmuResourceLocation"
                       : !guid ? "no GUID given (NULL)"
                       : strcmp(guid, MBSFMU_GUID) ? "GUID differs from this FMU's " MBSFMU_GUID  /* "" too, as the native FMU */
-                      : no_slave_script(resources, text, sizeof text);
+                      : resources_folder(resources, dir, sizeof dir, text, sizeof text);
     if (why) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: %s", why);
         return NULL;
@@ -448,10 +454,10 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     }
     in->cb = *cb;
     snprintf(in->name, sizeof in->name, "%s", name);
-    in->real = R.instantiate(instanceName, fmuType, guid, resources, cb, visible, loggingOn);
+    in->real = R.instantiate(instanceName, fmuType, guid, dir, cb, visible, loggingOn);
     if (!in->real) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: the Python slave could not be created from %s "
-               "(pythonfmu logs the Python error with loggingOn)", resources);
+               "(pythonfmu logs the Python error with loggingOn)", dir);
         drop_live(in);
         free(in);
         return NULL;
