@@ -528,8 +528,8 @@ def test_failed_instantiation_in_a_c_host(fmus, c_host, tmp_path, case):
     elif case == "empty":   # pythonfmu 0.7.0 itself segfaults here
         (tmp_path / "empty").mkdir()
         resources = (tmp_path / "empty").as_uri()
-    else:                   # the slave raises in its constructor
-        (tmp_path / "fmu" / "resources" / "mbsfmu_scene.bin").unlink()
+    else:                   # the slave raises in its constructor (the engine refuses the scene)
+        (tmp_path / "fmu" / "resources" / "mbsfmu_scene.bin").write_bytes(b"not a compiled scene")
     r = subprocess.run([str(c_host), str(lib), resources, guid], capture_output=True, text=True, timeout=60,
                        env=_host_env())
     assert r.returncode == 0 and "DONE" in r.stdout, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
@@ -548,8 +548,8 @@ def test_failed_instantiation_in_ecos(fmus, tmp_path):
     broken = tmp_path / "pendulum.fmu"
     with zipfile.ZipFile(fmus["pendulum"]) as zin, zipfile.ZipFile(broken, "w") as zout:
         for item in zin.infolist():
-            if not item.filename.endswith("mbsfmu_scene.bin"):   # the slave cannot start without it
-                zout.writestr(item, zin.read(item.filename))
+            broken_scene = item.filename.endswith("mbsfmu_scene.bin")   # the slave cannot start with it
+            zout.writestr(item, b"not a compiled scene" if broken_scene else zin.read(item.filename))
     work = tmp_path / "run"
     work.mkdir()
     r = subprocess.run([str(exe), "simulate", "--path", str(broken), "--stopTime", "0.1", "--stepSize", "0.01",

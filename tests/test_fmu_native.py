@@ -353,20 +353,21 @@ def test_instantiate_failures_are_logged_not_crashes(built, tmp_path):
 
     quoted = res.as_uri()  # percent-escaped: ' ' -> %20, '%' -> %25
     assert "%20" in quoted and "%25" in quoted
-    for ok in (quoted, quoted + "/", "file://localhost" + quoted[7:], "file:" + quoted[7:], str(res)):
+    for ok in (quoted, quoted + "/", "file://localhost" + quoted[7:], "file:" + quoted[7:]):
         assert inst(ok.encode()), (ok, Log.of(name.decode()))
     assert not Log.of(name.decode())
     def last():
         return Log.of(name.decode())[-1][2]
 
-    for bad, why in ((b"http://host/x", "not a file URI"), (b"file://elsewhere/x", "only local"),
+    for bad, why in ((b"http://host/x", "not a file URI"), (b"file://elsewhere/x", "local absolute path"),
+                     (str(res).encode(), "not a file URI"),  # FMI 2.0: a URI, not a path
                      ((d / "nothing").as_uri().encode(), "cannot load"), (quoted.encode() + b"%4", "percent")):
         assert not inst(bad) and why in last(), (bad, last())
     assert not inst(quoted.encode(), g=b"{not-the-guid}") and "does not match" in last()
     assert not inst(quoted.encode(), kind=0) and "co-simulation only" in last()
     assert not inst(quoted.encode(), cb=None)  # no callbacks: NULL, nothing to call
     log = Log.of(name.decode())
-    assert len(log) == 6 and all(s == 3 and c == "logStatusError" for s, c, _ in log)
+    assert len(log) == 7 and all(s == 3 and c == "logStatusError" for s, c, _ in log)
 
 
 def test_null_pointers_and_sizes_do_not_crash(built, tmp_path):

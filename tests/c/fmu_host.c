@@ -15,7 +15,7 @@
  * Needs only libc (and libdl on old glibc); built by tests/test_fmu_native.py and bench/fmu_speed.py.
  * Also builds for Windows with MinGW-w64 (LoadLibrary for dlopen), to run a win64 DLL under wine.
  */
-#define _POSIX_C_SOURCE 199309L
+#define _POSIX_C_SOURCE 200112L
 #ifdef _WIN32
 #include <windows.h>
 #define dlopen(path, flags) ((void *)LoadLibraryA(path))
@@ -23,6 +23,7 @@
 #define dlerror() "LoadLibrary failed"
 #else
 #include <dlfcn.h>
+#include <unistd.h>
 #endif
 #include <stdarg.h>
 #include <stdio.h>
@@ -76,13 +77,17 @@ static double now_ns(void) {
 static struct { vr_t vr; double v; const char *s; } sets[MAXV];
 static int nsets;
 
-/* resident set size in kB (Linux), -1 where unknown */
+/* resident set size in kB (Linux: /proc/self/statm counts pages), -1 where unknown */
 static long rss_kb(void) {
     long pages = -1, resident = -1;
     FILE *fp = fopen("/proc/self/statm", "r");
     if (fp && fscanf(fp, "%ld %ld", &pages, &resident) != 2) resident = -1;
     if (fp) fclose(fp);
-    return resident < 0 ? -1 : resident * 4;  /* 4 kB pages on x86-64 Linux */
+#ifdef _WIN32
+    return -1;
+#else
+    return resident < 0 ? -1 : resident * (sysconf(_SC_PAGESIZE) / 1024);
+#endif
 }
 
 static int fail(const char *what, int status) {
@@ -93,7 +98,7 @@ static int fail(const char *what, int status) {
 
 /* instantiate, apply the -s/-S settings, initialize at t = 0 */
 static void *start(const Fmi *f, const char *uri, const char *guid, const Callbacks *cb, int *rc) {
-    void *c = f->instantiate("host", 1, guid, uri, cb, 0, getenv("HOST_LOGGING") != NULL);
+    void *c = f->instantiate("host", 1, guid, uri, cb, 0, 0);
     int i, st = 0;
     *rc = 0;
     if (!c) {

@@ -42,9 +42,9 @@
 #include <wchar.h>
 
 #include "fmu_files.h"
-
-#define MODULE_NAME_LIMIT 4096   /* slavemodule.txt: one module name */
-#define SCRIPT_LIMIT (1 << 20)   /* the slave script pythonfmu reads whole */
+#ifndef MBSFMU_RESOURCE_FILES
+#define MBSFMU_RESOURCE_FILES ""
+#endif
 
 #ifndef MBSFMU_VARIABLES
 #error "compile with mbsfmu.fmu.build.compile_shim: it defines the model's GUID and variable table"
@@ -390,31 +390,26 @@ static fmi2Status checked(Inst* in, const char* fn, fmi2Status status) {
 }
 
 /* The resources folder of fmuResourceLocation `uri` (engine/fmu_files.c: the parser of the native FMU too) as the
-   plain path pythonfmu 0.7.0 is given, into dir; NULL, else why not. pythonfmu reads slavemodule.txt and the slave
-   script named there itself (std::ifstream: a FIFO hangs it, a missing script makes it call a NULL class object),
-   so both must be regular files of bounded size first. pythonfmu maps a location to a path by replacing every
-   "%20" with a space and dropping the first "file://": a plain path passes unchanged unless it holds those. */
+   plain path pythonfmu 0.7.0 is given, into dir; NULL, else why not. Every file the FMU reads at run time
+   (MBSFMU_RESOURCE_FILES, from the FMU's resources/) must be a regular file of bounded size first: pythonfmu and
+   Python read them with blocking opens (a FIFO hangs the host), and pythonfmu calls a NULL class object when its
+   script is missing. pythonfmu maps a location to a path by replacing every "%20" with a space and dropping the
+   first "file://": a plain path passes unchanged unless it holds those. */
 static const char* resources_folder(const char* uri, char* dir, size_t size, char* why, size_t whylen) {
+    static const char* const files[] = {MBSFMU_RESOURCE_FILES};
     char file[4096 + 512], err[1024];
-    size_t n = 0;
     if (mbs_resource_path(uri, "", dir, size, err, sizeof err))
         return snprintf(why, whylen, "%s", err), why;
     if (strstr(dir, "%20") || strstr(dir, "file://"))
         return snprintf(why, whylen, "resources folder %s: pythonfmu 0.7.0 cannot load from a path that contains "
                         "\"%%20\" or \"file://\" (rename the folder, or use a native FMU)", dir), why;
-    if (strlen(dir) > 1) dir[strlen(dir) - 1] = 0;   /* no trailing slash, as pythonfmu appends "/name" */
-    snprintf(file, sizeof file, "%s/slavemodule.txt", dir);
-    char module[MODULE_NAME_LIMIT + 1];
-    char* text = mbs_read_regular(file, MODULE_NAME_LIMIT, &n, err, sizeof err);
-    if (!text) return snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, err), why;
-    memcpy(module, text, n);
-    free(text);
-    module[n] = 0;
-    module[strcspn(module, "\r\n")] = 0;   /* its first line, as pythonfmu reads it */
-    snprintf(file, sizeof file, "%s/%s.py", dir, module);
-    int bad = !*module || mbs_check_regular(file, SCRIPT_LIMIT, NULL, err, sizeof err);
-    if (bad) snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, *module ? err : "empty slavemodule.txt");
-    return bad ? why : NULL;
+    if (strlen(dir) > 1) dir[strlen(dir) - 1] = 0;   /* no trailing slash: pythonfmu appends "/name" */
+    for (size_t i = 0; i < sizeof files / sizeof files[0]; i++) {
+        snprintf(file, sizeof file, "%s/%s", dir, files[i]);
+        if (files[i][0] && mbs_check_regular(file, MBS_SCENE_FILE_LIMIT, NULL, err, sizeof err))
+            return snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, err), why;
+    }
+    return NULL;
 }
 
 /* ----------------------------------------------------------------------------------- life cycle */
