@@ -293,10 +293,13 @@ def scenario_fatal():
     a, vr, md, d = open_fmu(fmu, "a")
     init(a)
     a.doStep(0.0, 0.01)
-    os.remove(os.path.join(d, "resources", "mbsfmu_scene.bin"))   # pythonfmu's reset re-creates the slave: fails
+    slave = next(m for k, m in sys.modules.items() if k.endswith("_slave") and hasattr(m, "MbsfmuSlave"))
+    do_step = slave.MbsfmuSlave.do_step
+    slave.MbsfmuSlave.do_step = lambda self, t, h: 1 / 0   # a slave that raises anyway: pythonfmu's fmi2Fatal
     n = len(LOG)
-    first = status(a.reset)
+    first = status(a.doStep, 0.01, 0.01)
     first_logs = logged("a", n)
+    slave.MbsfmuSlave.do_step = do_step
     out = [v.valueReference for v in md.modelVariables if v.causality == "output"]
     calls = [(a.doStep, (0.01, 0.01)), (a.getReal, (out,)), (a.reset, ()), (a.getFMUstate, ()), (a.terminate, ()),
              (a.setReal, ([0], [1.0])), (a.setupExperiment, ()), (a.enterInitializationMode, ())] * 4
@@ -351,8 +354,8 @@ def refused(status, logs):
 def test_shim_compiles_warning_free(fmus, tmp_path):
     md = zipfile.ZipFile(fmus["pendulum"]).read("modelDescription.xml")
     assert build.compile_shim(tmp_path / "shim.so", "real.so", md) is not None
-    r = subprocess.run([CC, "-Wall", "-Wextra", "-Werror", "-fsyntax-only", str(tmp_path / "shim.c")],
-                       capture_output=True, text=True)
+    r = subprocess.run([CC, "-Wall", "-Wextra", "-Werror", "-fsyntax-only", f"-I{build.ENGINE_DIR}", str(tmp_path / "shim.c"),
+                        str(build.ENGINE_DIR / "fmu_files.c")], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
 
 
@@ -516,7 +519,7 @@ def _host_env():
 
 
 FAILED_INSTANTIATION = {"guid": "GUID differs", "empty": "is not this FMU's resources folder",
-                        "broken": "the Python slave could not be created"}
+                        "broken": "fmi2Instantiate: cannot load the compiled scene"}
 
 
 @pytest.mark.parametrize("case", FAILED_INSTANTIATION)
@@ -528,7 +531,7 @@ def test_failed_instantiation_in_a_c_host(fmus, c_host, tmp_path, case):
     elif case == "empty":   # pythonfmu 0.7.0 itself segfaults here
         (tmp_path / "empty").mkdir()
         resources = (tmp_path / "empty").as_uri()
-    else:                   # the slave raises in its constructor (the engine refuses the scene)
+    else:                   # the engine refuses the scene: the slave cannot start
         (tmp_path / "fmu" / "resources" / "mbsfmu_scene.bin").write_bytes(b"not a compiled scene")
     r = subprocess.run([str(c_host), str(lib), resources, guid], capture_output=True, text=True, timeout=60,
                        env=_host_env())
@@ -556,5 +559,5 @@ def test_failed_instantiation_in_ecos(fmus, tmp_path):
                         "--noParallel", "--logLevel", "debug"],   # ecos shows FMU messages at debug level
                        cwd=work, env=_clean_env(), capture_output=True, text=True, timeout=120)
     assert r.returncode in (0, 1), (r.returncode, r.stdout[-2000:], r.stderr[-2000:])  # no signal, no abort
-    assert "fmi2Instantiate: the Python slave could not be created" in r.stdout + r.stderr, r.stdout[-3000:]
+    assert "fmi2Instantiate: cannot load the compiled scene" in r.stdout + r.stderr, r.stdout[-3000:]
     assert "NULL component" in r.stderr   # what ecos then called on the NULL instance was refused

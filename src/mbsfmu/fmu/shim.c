@@ -209,7 +209,6 @@ static struct {
     fmi2Status (*deserialize)(fmi2Component, const fmi2Byte[], size_t, fmi2FMUstate*);
     fmi2Status (*do_step)(fmi2Component, fmi2Real, fmi2Real, fmi2Boolean);
     fmi2Status (*get_status)(fmi2Component, fmi2StatusKind, fmi2Status*);
-    fmi2Status (*get_real_status)(fmi2Component, fmi2StatusKind, fmi2Real*);
     fmi2Status (*get_integer_status)(fmi2Component, fmi2StatusKind, fmi2Integer*);
     fmi2Status (*get_boolean_status)(fmi2Component, fmi2StatusKind, fmi2Boolean*);
     fmi2Status (*get_string_status)(fmi2Component, fmi2StatusKind, fmi2String*);
@@ -244,7 +243,7 @@ static int load_real(void) {
     LOAD(get_state, "fmi2GetFMUstate") LOAD(set_state, "fmi2SetFMUstate") LOAD(free_state, "fmi2FreeFMUstate")
     LOAD(state_size, "fmi2SerializedFMUstateSize") LOAD(serialize, "fmi2SerializeFMUstate")
     LOAD(deserialize, "fmi2DeSerializeFMUstate") LOAD(do_step, "fmi2DoStep")
-    LOAD(get_status, "fmi2GetStatus") LOAD(get_real_status, "fmi2GetRealStatus")
+    LOAD(get_status, "fmi2GetStatus")
     LOAD(get_integer_status, "fmi2GetIntegerStatus") LOAD(get_boolean_status, "fmi2GetBooleanStatus")
     LOAD(get_string_status, "fmi2GetStringStatus")
 #undef LOAD
@@ -272,8 +271,11 @@ typedef struct {
     int phase;            /* the instance's phase the state restores */
 } State;
 
+typedef struct Slot Slot;
+
 typedef struct {
-    fmi2Component real;        /* pythonfmu's component */
+    fmi2Component real;        /* pythonfmu's component (slot->real) */
+    Slot* slot;
     int phase;
     fmi2CallbackFunctions cb;  /* a copy: the logger for the shim's own messages */
     char name[256];
@@ -315,25 +317,29 @@ static void drop_live(Inst* in) {
     pthread_mutex_unlock(&lock);
 }
 
-/* Log through the host's logger (stderr without one). The text is passed as the format with no
-   arguments, so any '%' in it (a variable name, a string value) is doubled. */
-static void say_cb(const fmi2CallbackFunctions* cb, const char* inst, fmi2Status status, const char* fmt, ...) {
-    char msg[1536], esc[3072];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
-    va_end(ap);
+/* Log text through the host's logger (stderr without one). The text is passed as the format with no arguments,
+   so any '%' in it (a variable name, a string value, a Python error) is doubled. */
+static void log_text(const fmi2CallbackFunctions* cb, const char* inst, fmi2Status status, const char* category,
+                     const char* text) {
+    char esc[8192];
     size_t j = 0;
-    for (const char* p = msg; *p && j + 3 < sizeof esc; p++) {
+    for (const char* p = text; *p && j + 3 < sizeof esc; p++) {
         if (*p == '%') esc[j++] = '%';
         esc[j++] = *p;
     }
     esc[j] = 0;
-    if (cb && cb->logger)
-        cb->logger(cb->componentEnvironment, inst, status,
-                   status == fmi2Fatal ? "logStatusFatal" : status == fmi2Discard ? "logStatusDiscard" : "logStatusError", esc);
-    else
-        fprintf(stderr, "%s: %s\n", inst, msg);
+    if (cb && cb->logger) cb->logger(cb->componentEnvironment, inst, status, category, esc);
+    else fprintf(stderr, "%s: %s\n", inst, text);
+}
+
+static void say_cb(const fmi2CallbackFunctions* cb, const char* inst, fmi2Status status, const char* fmt, ...) {
+    char msg[1536];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    log_text(cb, inst, status,
+             status == fmi2Fatal ? "logStatusFatal" : status == fmi2Discard ? "logStatusDiscard" : "logStatusError", msg);
 }
 #define say(in, status, ...) say_cb(&(in)->cb, (in)->name, status, __VA_ARGS__)
 
@@ -379,6 +385,13 @@ static const char* refusal(Inst* in, const char* fn) {
     return text ? text : "";
 }
 
+/* 1 if the slave of pythonfmu component `real` (not handed out) started: it holds no refusal. */
+static int slave_started(fmi2Component real) {
+    fmi2ValueReference vr = MBSFMU_NVARS;
+    fmi2String text = NULL;
+    return R.get_string(real, &vr, 1, &text) == fmi2OK && text && !*text;
+}
+
 /* fmi2Error with the slave's reason after a forwarded call, else the call's status. */
 static fmi2Status checked(Inst* in, const char* fn, fmi2Status status) {
     if ((status = done(in, fn, status)) > fmi2Warning) return status;
@@ -410,6 +423,77 @@ static const char* resources_folder(const char* uri, char* dir, size_t size, cha
             return snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, err), why;
     }
     return NULL;
+}
+
+/* ------------------------------------------------------------------------ pythonfmu components, reused */
+/* pythonfmu 0.7.0 leaks in every fmi2Instantiate (the resources folder it inserts into sys.path, the class lists
+   and their reprs it builds to find the slave class: ~0.8 kB; build.ENTRY keeps that from being the whole slave
+   script), and hosts that create and free instances in a loop (optimizers, Monte Carlo) must stay flat. So a freed
+   instance's pythonfmu component is reset (a fresh slave, start time 0) and kept in a pool; fmi2Instantiate of the
+   same resources folder takes one from there instead of asking pythonfmu for a new one. pythonfmu keeps a pointer
+   to the callbacks it was given: those of the slot, whose logger passes messages on to the instance that owns the
+   slot now, under that instance's name (nothing while the slot is idle). */
+struct Slot {
+    fmi2Component real;
+    fmi2CallbackFunctions cb;  /* given to pythonfmu: logger = forward, componentEnvironment = the slot */
+    Inst* owner;               /* NULL while idle */
+    char dir[4096];            /* the resources folder pythonfmu was given */
+};
+static Slot** idle = NULL;
+static size_t nidle = 0, idle_capacity = 0;
+
+static void forward(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
+                    fmi2String message, ...) {
+    Inst* in = ((Slot*)env)->owner;
+    (void)name;
+    if (in && message) log_text(&in->cb, in->name, status, category, message);
+}
+
+/* An idle slot of resources folder dir, taken from the pool and owned by in; NULL if there is none. */
+static Slot* take_idle(const char* dir, Inst* in) {
+    Slot* slot = NULL;
+    pthread_mutex_lock(&lock);
+    for (size_t i = nidle; i-- > 0 && !slot;)
+        if (!strcmp(idle[i]->dir, dir)) slot = idle[i], idle[i] = idle[--nidle];
+    pthread_mutex_unlock(&lock);
+    if (slot) slot->owner = in;
+    return slot;
+}
+
+/* Back into the pool with a fresh slave (pythonfmu's reset re-creates it; start time back to 0); a slot pythonfmu
+   cannot reset is left alone (leaked, as after a fatal error). */
+static void park(Slot* slot) {
+    int ok = R.reset(slot->real) == fmi2OK && R.setup_experiment(slot->real, 0, 0.0, 0.0, 0, 0.0) == fmi2OK;
+    if (ok && !slave_started(slot->real)) {   /* its scene is gone (the host deleted the folder): not reusable */
+        R.free_instance(slot->real);
+        free(slot);
+        return;
+    }
+    pthread_mutex_lock(&lock);
+    if (ok && nidle == idle_capacity) {
+        size_t cap = idle_capacity ? 2 * idle_capacity : 8;
+        Slot** grown = realloc(idle, cap * sizeof *grown);
+        if (grown) idle = grown, idle_capacity = cap;
+    }
+    if (ok && nidle < idle_capacity) idle[nidle++] = slot;
+    else if (ok) R.free_instance(slot->real), free(slot);
+    pthread_mutex_unlock(&lock);
+}
+
+/* A pythonfmu component for in: from the pool, else a new one; NULL if pythonfmu cannot create the slave. */
+static Slot* slot_for(Inst* in, fmi2String name, fmi2Type type, fmi2String guid, const char* dir, fmi2Boolean visible,
+                      fmi2Boolean logging) {
+    Slot* slot = take_idle(dir, in);
+    if (slot) {
+        R.set_debug_logging(slot->real, logging, 0, NULL);
+        return slot;
+    }
+    if (!(slot = calloc(1, sizeof *slot))) return NULL;
+    slot->cb = (fmi2CallbackFunctions){forward, calloc, free, NULL, slot};
+    slot->owner = in;
+    snprintf(slot->dir, sizeof slot->dir, "%s", dir);
+    if (!(slot->real = R.instantiate(name, type, guid, dir, &slot->cb, visible, logging))) free(slot), slot = NULL;
+    return slot;
 }
 
 /* ----------------------------------------------------------------------------------- life cycle */
@@ -449,15 +533,23 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     }
     in->cb = *cb;
     snprintf(in->name, sizeof in->name, "%s", name);
-    in->real = R.instantiate(instanceName, fmuType, guid, dir, cb, visible, loggingOn);
-    if (!in->real) {
+    in->slot = slot_for(in, instanceName, fmuType, guid, dir, visible, loggingOn);
+    if (!in->slot) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: the Python slave could not be created from %s "
                "(pythonfmu logs the Python error with loggingOn)", dir);
         drop_live(in);
         free(in);
         return NULL;
     }
-    return in;
+    in->real = in->slot->real;
+    why = refusal(in, __func__);   /* a slave that could not load its scene says why */
+    if (why && !*why) return in;
+    say_cb(cb, name, fmi2Error, "fmi2Instantiate: %s", why ? why : "the Python slave failed");
+    drop_live(in);
+    in->slot->owner = NULL;
+    if (in->phase != BROKEN) R.free_instance(in->real), free(in->slot);   /* else leaked, as after any fatal */
+    free(in);
+    return NULL;
 }
 
 EXPORT void fmi2FreeInstance(fmi2Component c) {
@@ -467,9 +559,10 @@ EXPORT void fmi2FreeInstance(fmi2Component c) {
         return;
     }
     drop_live(in);
+    in->slot->owner = NULL;
     if (in->phase != BROKEN) {   /* a broken instance is leaked: pythonfmu already released part of it */
         for (size_t i = 0; i < in->nstates; i++) R.free_state(in->real, &in->states[i].handle);
-        R.free_instance(in->real);
+        park(in->slot);
     }
     free(in->states);
     free(in);
@@ -553,9 +646,11 @@ EXPORT fmi2Status fmi2Terminate(fmi2Component c) {
 }
 
 EXPORT fmi2Status fmi2Reset(fmi2Component c) {
-    Inst* in = find(c);
-    fmi2Status st = transition(c, __func__, LIVE, R.reset, INSTANTIATED);   /* pythonfmu re-creates the slave */
-    if (in && st <= fmi2Warning) in->discarded = 0;
+    Inst* in;
+    fmi2Status st = enter(c, __func__, LIVE, &in);
+    if (st) return st;
+    st = checked(in, __func__, R.reset(in->real));   /* pythonfmu re-creates the slave; it may not load its scene */
+    if (in->phase != BROKEN) in->phase = st > fmi2Warning ? FAILED : INSTANTIATED, in->discarded = 0;
     return st;
 }
 
@@ -705,8 +800,9 @@ EXPORT fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind kind, 
     Inst* in;
     fmi2Status st = status_query(c, __func__, value, &in);
     if (st) return st;
-    return kind == fmi2LastSuccessfulTime ? done(in, __func__, R.get_real_status(in->real, kind, value))
-                                          : not_available(in, __func__, kind);
+    if (kind != fmi2LastSuccessfulTime) return not_available(in, __func__, kind);
+    fmi2ValueReference time_vr = MBSFMU_NVARS + 1;   /* the slave's hidden Real: the engine's time */
+    return done(in, __func__, R.get_real(in->real, &time_vr, 1, value));
 }
 
 EXPORT fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind kind, fmi2Integer* value) {
