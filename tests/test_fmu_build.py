@@ -334,9 +334,10 @@ def test_bad_parameter_and_fixed_parameter(osc_fmu, tmp_path):
 def test_generated_script_is_template_free(osc_fmu):
     z = zipfile.ZipFile(osc_fmu)
     mod = z.read("resources/slavemodule.txt").decode().strip()
-    src = z.read(f"resources/{mod}.py").decode()
-    assert "@" not in src.replace("@staticmethod", "")
+    entry, src = (z.read(f"resources/{name}.py").decode() for name in (mod, f"{mod}_slave"))
+    assert "@" not in entry and "@" not in src.replace("@staticmethod", "")
     assert re.search(r"^class (\w+)\(\s*Fmi2Slave\s*\)\s*:", src, re.M)
+    assert f"from {mod}_slave import MbsfmuSlave" in entry
 
 
 # --- with the real runtime -------------------------------------------------------------------
