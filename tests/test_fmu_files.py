@@ -144,3 +144,70 @@ def test_instantiate_free_cycles_keep_memory_flat(fmus, host, tmp_path, kind):
     assert r.returncode == 0 and "DONE" in r.stdout, (r.stdout[-2000:], r.stderr[-2000:])
     rss = dict(map(int, ln.split()[1:]) for ln in r.stdout.splitlines() if ln.startswith("RSS "))
     assert rss[1000] > 0 and (rss[10000] - rss[1000]) / 9000 <= 1.0, rss
+
+
+REUSE = r'''
+from fmpy.fmi2 import fmi2LastSuccessfulTime
+fmu, work = sys.argv[1:3]
+md = read_model_description(fmu)
+vr = {v.name: v.valueReference for v in md.modelVariables}
+outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+folder = {where: fmpy.extract(fmu, os.path.join(work, where)) for where in ("shared", "other")}
+
+
+def new(tag, where, logging=False):
+    s = FMU2Slave(guid=md.guid, unzipDirectory=folder[where], modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=tag)
+    s.instantiate(callbacks=cb, loggingOn=logging)
+    return s
+
+
+def run(s, t0=None):
+    """Initialization (without fmi2SetupExperiment if t0 is None), then 5 steps; (start time, output rows)."""
+    if t0 is not None:
+        s.setupExperiment(startTime=t0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    t = s.getRealStatus(fmi2LastSuccessfulTime)
+    rows = [s.getReal(outs)]
+    steps(s, t, 5)
+    return t, rows + [s.getReal(outs)]
+
+
+a = new("a", "shared")
+a.setReal([vr["L"]], [1.3])
+a.setString([vr["integrator.method"]], ["rk4"])
+a_time, _ = run(a, 2.0)
+a.terminate()
+a.freeInstance()                  # fmpy also unloads the library here: the shim stays, with its pool
+n = len(LOG)
+b = new("b", "shared", logging=True)   # gets a's pythonfmu component from the shim's pool
+method = b.getString([vr["integrator.method"]])[0].decode()
+refused = status(b.setString, [vr["integrator.method"]], ["bogus"])
+b.setString([vr["integrator.method"]], [method])
+b_time, b_rows = run(b)
+b.freeInstance()
+ref = new("ref", "other")              # another folder: a component of its own
+ref_time, ref_rows = run(ref, 0.0)
+print("RESULT " + json.dumps({"a_time": a_time, "b": [b_time, b_rows], "ref": [ref_time, ref_rows],
+                              "refused": refused, "log": LOG[n:]}))
+'''
+
+
+def test_a_reused_instance_is_a_fresh_one(fmus, tmp_path):
+    """The shim gives a freed instance's pythonfmu component to the next fmi2Instantiate of the same folder: the
+    new instance starts as a new one would (parameters, integrator and start time of the scene), and messages of
+    the component reach the new instance's logger under its name. Reference: an instance from another folder."""
+    import json
+    import sys
+    from test_fmu_hostile import FMPY_CHILD
+    r = subprocess.run([sys.executable, "-c", FMPY_CHILD + REUSE, str(fmus["pythonfmu"]), str(tmp_path)],
+                       capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in r.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert r.returncode == 0 and lines, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
+    res = json.loads(lines[0][7:])
+    assert res["a_time"] == 2.0 and res["b"][0] == 0.0 and res["b"] == res["ref"]
+    assert res["refused"] == 3
+    names = {name for name, *_ in res["log"]}
+    slave = [msg for name, _, _, msg in res["log"] if msg.startswith("set integrator.method='bogus'")]
+    assert names == {"b"} and slave, res["log"]   # the slave's own message, through pythonfmu, named b

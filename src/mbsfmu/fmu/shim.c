@@ -252,6 +252,9 @@ static int load_real(void) {
         return -1;   /* lib stays loaded: its constructors ran (see release_pystate) */
     }
     real = lib;
+    /* Stay loaded when the host unloads the FMU (fmpy does after every fmi2FreeInstance), as pythonfmu's library and
+       the interpreter do: the pool of components (below) lives in this library. */
+    dlopen(info.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);
     real_finalize = (void (*)(void))dlsym(real, "finalizePythonInterpreter");
     if (real_finalize) atexit(release_pystate);   /* see release_pystate */
     return 0;
@@ -439,7 +442,7 @@ static const char* resources_folder(const char* uri, char* dir, size_t size, cha
 /* pythonfmu 0.7.0 leaks in every fmi2Instantiate (the resources folder it inserts into sys.path, the class lists
    and their reprs it builds to find the slave class: ~0.8 kB; build.ENTRY keeps that from being the whole slave
    script), and hosts that create and free instances in a loop (optimizers, Monte Carlo) must stay flat. So a freed
-   instance's pythonfmu component is reset (a fresh slave, start time 0) and kept in a pool; fmi2Instantiate of the
+   instance's pythonfmu component is reset (a fresh slave) and kept in a pool; fmi2Instantiate of the
    same resources folder takes one from there instead of asking pythonfmu for a new one. pythonfmu keeps a pointer
    to the callbacks it was given: those of the slot, whose logger passes messages on to the instance that owns the
    slot now, under that instance's name (nothing while the slot is idle). */
@@ -459,21 +462,28 @@ static void forward(fmi2ComponentEnvironment env, fmi2String name, fmi2Status st
     if (in && message) log_text(&in->cb, in->name, status, category, message);
 }
 
-/* An idle slot of resources folder dir, taken from the pool and owned by in; NULL if there is none. */
+/* An idle slot of resources folder dir, taken from the pool and owned by in; NULL if there is none. Idle slots of
+   folders that are gone (fmpy extracts every run into a temporary folder and deletes it) are freed on the way. */
 static Slot* take_idle(const char* dir, Inst* in) {
-    Slot* slot = NULL;
+    Slot *slot = NULL, *gone[64];
+    size_t ngone = 0;
     pthread_mutex_lock(&lock);
-    for (size_t i = nidle; i-- > 0 && !slot;)
-        if (!strcmp(idle[i]->dir, dir)) slot = idle[i], idle[i] = idle[--nidle];
+    for (size_t i = nidle; i-- > 0;)
+        if (!slot && !strcmp(idle[i]->dir, dir)) slot = idle[i], idle[i] = idle[--nidle];
+        else if (ngone < sizeof gone / sizeof gone[0] && access(idle[i]->dir, F_OK)) gone[ngone++] = idle[i], idle[i] = idle[--nidle];
     pthread_mutex_unlock(&lock);
+    for (size_t i = 0; i < ngone; i++) {
+        R.free_instance(gone[i]->real);
+        free(gone[i]);
+    }
     if (slot) slot->owner = in;
     return slot;
 }
 
-/* Back into the pool with a fresh slave (pythonfmu's reset re-creates it; start time back to 0); a slot pythonfmu
-   cannot reset is left alone (leaked, as after a fatal error). */
+/* Back into the pool with a fresh slave (pythonfmu's reset re-creates it); a slot pythonfmu cannot reset is left
+   alone (leaked, as after a fatal error). */
 static void park(Slot* slot) {
-    int ok = R.reset(slot->real) == fmi2OK && R.setup_experiment(slot->real, 0, 0.0, 0.0, 0, 0.0) == fmi2OK;
+    int ok = R.reset(slot->real) == fmi2OK;
     if (ok && !slave_started(slot->real)) {   /* its scene is gone (the host deleted the folder): not reusable */
         R.free_instance(slot->real);
         free(slot);
