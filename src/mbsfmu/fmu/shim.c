@@ -25,8 +25,11 @@
  *   - refusals the slave cannot report (pythonfmu has no fmi2Error): the slave keeps the reason of a failed
  *     initialization, state restore, string set, outright step refusal or discarded step ("discard: ...") in a
  *     hidden String variable, value reference MBSFMU_NVARS (not in modelDescription.xml), which the shim
- *     reads after those calls;
- *   - after one fmi2Fatal from pythonfmu the instance is never passed to pythonfmu again.
+ *     reads after those calls (and after fmi2Instantiate and fmi2Reset: a slave that cannot load its scene);
+ *   - after one fmi2Fatal from pythonfmu the instance is never passed to pythonfmu again;
+ *   - the resource location (engine/fmu_files.c, the native FMU's parser) and the files the FMU reads: regular
+ *     files of bounded size only, checked before pythonfmu or Python opens them;
+ *   - memory: freed instances' pythonfmu components are reused (see "pythonfmu components, reused").
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
