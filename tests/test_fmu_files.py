@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import re
 import subprocess
+import sys
 import sysconfig
 import zipfile
 from pathlib import Path
@@ -122,14 +123,19 @@ def test_special_files_as_the_scene_are_refused_without_hanging(fmus, host, tmp_
     assert ("more than this FMU reads" if what == "oversized" else "not a regular file") in message, message
 
 
-@pytest.mark.parametrize("member", ["slavemodule.txt", "entry", "slave", "engine"])
+@pytest.mark.parametrize("member", ["slavemodule.txt", "entry", "slave", "engine", "bytecode"])
 def test_pythonfmu_kind_checks_every_file_it_reads(fmus, host, tmp_path, member):
-    """pythonfmu reads slavemodule.txt and the entry script, Python imports the slave and the runtime and loads
-    the engine library: a FIFO in place of any of them is refused before anything opens it."""
+    """pythonfmu reads slavemodule.txt and the entry script, Python imports the slave and the runtime (and reads
+    their cached bytecode) and loads the engine library: a FIFO in place of any of them is refused before anything
+    opens it."""
     lib, res, guid, _ = unpack(fmus["pythonfmu"], tmp_path / "fmu")
     module = (res / "slavemodule.txt").read_text().strip()
+    cache = next(res.glob("mbsfmu_rt_*")) / "__pycache__"
+    cache.mkdir()
+    (cache / f"errors.{sys.implementation.cache_tag}.pyc").write_bytes(b"")
     target = {"slavemodule.txt": res / "slavemodule.txt", "entry": res / f"{module}.py",
-              "slave": res / f"{module}_slave.py", "engine": next(res.glob("mbsfmu_rt_*/engine/libmbsfmu_engine_*"))}
+              "slave": res / f"{module}_slave.py", "engine": next(res.glob("mbsfmu_rt_*/engine/libmbsfmu_engine_*")),
+              "bytecode": cache / f"errors.{sys.implementation.cache_tag}.pyc"}
     special("fifo", target[member])
     message = refused(run(host, lib, res.as_uri(), guid, timeout=30))
     assert target[member].name in message and "not a regular file" in message, message
@@ -199,7 +205,6 @@ def test_a_reused_instance_is_a_fresh_one(fmus, tmp_path):
     new instance starts as a new one would (parameters, integrator and start time of the scene), and messages of
     the component reach the new instance's logger under its name. Reference: an instance from another folder."""
     import json
-    import sys
     from test_fmu_hostile import FMPY_CHILD
     r = subprocess.run([sys.executable, "-c", FMPY_CHILD + REUSE, str(fmus["pythonfmu"]), str(tmp_path)],
                        capture_output=True, text=True, timeout=120)

@@ -32,6 +32,7 @@
  *   - memory: freed instances' pythonfmu components are reused (see "pythonfmu components, reused").
  */
 #define _GNU_SOURCE
+#include <dirent.h>
 #include <dlfcn.h>
 #include <math.h>
 #include <pthread.h>
@@ -41,6 +42,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <wchar.h>
 
@@ -48,6 +50,8 @@
 #ifndef MBSFMU_RESOURCE_FILES
 #define MBSFMU_RESOURCE_FILES ""
 #endif
+#define MAX_RESOURCE_ENTRIES 10000   /* files and folders under resources/ (an FMU has a few dozen) */
+#define MAX_RESOURCE_DEPTH 8         /* folder levels under resources/ looked into (an FMU has 3) */
 
 #ifndef MBSFMU_VARIABLES
 #error "compile with mbsfmu.fmu.build.compile_shim: it defines the model's GUID and variable table"
@@ -418,6 +422,32 @@ static fmi2Status checked(Inst* in, const char* fn, fmi2Status status) {
     return fmi2Error;
 }
 
+/* 1 (with the reason in err) if the folder dir holds, at any depth, something Python might open that is neither a
+   regular file nor a folder (a FIFO, socket or device: Python's imports also read the .pyc files in __pycache__ that
+   no list of the FMU's files names), or more than *budget entries. */
+static int special_file(const char* dir, int depth, int* budget, char* err, size_t errlen) {
+    DIR* d = depth > MAX_RESOURCE_DEPTH ? NULL : opendir(dir);
+    struct dirent* e;
+    int bad = 0;
+    if (!d) return 0;   /* deeper than anything the FMU imports, missing or unreadable: the listed files tell */
+    while (!bad && (e = readdir(d))) {
+        char path[4096];
+        struct stat st;
+        if (!strcmp(e->d_name, ".") || !strcmp(e->d_name, "..")) continue;
+        snprintf(path, sizeof path, "%s/%s", dir, e->d_name);
+        if (--*budget < 0)
+            bad = snprintf(err, errlen, "more than %d files and folders", MAX_RESOURCE_ENTRIES) > 0;
+        else if (stat(path, &st) != 0)
+            continue;   /* gone, or a dangling link: nothing to open */
+        else if (S_ISDIR(st.st_mode))
+            bad = special_file(path, depth + 1, budget, err, errlen);
+        else if (!S_ISREG(st.st_mode))
+            bad = snprintf(err, errlen, "'%.600s' is not a regular file (a FIFO, socket or device)", path) > 0;
+    }
+    closedir(d);
+    return bad;
+}
+
 /* The resources folder of fmuResourceLocation `uri` (engine/fmu_files.c: the parser of the native FMU too) as the
    plain path pythonfmu 0.7.0 is given, into dir; NULL, else why not. Every file the FMU reads at run time
    (MBSFMU_RESOURCE_FILES, from the FMU's resources/) must be a regular file of bounded size first: pythonfmu and
@@ -433,11 +463,14 @@ static const char* resources_folder(const char* uri, char* dir, size_t size, cha
         return snprintf(why, whylen, "resources folder %s: pythonfmu 0.7.0 cannot load from a path that contains "
                         "\"%%20\" or \"file://\" (rename the folder, or use a native FMU)", dir), why;
     if (strlen(dir) > 1) dir[strlen(dir) - 1] = 0;   /* no trailing slash: pythonfmu appends "/name" */
+    int budget = MAX_RESOURCE_ENTRIES;
     for (size_t i = 0; i < sizeof files / sizeof files[0]; i++) {
         snprintf(file, sizeof file, "%s/%s", dir, files[i]);
         if (files[i][0] && mbs_check_regular(file, MBS_SCENE_FILE_LIMIT, NULL, err, sizeof err))
             return snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, err), why;
     }
+    if (special_file(dir, 0, &budget, err, sizeof err))
+        return snprintf(why, whylen, "%s is not this FMU's resources folder: %s", dir, err), why;
     return NULL;
 }
 
