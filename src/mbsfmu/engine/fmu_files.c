@@ -39,12 +39,10 @@ static int hexval(int ch) {
     return -1;
 }
 
-/* 1 if uri starts with the scheme "file:" (schemes are case-insensitive, RFC 3986 3.1) */
-static int file_scheme(const char *uri) {
-    const char *want = "file:";
-    int i;
-    for (i = 0; want[i]; i++)
-        if (uri[i] != want[i] && uri[i] != want[i] - 'a' + 'A') return 0;
+/* 1 if s starts with the lower-case ASCII word w in any case (URI schemes and host names, RFC 3986 3.1, 3.2.2) */
+static int starts_nocase(const char *s, const char *w) {
+    for (; *w; s++, w++)
+        if (*s != *w && !(*w >= 'a' && *w <= 'z' && *s == *w - 'a' + 'A')) return 0;
     return 1;
 }
 
@@ -53,7 +51,7 @@ static int file_scheme(const char *uri) {
 static const char *uri_path(const char *p) {
     if (strncmp(p, "//", 2) == 0) {
         p += 2;
-        if (strncmp(p, "localhost", 9) == 0 && p[9] == '/') p += 9;
+        if (starts_nocase(p, "localhost") && p[9] == '/') p += 9;
     }
     if (*p != '/') return NULL;
 #ifdef _WIN32
@@ -69,7 +67,7 @@ int mbs_resource_path(const char *uri, const char *file, char *out, size_t n, ch
         snprintf(err, errlen, "no fmuResourceLocation given");
         return 1;
     }
-    if (!file_scheme(uri)) {
+    if (!starts_nocase(uri, "file:")) {
         snprintf(err, errlen, "fmuResourceLocation '%.300s' is not a file URI; FMI 2.0 passes the resources folder "
                  "as file:///absolute/path/resources (RFC 3986)", uri);
         return 1;
