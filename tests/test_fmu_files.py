@@ -216,3 +216,35 @@ def test_a_reused_instance_is_a_fresh_one(fmus, tmp_path):
     names = {name for name, *_ in res["log"]}
     slave = [msg for name, _, _, msg in res["log"] if msg.startswith("set integrator.method='bogus'")]
     assert names == {"b"} and slave, res["log"]   # the slave's own message, through pythonfmu, named b
+
+
+def test_resource_path_decodes_as_pythons_uri_parser():
+    """engine/fmu_files.c's parser (both kinds) against urllib's RFC 3986 parsing on 2,000 random folder names
+    (UTF-8, spaces, '#', '?', '%', reserved characters) written as pathlib's file URIs in every allowed form and with
+    the characters RFC 3986 allows in a path left unescaped."""
+    import ctypes
+    import random
+    from urllib.parse import quote, unquote_to_bytes, urlsplit
+    from mbsfmu.engine import library
+    fn = library().mbs_resource_path
+    fn.restype, fn.argtypes = ctypes.c_int, [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_char_p, ctypes.c_size_t,
+                                             ctypes.c_char_p, ctypes.c_size_t]
+
+    def parse(uri):
+        out, err = ctypes.create_string_buffer(4096), ctypes.create_string_buffer(512)
+        return None if fn(uri.encode(), b"scene.bin", out, len(out), err, len(err)) else out.value
+
+    rng = random.Random(7)
+    chars = "aZ09 -_.~#?%&=+;,:@!$'()*[]üé中\u00a0"
+    for _ in range(2000):
+        folder = Path("/tmp", *("".join(rng.choice(chars) for _ in range(rng.randint(1, 8))) for _ in range(3)))
+        uri = folder.as_uri()
+        want = unquote_to_bytes(urlsplit(uri).path).rstrip(b"/") + b"/scene.bin"
+        assert want == os.fsencode(folder) + b"/scene.bin"
+        path = uri[len("file://"):]
+        raw = "file://" + quote(os.fsencode(folder), safe="/:@!$&'()*+,;=")   # RFC 3986 pchars left unescaped
+        for form in (uri, uri + "/", "file:" + path, "file://localhost" + path, raw):
+            assert parse(form) == want, form
+    for uri in ("file://host/x", "http://localhost/x", "file:x/y", "/abs/path", "file:///a%2Fb", "file:///a%0",
+                "file:///a#b", "file:///a?b", "file:///a%00b"):
+        assert parse(uri) is None, uri
