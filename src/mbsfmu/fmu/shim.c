@@ -291,7 +291,6 @@ typedef struct {
     char name[256];
     State* states;             /* FMU states handed out for this instance */
     int discarded;             /* the last fmi2DoStep was discarded: fmi2Terminated reads true (as the native FMU) */
-    double last_time;          /* fmi2LastSuccessfulTime: the end of the last completed step (FMI 2.0, 4.2.3) */
     size_t nstates, capacity;
 } Inst;
 
@@ -394,15 +393,6 @@ static const char* refusal(Inst* in, const char* fn) {
     fmi2String text = NULL;
     if (done(in, fn, R.get_string(in->real, &vr, 1, &text)) != fmi2OK) return NULL;
     return text ? text : "";
-}
-
-/* The engine's time (the slave's hidden Real after the refusal text): where initialization or a restored state put
-   the instance. pythonfmu's own fmi2LastSuccessfulTime knows neither (nor a component reused from the pool). */
-static double engine_time(Inst* in) {
-    fmi2ValueReference vr = MBSFMU_NVARS + 1;
-    double t = NAN;
-    if (R.get_real(in->real, &vr, 1, &t) != fmi2OK) t = NAN;
-    return t;
 }
 
 /* 1 if the slave of pythonfmu component `real` (not handed out) started: it holds no refusal. */
@@ -670,7 +660,6 @@ EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     if (st) return st;
     st = checked(in, __func__, R.exit_init(in->real));
     if (in->phase != BROKEN) in->phase = st > fmi2Warning ? FAILED : STEP;
-    if (in->phase == STEP) in->last_time = engine_time(in);
     return st;
 }
 
@@ -686,12 +675,11 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolea
        passes the slave's messages on only with debug logging. A step the engine refused outright (t is not
        the current time) is fmi2Error with the slave's reason, the instance unchanged, as in the native FMU. */
     if ((st = done(in, __func__, R.do_step(in->real, t, h, no_rollback))) != fmi2Discard) {
-        if (st <= fmi2Warning) in->discarded = 0, in->last_time = t + h;
+        if (st <= fmi2Warning) in->discarded = 0;
         return st;
     }
     const char* why = refusal(in, __func__);
     in->discarded = why && (!*why || !strncmp(why, "discard: ", 9));
-    if (in->discarded) in->last_time = t;   /* the state stays at t, the end of the last completed step */
     if (!why) return fmi2Fatal;
     if (!strncmp(why, "discard: ", 9)) return say(in, fmi2Discard, "%s: %s", __func__, why + 9), fmi2Discard;
     if (!*why) return say(in, fmi2Discard, "%s: the step failed", __func__), fmi2Discard;
@@ -859,8 +847,12 @@ EXPORT fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind kind, 
     fmi2Status st = status_query(c, __func__, value, &in);
     if (st) return st;
     if (kind != fmi2LastSuccessfulTime) return not_available(in, __func__, kind);
-    *value = in->last_time;
-    return fmi2OK;
+    /* The engine's time, read from the slave's hidden Real after the refusal text, as the native FMU answers: after
+       a discarded step the time the integration reached (FMI 2.0: the slave computed a subinterval), where the state
+       is and the master goes on. pythonfmu's own answer is the step's start then, and stale after a state restore
+       or on a component reused from the pool. */
+    fmi2ValueReference time_vr = MBSFMU_NVARS + 1;
+    return done(in, __func__, R.get_real(in->real, &time_vr, 1, value));
 }
 
 EXPORT fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind kind, fmi2Integer* value) {
@@ -935,7 +927,6 @@ static fmi2Status set_borrowed(Inst* in, const char* fn, Inst* owner, State* the
         (st = done(in, fn, R.deserialize(in->real, bytes, n, &mine))) <= fmi2Warning) {
         int phase = theirs->phase;
         if ((st = checked(in, fn, R.set_state(in->real, mine))) <= fmi2Warning) in->phase = phase, in->discarded = 0;
-        if (st <= fmi2Warning) in->last_time = engine_time(in);
         if (in->phase != BROKEN) R.free_state(in->real, &mine);
     }
     free(bytes);
@@ -974,7 +965,6 @@ EXPORT fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) {
     int phase = state->phase;
     /* the engine checks the payload once more and restores all or nothing: a refusal leaves the phase */
     if ((st = checked(in, __func__, R.set_state(in->real, s))) <= fmi2Warning) in->phase = phase, in->discarded = 0;
-    if (st <= fmi2Warning) in->last_time = engine_time(in);
     return st;
 }
 
