@@ -41,7 +41,8 @@ typedef struct MbsInstance MbsInstance;
 
 /* ---- the compiled scene ---- */
 MBS_API MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen);
-MBS_API MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen);
+MBS_API MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen); /* a regular file only, at most
+                                                   MBS_SCENE_FILE_LIMIT bytes (fmu_files.h): never waits on a FIFO */
 MBS_API void mbs_model_free(MbsModel *m);
 MBS_API const char *mbs_model_guid(const MbsModel *m);   /* the FMU's GUID, written by Python */
 MBS_API int mbs_model_nvars(const MbsModel *m);          /* rows of the variable table */
