@@ -74,7 +74,8 @@ def test_every_file_uri_form_loads_the_same_model(fmus, host, tmp_path, kind):
     assert "%C3%BC%20%23%2541" in uri and uri.startswith("file:///")
     path = uri[len("file://"):]
     forms = [uri, uri + "/", "file:" + path, "file://localhost" + path, "file://localhost" + path + "/",
-             "FILE://" + path, "file://LocalHost" + path, "file://" + re.sub(r"%[0-9A-F]{2}", lambda m: m.group().lower(), path)]
+             "FILE://" + path, "file://LocalHost" + path,
+             "file://" + re.sub(r"%[0-9A-F]{2}", lambda m: m.group().lower(), path)]
     rows = set()
     for form in forms:
         r = run(host, lib, form, guid, "-n", "5", "-o", outs, "-p")
@@ -89,7 +90,8 @@ def test_locations_the_standard_does_not_allow_are_refused(fmus, host, tmp_path,
     path = res.as_uri()[len("file://"):]
     cases = {"http:" + "//host" + path: "not a file URI", "https://host" + path: "not a file URI",
              "ftp://host" + path: "not a file URI", str(res): "not a file URI", "resources": "not a file URI",
-             "./resources": "not a file URI", "file:resources": "absolute path", "file://otherhost" + path: "absolute path",
+             "./resources": "not a file URI", "file:resources": "absolute path",
+             "file://otherhost" + path: "absolute path",
              "file://" + path + "%4": "percent escape", "file://" + path + "%zz": "percent escape",
              "file://" + path + "%00": "percent escape", "file://" + path + "%2Fx": "percent escape",
              "file://" + path + "#x": "fragment", "file://" + path + "?x=1": "query",

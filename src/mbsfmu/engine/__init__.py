@@ -9,7 +9,8 @@ import os
 
 from ..errors import EngineUnavailable, IntegrationError
 
-__all__ = ["Instance", "model_file", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD", "ERROR", "V_METHOD"]
+__all__ = ["Instance", "model_file", "EngineError", "EngineUnavailable", "library", "OK", "WARNING", "DISCARD",
+           "ERROR", "V_METHOD"]
 OK, WARNING, DISCARD, ERROR = 0, 1, 2, 3
 V_METHOD = 1  # mbs_engine.h MBS_V_*: the kind of the one String variable, integrator.method
 

@@ -348,8 +348,10 @@ static void say_cb(const fmi2CallbackFunctions* cb, const char* inst, fmi2Status
     va_start(ap, fmt);
     vsnprintf(msg, sizeof msg, fmt, ap);
     va_end(ap);
-    log_text(cb, inst, status,
-             status == fmi2Fatal ? "logStatusFatal" : status == fmi2Discard ? "logStatusDiscard" : "logStatusError", msg);
+    const char* category = status == fmi2Fatal     ? "logStatusFatal"
+                           : status == fmi2Discard ? "logStatusDiscard"
+                                                   : "logStatusError";
+    log_text(cb, inst, status, category, msg);
 }
 #define say(in, status, ...) say_cb(&(in)->cb, (in)->name, status, __VA_ARGS__)
 
@@ -494,9 +496,13 @@ static Slot* take_idle(const char* dir, Inst* in) {
     Slot *slot = NULL, *gone[64];
     size_t ngone = 0;
     pthread_mutex_lock(&lock);
-    for (size_t i = nidle; i-- > 0;)
-        if (!slot && !strcmp(idle[i]->dir, dir)) slot = idle[i], idle[i] = idle[--nidle];
-        else if (ngone < sizeof gone / sizeof gone[0] && access(idle[i]->dir, F_OK)) gone[ngone++] = idle[i], idle[i] = idle[--nidle];
+    for (size_t i = nidle; i-- > 0;) {
+        int mine = !slot && !strcmp(idle[i]->dir, dir);
+        int gone_folder = !mine && ngone < sizeof gone / sizeof gone[0] && access(idle[i]->dir, F_OK) != 0;
+        if (mine) slot = idle[i];
+        if (gone_folder) gone[ngone++] = idle[i];
+        if (mine || gone_folder) idle[i] = idle[--nidle];
+    }
     pthread_mutex_unlock(&lock);
     for (size_t i = 0; i < ngone; i++) {
         R.free_instance(gone[i]->real);
