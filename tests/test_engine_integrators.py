@@ -594,3 +594,21 @@ def test_snapshot_random_bytes_never_crash(lib, method):
                 pass
         a.load(snap)
     assert a.load(snap) == 0 and loaded > 0
+
+
+def test_integrator_memory_is_bounded_by_its_states(lib):
+    """radau5 holds n x n matrices (Jacobian, real and complex LU: 4 n² doubles, twice for rejected steps):
+    for n = 8,000 states that is 4 GiB, refused with its size before any allocation; an explicit method takes
+    the same system (memory linear in n) and integrates it to the closed form x(t) = x0 exp(-t)."""
+    n = 8000
+    ode = Ode(lib, "wide", float(n))
+    with pytest.raises(ValueError) as e:
+        Integ(lib, "radau5", ode, n)
+    said = float(str(e.value).split("radau5 needs ")[1].split(" GiB")[0])
+    assert abs(said / (2 * 4 * n * n * 8 / 2 ** 30) - 1) < 0.01, e.value  # the n² terms dominate
+    assert "8000 states" in str(e.value) and "dopri5" in str(e.value), e.value
+    it = Integ(lib, "dopri5", ode, n, rtol=1e-10, atol=1e-12)
+    x0 = np.linspace(0.5, 1.5, n)
+    it.reset(0.0, x0)
+    assert np.allclose(it.advance(1.0), x0 * np.exp(-1.0), rtol=1e-8, atol=0)
+    assert Integ(lib, "radau5", Ode(lib, "wide", 100.0), 100).ptr  # a small system keeps radau5

@@ -13,6 +13,7 @@
  *   "blowup"     ẋ = x² (n = 1): from x(0) = 1 a pole at t = 1 (step-size underflow)
  *   "nan_after"  ẋ = −x (n = 2) until t = p[0], NaN afterwards
  *   "fail_after" ẋ = −x (n = 2) until t = p[0], then MBS_F_SINGULAR with a message
+ *   "wide"       ẋ_i = −x_i (n = p[0]): as many states as asked, for the integrators' memory bound
  */
 #include <math.h>
 #include <stdlib.h>
@@ -20,7 +21,7 @@
 
 #include "mbs_integrator.h"
 
-enum { HARMONIC, VDP, KEPLER, RIGID, DECAY, RAMP, BLOWUP, NAN_AFTER, FAIL_AFTER, NKINDS };
+enum { HARMONIC, VDP, KEPLER, RIGID, DECAY, RAMP, BLOWUP, NAN_AFTER, FAIL_AFTER, WIDE, NKINDS };
 
 typedef struct {
     MbsOde ode; /* first member: the pointer handed out is also the block's address */
@@ -131,10 +132,18 @@ static const char *message(void *ctx)
     return "mass matrix is singular (test)";
 }
 
+static int f_wide(void *ctx, double t, const double *x, double *xd)
+{
+    const TestOde *P = (const TestOde *)ctx;
+    (void)t;
+    for (int i = 0; i < P->ode.n; i++) xd[i] = -x[i];
+    return MBS_F_OK;
+}
+
 MbsOde *test_ode_new(const char *name, const double *p, int np)
 {
     static const char *const names[] = {"harmonic", "vdp", "kepler", "rigid", "decay", "ramp", "blowup",
-                                        "nan_after", "fail_after"};
+                                        "nan_after", "fail_after", "wide"};
     int kind, i;
     TestOde *P;
     for (kind = 0; kind < NKINDS && strcmp(name, names[kind]) != 0; kind++) {}
@@ -153,6 +162,7 @@ MbsOde *test_ode_new(const char *name, const double *p, int np)
     case KEPLER: P->ode.f = f_kepler; P->ode.n = 4; break;
     case RIGID: P->ode.f = f_rigid; P->ode.n = 7; P->ode.normalize = normalize_rigid; break;
     case DECAY: P->ode.f = f_decay; P->ode.n = np; break;
+    case WIDE: P->ode.f = f_wide; P->ode.n = np == 1 && p[0] >= 1 && p[0] <= 1e7 ? (int)p[0] : 1; break;
     case RAMP: P->ode.f = f_ramp; P->ode.n = 1; break;
     case BLOWUP: P->ode.f = f_blowup; P->ode.n = 1; break;
     case NAN_AFTER: P->ode.f = f_nan_after; break;

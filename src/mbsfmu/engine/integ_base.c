@@ -3,6 +3,7 @@
  * Methods plug in through MbsMethodClass (integ_internal.h); 'auto' composes two of them (integ_auto.c). */
 #include <float.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -509,6 +510,15 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
     it->hist_bytes = align8(it->off_hi + sz.hist_int * sizeof(int));
     nwork_d = 4 * n + sz.work;
     work_bytes = nwork_d * sizeof(double) + sz.work_int * sizeof(int);
+    if ((double)it->hist_bytes * 2 + (double)work_bytes + (double)sz.view > (double)MBS_INTEG_MAX_BYTES) {
+        if (err && errlen)
+            snprintf(err, errlen, "%s needs %.3g GiB for %d states (limit %.0f GiB): choose an explicit method "
+                     "(rk4, dopri5, dop853) for a scene this large", cls->name,
+                     ((double)it->hist_bytes * 2 + (double)work_bytes) / (1 << 30), it->n,
+                     (double)MBS_INTEG_MAX_BYTES / (1 << 30));
+        free(it);
+        return NULL;
+    }
     it->hist = (unsigned char *)calloc(1, it->hist_bytes);
     it->hist_tmp = (unsigned char *)calloc(1, it->hist_bytes);
     it->work = (double *)calloc(1, work_bytes ? work_bytes : 1);

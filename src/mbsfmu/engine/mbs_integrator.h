@@ -23,6 +23,10 @@
 #endif
 
 enum { MBS_RK4, MBS_DOPRI5, MBS_DOP853, MBS_RADAU5, MBS_GEN_ALPHA, MBS_AUTO, MBS_NMETHODS };
+/* bytes one integrator may hold (history, its copy for rejected steps, scratch): an implicit method's
+ * n x n matrices grow with the square of the states, so a scene that the model's workspace admits may still
+ * be too large for radau5; mbs_integ_new refuses it with the size instead of allocating tens of GB */
+#define MBS_INTEG_MAX_BYTES ((size_t)1 << 30)
 extern const char *const mbs_method_names[MBS_NMETHODS]; /* "rk4", "dopri5", ... */
 int mbs_method_index(const char *name);                   /* -1 when unknown */
 
