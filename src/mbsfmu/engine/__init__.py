@@ -115,6 +115,12 @@ class Instance:
     def set_real(self, vr, value):
         self._check(self.lib.mbs_set_real(self.ptr, vr, value))
 
+    def set_reals(self, vrs, values):
+        """Set together (parameters that must change together: one call); nothing changes on a refusal."""
+        n = len(vrs)
+        vr, v = (ctypes.c_uint * n)(*vrs), (ctypes.c_double * n)(*values)
+        self._check(self.lib.mbs_set_reals(self.ptr, vr, n, v, None))
+
     def get_real(self, vr):
         self._check(self.lib.mbs_get_real(self.ptr, vr, ctypes.byref(self._value)))
         return self._value.value

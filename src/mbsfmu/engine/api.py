@@ -20,6 +20,7 @@ SIGNATURES = {
     "mbs_instance_free": (None, [c_void_p]),
     "mbs_reset": (c_int, [c_void_p]),
     "mbs_set_real": (c_int, [c_void_p, c_int, c_double]),
+    "mbs_set_reals": (c_int, [c_void_p, c_void_p, c_size_t, c_void_p, c_void_p]),
     "mbs_get_real": (c_int, [c_void_p, c_int, P_double]),
     "mbs_set_string": (c_int, [c_void_p, c_int, c_char_p]),
     "mbs_get_string": (c_int, [c_void_p, c_int, ctypes.POINTER(c_char_p)]),

@@ -12,11 +12,13 @@ import numpy as np
 
 from ..equations.model import Model
 from ..expr import CONSTANTS, parse
+from ..scene import domains
 from .elastic_tables import elastic_sections
 
 FORMAT_VERSION = 1
 # sections (mbs_model.h: S_*) and their element kinds (0 int32, 1 double, 2 bytes)
-S_HEADER, S_BODY_I, S_FORCE_I, S_QUAT, S_PLAIN, S_VARS, S_OUT_I, S_PROG, S_CODE, S_ELASTIC_I, S_D, S_ELASTIC_D, S_NAMES = range(13)
+(S_HEADER, S_BODY_I, S_FORCE_I, S_QUAT, S_PLAIN, S_VARS, S_OUT_I, S_PROG, S_CODE, S_ELASTIC_I, S_D, S_ELASTIC_D, S_NAMES,
+ S_VDOM, S_RULES, S_RULE_NAMES) = range(16)
 H_FIELDS = ("NB NPOS NVEL NFORCE NQUAT NPLAIN NDRV NVEC NINPUT NPARAM NVARS NOUT NPROG NCODE HAS_GRAVITY METHOD "
             "NCARDAN FEATURES MAXSTACK D_PARAM D_CONST D_BODY D_FORCE D_G D_X0 D_OUT D_INTEG ND").split()
 F_EXPR, F_ELASTIC = 1, 2
@@ -105,6 +107,29 @@ class _Programs:
         return e(env)
 
 
+class _Rules:
+    """The derived-quantity rules (scene/domains.py) of the numbers that depend on parameters: what the engine
+    checks when a host changes a parameter, with the scene path each rule names."""
+
+    def __init__(self):
+        self.rows = []  # (rule, region, offset, path)
+
+    def add(self, rule, region, offset, path):
+        self.rows.append((rule, region, offset, path))
+
+    def section(self, bound, offsets, carries):
+        """int rows (rule, offset into D or body index, offset of the path in the names) and the names' bytes,
+        for the rules of which an entry is bound by a parameter (a constant never changes)."""
+        rows, names = [], b""
+        for rule, region, off, path in self.rows:
+            size = domains.RULE_SIZE[rule]
+            if not (any((region, off + k) in bound for k in range(size)) if size else carries):
+                continue
+            rows.append((rule, offsets[region] + off if size else off, len(names)))
+            names += path.encode() + b"\0"
+        return np.array(rows, dtype=np.int32).reshape(-1, 3), np.frombuffer(names, np.uint8)
+
+
 def compile_scene(spec, variables, guid=""):
     """The compiled scene of a normalized spec, with the FMU variables (list of simulation.Variable, in
     value-reference order). Returns bytes."""
@@ -118,6 +143,7 @@ def compile_scene(spec, variables, guid=""):
                          "engine's dense per-body Jacobians suit tens to a few hundred coordinates")
     params = [p["name"] for p in spec["parameters"]]
     P = _Programs(params)
+    R = _Rules()
     nb, f, npos = len(m.bodies), m.nvel, m.npos
     regions = {"body": np.zeros((nb, DB)), "force": np.zeros((max(len(m.bound_forces), 0), DF)), "g": np.zeros(3),
                "x0": np.zeros(npos + f), "out": np.zeros((len(m.outputs), 3)), "integ": np.zeros(DI)}
@@ -137,32 +163,47 @@ def compile_scene(spec, variables, guid=""):
         ib[i, IB_VEL:IB_VEL + b.joint.nvel] = b.vel_idx
         ib[i, IB_ROT] = ib[i, IB_IROT] = ib[i, IB_IROT_MASK] = 0
         num = lambda v, off: P.number(v, env, "body", i * DB + off)  # noqa: E731
+        rule = lambda kind, off, what: R.add(kind, "body", i * DB + off, f"bodies.{b.name}.{what}")  # noqa: E731
         for key, off in (("axis", DB_A1_RAW),):
             if key in j:
                 for r in range(3):
                     db[i, off + r] = num(j[key][r], off + r)
+                rule(domains.AXIS, off, "joint.axis")
         if "axes" in j:
-            for a, off in zip(j["axes"], (DB_A1_RAW, DB_A2_RAW)):
+            for k, (a, off) in enumerate(zip(j["axes"], (DB_A1_RAW, DB_A2_RAW))):
                 for r in range(3):
                     db[i, off + r] = num(a[r], off + r)
+                rule(domains.AXIS, off, f"joint.axes[{k}]")
+        db[i, DB_M] = num(s["mass"], DB_M)
+        rule(domains.NONNEG, DB_M, "mass")
+        rule(domains.MAGNITUDE, DB_M, "mass")
         for r in range(3):
             db[i, DB_AT + r] = num(j["at"][r], DB_AT + r)
             db[i, DB_C + r] = num(s["center_of_mass"][r], DB_C + r)
+            rule(domains.MAGNITUDE, DB_AT + r, f"joint.at[{r}]")
+            rule(domains.MAGNITUDE, DB_C + r, f"center_of_mass[{r}]")
             for c in range(3):
                 db[i, DB_I + 3 * r + c] = num(s["inertia"][r][c], DB_I + 3 * r + c)
-        db[i, DB_M] = num(s["mass"], DB_M)
+                rule(domains.MAGNITUDE, DB_I + 3 * r + c, f"inertia[{r}][{c}]")
+        rule(domains.INERTIA, DB_I, "inertia")
+        if any(c not in j["drive"] for c in j["coordinates"]):
+            R.add(domains.CARRIES, "body", i, f"bodies.{b.name}.mass")
         ib[i, IB_ROT] = _rotation(j["rotation"], lambda v, off: num(v, DB_ROT_RAW + off), db[i, DB_ROT_RAW:])
+        _rotation_rules(j["rotation"], lambda kind, off, what: rule(kind, DB_ROT_RAW + off, "joint.rotation" + what))
         if b.kind in ("spherical", "free"):
             ib[i, IB_IROT] = _rotation(j["initial_rotation"], lambda v, off: num(v, DB_IROT_RAW + off), db[i, DB_IROT_RAW:])
+            _rotation_rules(j["initial_rotation"], lambda kind, off, what: rule(kind, DB_IROT_RAW + off, "joint.initial.rotation" + what))
             if b.param == "cardan":
                 names = b.coordinates[-3:]
                 ib[i, IB_IROT_MASK] = sum(1 << k for k, c in enumerate(names) if c not in j["initial"])
         for k, c in enumerate(b.coordinates):
             if b.pos_idx[k] >= 0 and c in j["initial"]:
                 x0[b.pos_idx[k]] = P.number(j["initial"][c], env, "x0", b.pos_idx[k])
+                R.add(domains.MAGNITUDE, "x0", b.pos_idx[k], f"bodies.{b.name}.joint.initial.{c}")
         for k, c in enumerate(b.velocities):
             if b.vel_idx[k] >= 0 and c in j["initial_velocity"]:
                 x0[npos + b.vel_idx[k]] = P.number(j["initial_velocity"][c], env, "x0", npos + b.vel_idx[k])
+                R.add(domains.MAGNITUDE, "x0", npos + b.vel_idx[k], f"bodies.{b.name}.joint.initial_velocity.{c}")
         ib[i, IB_ELASTIC] = -1
         ib[i, IB_NODE] = -1 if b.node is None else _node_index(m, b.parent, b.node)
         if b.elastic:  # initial elastic coordinates (tunable, like every initial value)
@@ -186,17 +227,24 @@ def compile_scene(spec, variables, guid=""):
         iforce[n, IF_TYPE] = FORCE_TYPES[kind]
         iforce[n, IF_FRAME] = 0
         num = lambda v, off: P.number(v, env, "force", n * DF + off)  # noqa: E731
+        rule = lambda kind, off, what: R.add(kind, "force", n * DF + off, f"forces[{n}].{what}")  # noqa: E731
         if kind == "joint_spring_damper":
             iforce[n, IF_A], iforce[n, IF_B] = fe["pos_index"], fe["vel_index"]
             for key, off in (("stiffness", DF_K), ("damping", DF_D), ("offset", DF_L)):
                 forces[n, off] = num(src[key], off)
+                rule(domains.MAGNITUDE, off, key)
+                if key != "offset":
+                    rule(domains.NONNEG, off, key)
         elif kind == "spring_damper":
             iforce[n, IF_A], iforce[n, IF_B] = fe["body_index"]
             for key, off in (("stiffness", DF_K), ("damping", DF_D), ("length", DF_L)):
                 forces[n, off] = num(src[key], off)
-            for at, off in zip(src["at"], (DF_AT_A, DF_AT_B)):
+                rule(domains.MAGNITUDE, off, key)
+                rule(domains.NONNEG, off, key)
+            for k, (at, off) in enumerate(zip(src["at"], (DF_AT_A, DF_AT_B))):
                 for r in range(3):
                     forces[n, off + r] = num(at[r], off + r)
+                    rule(domains.MAGNITUDE, off + r, f"at[{k}][{r}]")
             for end, node in enumerate(fe.get("node") or (None, None)):
                 if node is not None:
                     iforce[n, IF_NODE_A + end] = _node_index(m, fe["body_index"][end], node)
@@ -205,6 +253,7 @@ def compile_scene(spec, variables, guid=""):
             if kind == "force":
                 for r in range(3):
                     forces[n, DF_AT_A + r] = num(src["at"][r], DF_AT_A + r)
+                    rule(domains.MAGNITUDE, DF_AT_A + r, f"at[{r}]")
             if fe.get("node") is not None:
                 iforce[n, IF_NODE_A] = _node_index(m, fe["body_index"], fe["node"])
             if "input" in fe:
@@ -217,8 +266,10 @@ def compile_scene(spec, variables, guid=""):
             else:
                 for r in range(3):
                     forces[n, DF_VEC + r] = num(src["value"][r], DF_VEC + r)
+                    rule(domains.MAGNITUDE, DF_VEC + r, f"value[{r}]")
     for r in range(3):
         regions["g"][r] = P.number(spec["gravity"][r], env, "g", r)
+        R.add(domains.MAGNITUDE, "g", r, f"gravity[{r}]")
     out_i = np.zeros((len(m.outputs), 3), dtype=np.int32)
     for o, spec_o in enumerate(m.outputs):
         out_i[o, 0] = m.index[spec_o["body"]]
@@ -229,6 +280,7 @@ def compile_scene(spec, variables, guid=""):
             out_i[o, 1] = -1
             for r in range(3):
                 regions["out"][o, r] = P.number(spec_o["point"][r], env, "out", 3 * o + r)
+                R.add(domains.MAGNITUDE, "out", 3 * o + r, f"outputs[{o}].point[{r}]")
     integ = spec["integrator"]
     regions["integ"][:] = [integ["rtol"], integ["atol"], integ["max_step"], integ["step"], integ.get("rho_inf", 0.8)]
     # layout of D, then the symbolic targets resolved
@@ -245,6 +297,10 @@ def compile_scene(spec, variables, guid=""):
     quat = np.array([np.r_[p, w] for p, w in zip(m.quaternions, m.quat_vel)], dtype=np.int32).reshape(-1, 7)
     plain = np.concatenate([m.plain_pos, m.plain_vel]).astype(np.int32)
     vars_ = np.array([_variable(v, params, m, inputs) for v in variables], dtype=np.int32).reshape(-1, 2)
+    vdom = np.array([_domain_row(domains.variable_domain(v.name, spec)) for v in variables]).reshape(-1, 4)
+    bound = {target for st, target, _, _ in P.rows if st == 0}
+    masses = any(t[0] == "body" and t[1] % DB in (DB_M, DB_I, DB_I + 4, DB_I + 8) for t in bound)
+    rules, rule_names = R.section(bound, offsets, carries=masses)  # what a body carries changes with a mass or moment only
     features = F_EXPR * bool(P.rows) | F_ELASTIC * m.has_elastic
     elastic_i, elastic_d = np.zeros(0, np.int32), np.zeros(0)
     if m.has_elastic:
@@ -263,7 +319,8 @@ def compile_scene(spec, variables, guid=""):
                 (S_BODY_I, 0, ib), (S_FORCE_I, 0, iforce), (S_QUAT, 0, quat), (S_PLAIN, 0, plain),
                 (S_VARS, 0, vars_), (S_OUT_I, 0, out_i), (S_PROG, 0, prog),
                 (S_CODE, 0, np.array(P.code, dtype=np.int32)), (S_ELASTIC_I, 0, elastic_i), (S_D, 1, D),
-                (S_ELASTIC_D, 1, elastic_d), (S_NAMES, 2, np.frombuffer(names, np.uint8))]
+                (S_ELASTIC_D, 1, elastic_d), (S_NAMES, 2, np.frombuffer(names, np.uint8)),
+                (S_VDOM, 1, vdom), (S_RULES, 0, rules), (S_RULE_NAMES, 2, rule_names)]
     return _pack(sections, guid)
 
 
@@ -297,6 +354,22 @@ def _rotation(rot, num, raw):
         raw[r] = num(rot["axis"][r], r)
     raw[3] = num(rot["angle"], 3)
     return 1
+
+
+def _rotation_rules(rot, rule):
+    """The rules of a rotation spec's raw numbers (slots as _rotation writes them)."""
+    if rot is None:
+        return
+    if "matrix" in rot:
+        rule(domains.ROTATION, 0, ".matrix")
+        return
+    rule(domains.AXIS, 0, ".axis")
+    rule(domains.MAGNITUDE, 3, ".angle")
+
+
+def _domain_row(d):
+    """lo, hi, flags (domains.Domain.flags), 0: a variable's domain as the compiled scene stores it."""
+    return [d.lo, d.hi, float(d.flags()), 0.0]
 
 
 def _node_index(model, body, node):

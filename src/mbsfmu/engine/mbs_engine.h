@@ -56,17 +56,23 @@ MBS_API MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *l
 MBS_API void mbs_instance_free(MbsInstance *s);
 MBS_API int mbs_reset(MbsInstance *s);                   /* back to the state after mbs_instance_new */
 
-/* Variables by value reference (vr = row of the variable table). Setting an output, an unknown vr or a
- * fixed parameter after initialization → MBS_ERROR; a non-finite input → accepted, the next step
- * returns MBS_DISCARD. Getting before mbs_initialize gives the initial state at the parameters set so far. */
+/* Variables by value reference (vr = row of the variable table). Setting an output, an unknown vr, a
+ * fixed parameter after initialization or a value outside its domain → MBS_ERROR, nothing changed; a
+ * non-finite input → accepted, the next step returns MBS_DISCARD. Getting before mbs_initialize gives the initial state at the parameters set so far. */
 MBS_API int mbs_set_real(MbsInstance *s, int vr, double value);
+/* n values at once: each checked against its variable's domain (the compiled scene's table, scene/domains.py),
+ * parameters together against the rules of the numbers they derive; on a refusal nothing is set (MBS_ERROR,
+ * the message names the variable, its value and the valid range or the quantity it made invalid) and *bad
+ * (if given) is the offending entry, or n when only the combination of parameters is refused. */
+MBS_API int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *value, size_t *bad);
 MBS_API int mbs_get_real(MbsInstance *s, int vr, double *value);
 MBS_API int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *value);  /* fmi2GetReal's n */
 MBS_API int mbs_set_string(MbsInstance *s, int vr, const char *value); /* integrator.method */
 MBS_API int mbs_get_string(MbsInstance *s, int vr, const char **value);
 
-/* Replace the scene's initial value of state entry `index` (of [y; ẏ]) before initialization; NaN: the
- * scene's value again (parameter studies vary initial values this way). */
+/* Replace the scene's initial value of state entry `index` (of [y; ẏ]) before initialization (parameter
+ * studies vary initial values this way): a finite number as the scene's `initial:` values (else MBS_ERROR);
+ * mbs_reset restores the scene's values. */
 MBS_API int mbs_set_start(MbsInstance *s, int index, double value);
 
 /* Exit of initialization mode: bind parameters, initial state, build the integrator. */

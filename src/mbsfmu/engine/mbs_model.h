@@ -28,6 +28,9 @@ enum {
     S_D,            /* all numbers    double (layout below) */
     S_ELASTIC_D,    /* elastic.c (double) */
     S_NAMES,        /* bytes: npos coordinate, nb body, nvars variable names, each NUL-terminated (messages) */
+    S_VDOM,         /* nvars × 4      double  domain of each variable: lo, hi, flags (VD_*), 0 */
+    S_RULES,        /* nrules × 3     int   rule (R_*), D offset of its first number (R_CARRIES: body), path */
+    S_RULE_NAMES,   /* bytes: the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */
     S_NSECTIONS
 };
 
@@ -62,6 +65,17 @@ enum { DF_K, DF_D, DF_L, DF_AT_A = 3, DF_AT_B = 6, DF_VEC = 9, DF = 12 };
 /* integrator defaults in D (H_D_INTEG) */
 enum { DI_RTOL, DI_ATOL, DI_MAX_STEP, DI_STEP, DI_RHO_INF, DI };
 
+/* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, sim.c to a host's):
+ * a variable's domain is lo..hi, on |v| with VD_MAGNITUDE, 0 besides with VD_ZERO, always finite; a rule
+ * holds for the numbers a parameter derives (R_* = domains.NONNEG ...; numbers per rule: domains.RULE_SIZE). */
+enum { VD_LO_OPEN = 1, VD_HI_OPEN = 2, VD_ZERO = 4, VD_MAGNITUDE = 8 };
+enum { R_NONNEG, R_MAGNITUDE, R_INERTIA, R_AXIS, R_ROTATION, R_CARRIES, R_N };
+#define MBS_MAGNITUDE_LO 1e-100   /* limits.MAGNITUDE */
+#define MBS_MAGNITUDE_HI 1e100
+#define MBS_AXIS_LO 1e-9          /* limits.AXIS_LENGTH */
+#define MBS_AXIS_HI 1e100
+int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen);  /* sim.c: at load, every row in range */
+
 /* bytecode */
 enum { OP_CONST, OP_PARAM, OP_TIME, OP_NEG, OP_ADD, OP_SUB, OP_MUL, OP_DIV, OP_POW, OP_CALL1, OP_CALL2,
        OP_SEL_MIN, OP_SEL_MAX, OP_N };
@@ -81,6 +95,10 @@ struct MbsModel {
     int n_elastic_i, n_elastic_d;
     const char **coord_name, **body_name, **var_name;  /* into the blob */
     const int32_t *read;               /* vr → offset into the instance's [y; ẏ; output points] block, -1 else */
+    const double *vdom;                /* S_VDOM */
+    const int32_t *rules;              /* S_RULES */
+    const char *rule_names;            /* S_RULE_NAMES */
+    int nrules, n_rule_names;
     void *blob;                        /* owned copy of the compiled scene */
 };
 

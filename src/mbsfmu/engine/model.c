@@ -204,6 +204,12 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     m->elastic_d = section(b, len, tab, nsec, S_ELASTIC_D, 1, -1, &ne_d);
     m->n_elastic_i = m->elastic_i ? ne_i : 0;
     m->n_elastic_d = m->elastic_d ? ne_d : 0;
+    SEC(m->vdom, S_VDOM, 1, 4 * (int64_t)H[H_NVARS]);
+    m->rules = section(b, len, tab, nsec, S_RULES, 0, -1, &m->nrules);
+    m->rule_names = section(b, len, tab, nsec, S_RULE_NAMES, 2, -1, &m->n_rule_names);
+    if (!m->rules || !m->rule_names) m->nrules = m->n_rule_names = 0;
+    if (m->nrules % 3) FAIL("corrupt rule table");
+    m->nrules /= 3;
     if (check_bodies(m, err, errlen) || check_forces(m, err, errlen) || check_tables(m, err, errlen)) goto fail;
     int nnames = 0;
     const char *names = section(b, len, tab, nsec, S_NAMES, 2, -1, &nnames);
@@ -230,6 +236,7 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
 #else
     if (H[H_NPROG] > 0) FAIL("the scene has expressions but this engine was built without them (rebuild the FMU)");
 #endif
+    if (mbs_rules_validate(m, err, errlen)) goto fail;
 #ifdef MBS_WITH_ELASTIC
     if ((H[H_FEATURES] & F_ELASTIC) && mbs_elastic_validate(m, err, errlen)) goto fail;
 #endif

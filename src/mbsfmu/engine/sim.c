@@ -23,6 +23,8 @@ struct MbsInstance {
     double *u_applied;    /* inputs held over the current step */
     double *x, *x_before; /* state [y; ẏ] (before initialization: the initial state) */
     double *start;        /* start values that replace the scene's initial state (NaN: none) */
+    double *saved;        /* the parameters before a set that may be refused (nparam) */
+    double *carries;      /* per body: 1 if it or a body it carries has mass, inertia or elasticity (R_CARRIES) */
     double *work, *M, *k, *q, *xdot, *out;
     void *elastic_work;
     int method;
@@ -52,6 +54,172 @@ static int report(MbsInstance *s, int status, const char *fmt, ...)
 }
 
 const char *mbs_message(const MbsInstance *s) { return s->msg; }
+
+/* The message without the logger: callers that fail with it report it. */
+static int say(MbsInstance *s, const char *fmt, ...)
+{
+    char buf[sizeof s->msg];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    memcpy(s->msg, buf, sizeof buf);
+    return MBS_ERROR;
+}
+
+/* ------------------------------------------------------------------------------------------ domains
+ * scene/domains.py declares them: Domain.contains and check() there, in_domain and rule_problem here, the
+ * same rules with the same texts (tests/test_domains.py holds the two equal). */
+static int in_domain(const double *d, double v)
+{
+    const int flags = (int)d[2];
+    if (!isfinite(v)) return 0;
+    if ((flags & VD_ZERO) && v == 0.0) return 1;
+    const double a = (flags & VD_MAGNITUDE) ? fabs(v) : v;
+    return ((flags & VD_LO_OPEN) ? a > d[0] : a >= d[0]) && ((flags & VD_HI_OPEN) ? a < d[1] : a <= d[1]);
+}
+
+static void domain_text(const double *d, char *buf, size_t len)
+{
+    const int flags = (int)d[2];
+    if (d[0] == -INFINITY && d[1] == INFINITY) { snprintf(buf, len, "a finite number"); return; }
+    snprintf(buf, len, "%s%s%c%g, %g%c", flags & VD_ZERO ? "0 or " : "", flags & VD_MAGNITUDE ? "|v| in " : "",
+             flags & VD_LO_OPEN ? '(' : '[', d[0], d[1], flags & VD_HI_OPEN ? ')' : ']');
+}
+
+/* Eigenvalues of the symmetric part of a 3 × 3 matrix, ascending (cyclic Jacobi: accurate near repeated ones). */
+static void eigenvalues3(const double *A, double lam[3])
+{
+    double a[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) a[3 * r + c] = 0.5 * (A[3 * r + c] + A[3 * c + r]);
+    for (int sweep = 0; sweep < 50 && (a[1] != 0 || a[2] != 0 || a[5] != 0); sweep++)
+        for (int p = 0; p < 2; p++)
+            for (int q = p + 1; q < 3; q++) {
+                const double apq = a[3 * p + q];
+                if (apq == 0) continue;
+                const double th = (a[3 * q + q] - a[3 * p + p]) / (2 * apq);
+                const double t = fabs(th) > 1e150 ? 0.5 / th : (th >= 0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1));
+                const double c = 1 / sqrt(t * t + 1), sn = t * c;
+                for (int k = 0; k < 3; k++) {
+                    const double kp = a[3 * k + p], kq = a[3 * k + q];
+                    a[3 * k + p] = c * kp - sn * kq;
+                    a[3 * k + q] = sn * kp + c * kq;
+                }
+                for (int k = 0; k < 3; k++) {
+                    const double pk = a[3 * p + k], qk = a[3 * q + k];
+                    a[3 * p + k] = c * pk - sn * qk;
+                    a[3 * q + k] = sn * pk + c * qk;
+                }
+                a[3 * p + q] = a[3 * q + p] = 0.0;
+            }
+    lam[0] = a[0]; lam[1] = a[4]; lam[2] = a[8];
+    for (int i = 0; i < 2; i++)
+        for (int j = 0; j < 2 - i; j++)
+            if (lam[j] > lam[j + 1]) { double x = lam[j]; lam[j] = lam[j + 1]; lam[j + 1] = x; }
+}
+
+static const int rule_size[R_N] = {1, 1, 9, 3, 9, 0};  /* domains.RULE_SIZE */
+
+/* NULL if the rule holds for v (rule_size[rule] numbers), else what is wrong (written into buf). */
+static const char *rule_problem(int rule, const double *v, char *buf, size_t len)
+{
+    for (int k = 0; k < rule_size[rule]; k++)
+        if (!isfinite(v[k])) return snprintf(buf, len, "is not finite (%g)", v[k]), buf;
+    if (rule == R_NONNEG)
+        return v[0] >= 0 ? NULL : (snprintf(buf, len, "must not be negative, got %g", v[0]), buf);
+    if (rule == R_MAGNITUDE)
+        return v[0] == 0 || (fabs(v[0]) >= MBS_MAGNITUDE_LO && fabs(v[0]) <= MBS_MAGNITUDE_HI) ? NULL :
+               (snprintf(buf, len, "%g is outside the magnitudes a model can compute with (%g to %g, or 0)", v[0],
+                         MBS_MAGNITUDE_LO, MBS_MAGNITUDE_HI), buf);
+    if (rule == R_AXIS) {
+        const double length = hypot(hypot(v[0], v[1]), v[2]);
+        if (length == 0) return snprintf(buf, len, "must not be the zero vector"), buf;
+        return length >= MBS_AXIS_LO && length <= MBS_AXIS_HI ? NULL :
+               (snprintf(buf, len, "a direction of length %.3g (allowed: %g to %g)", length, MBS_AXIS_LO, MBS_AXIS_HI), buf);
+    }
+    if (rule == R_ROTATION) {  /* numpy.allclose(RᵀR, I, atol=1e-6) and det R > 0 */
+        int ok = v[0] * (v[4] * v[8] - v[5] * v[7]) - v[1] * (v[3] * v[8] - v[5] * v[6]) + v[2] * (v[3] * v[7] - v[4] * v[6]) > 0;
+        for (int r = 0; ok && r < 3; r++)
+            for (int c = 0; ok && c < 3; c++) {
+                const double dot = v[r] * v[c] + v[3 + r] * v[3 + c] + v[6 + r] * v[6 + c], want = r == c;
+                ok = fabs(dot - want) <= 1e-6 + 1e-5 * want;
+            }
+        return ok ? NULL : (snprintf(buf, len, "is not a proper rotation (orthonormal columns, determinant +1)"), buf);
+    }
+    if (rule == R_INERTIA) {
+        double lam[3];
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++)  /* numpy.allclose(I, Iᵀ, rtol=1e-9, atol=1e-12) */
+                if (!(fabs(v[3 * r + c] - v[3 * c + r]) <= 1e-12 + 1e-9 * fabs(v[3 * c + r])))
+                    return snprintf(buf, len, "the inertia tensor must be symmetric"), buf;
+        eigenvalues3(v, lam);
+        const double tol = 1e-9 * fmax(1.0, fmax(fabs(lam[0]), fabs(lam[2])));
+        if (lam[0] < -tol)
+            return snprintf(buf, len, "the inertia tensor is not positive semi-definite (principal moments %.4g, %.4g, %.4g)",
+                            lam[0], lam[1], lam[2]), buf;
+        if (lam[0] + lam[1] < lam[2] - tol)
+            return snprintf(buf, len, "principal moments %.4g, %.4g, %.4g break the triangle inequality (I1 + I2 >= I3)",
+                            lam[0], lam[1], lam[2]), buf;
+    }
+    return NULL;
+}
+
+/* Which bodies carry mass, inertia or an elastic body (the loader's `massless` check, over the bound numbers):
+ * parents come before their children, so one sweep from the last body up marks every ancestor. */
+static void mark_carried(MbsInstance *s)
+{
+    const MbsModel *m = s->m;
+    for (int i = 0; i < NB(m); i++) {
+        const double *db = s->D + m->hdr[H_D_BODY] + (size_t)i * DB;
+        s->carries[i] = m->ib[i * IB + IB_ELASTIC] >= 0 || db[DB_M] > 0 || db[DB_I] > 0 || db[DB_I + 4] > 0 || db[DB_I + 8] > 0;
+    }
+    for (int i = NB(m) - 1; i > 0; i--) {
+        const int p = m->ib[i * IB + IB_PARENT];
+        if (p >= 0 && s->carries[i]) s->carries[p] = 1;
+    }
+}
+
+/* The derived-quantity rules of the bound numbers (S_RULES); MBS_ERROR with the first that fails (quiet). */
+static int check_rules(MbsInstance *s)
+{
+    const MbsModel *m = s->m;
+    char why[400];
+    int marked = 0;
+    for (int r = 0; r < m->nrules; r++) {
+        const int32_t *row = m->rules + 3 * r;
+        const char *path = m->rule_names + row[2];
+        if (row[0] == R_CARRIES) {
+            if (!marked++) mark_carried(s);
+            if (!s->carries[row[1]])
+                return say(s, "%s: body '%s' and the bodies it carries have no mass or inertia, so its joint's motion is "
+                           "undetermined (singular mass matrix)", path, m->body_name[row[1]]);
+            continue;
+        }
+        const double *v = s->D + row[1];
+        if (rule_problem(row[0], v, why, sizeof why))
+            return rule_size[row[0]] == 1 ? say(s, "%s = %g: %s", path, v[0], why) : say(s, "%s: %s", path, why);
+    }
+    return MBS_OK;
+}
+
+int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen)
+{
+    const int nd = m->hdr[H_ND];
+    for (int k = 0; k < m->hdr[H_NVARS]; k++) {
+        const double *d = m->vdom + 4 * k;
+        if (!(d[2] >= 0 && d[2] < 16 && d[2] == (int)d[2]) || !(d[0] <= d[1]))
+            return snprintf(err, errlen, "corrupt variable domain (row %d)", k), 1;
+    }
+    for (int r = 0; r < m->nrules; r++) {
+        const int32_t *row = m->rules + 3 * r;
+        const int size = row[0] >= 0 && row[0] < R_N ? rule_size[row[0]] : -1;
+        const int ok = size == 0 ? row[1] >= 0 && row[1] < NB(m) : size > 0 && row[1] >= 0 && row[1] <= nd - size;
+        if (!ok || row[2] < 0 || row[2] >= m->n_rule_names || !memchr(m->rule_names + row[2], 0, (size_t)(m->n_rule_names - row[2])))
+            return snprintf(err, errlen, "corrupt rule table (row %d)", r), 1;
+    }
+    return 0;
+}
 
 /* Gimbal lock of Cardan joints: |cos b| < 1e-3 at x, or b crossed ±90° since x_before (evaluator.py:
  * singularity_message). Writes the message into buf; 1 if locked. */
@@ -175,7 +343,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
     size_t nwork = (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f;
     size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 3 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + s->n
-                   + 6 * (size_t)m->hdr[H_NOUT] + s->n + 1;
+                   + 6 * (size_t)m->hdr[H_NOUT] + s->n + (size_t)m->hdr[H_NPARAM] + NB(m) + 1;
     double *buf = calloc(total, sizeof(double));
     if (!buf) { free(s); return NULL; }
     s->D = buf;                buf += nd;
@@ -186,6 +354,8 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->out = buf;              buf += 6 * (size_t)m->hdr[H_NOUT];  /* right after x: m->read's block */
     s->x_before = buf;         buf += s->n;
     s->start = buf;            buf += s->n;
+    s->saved = buf;            buf += m->hdr[H_NPARAM];
+    s->carries = buf;          buf += NB(m);
     s->work = buf;             buf += nwork;
     s->M = buf;                buf += (size_t)f * f;
     s->k = buf;                buf += f;
@@ -235,7 +405,8 @@ int mbs_reset(MbsInstance *s)
 }
 
 /* ------------------------------------------------------------------------------------------ binding */
-/* Parameters → numbers (bind programs, derived axes and rotations); MBS_ERROR when one is not finite. */
+/* Parameters → numbers (bind programs, derived axes and rotations), checked against the scene's rules;
+ * MBS_ERROR with the message in s->msg (not logged: the caller reports it). */
 static int bind(MbsInstance *s)
 {
     const MbsModel *m = s->m;
@@ -244,27 +415,28 @@ static int bind(MbsInstance *s)
         if (!isfinite(s->D[p])) {
             int vr = 0;
             while (vr < m->hdr[H_NVARS] && !(m->vars[2 * vr] == MBS_V_PARAM && m->vars[2 * vr + 1] == p)) vr++;
-            return report(s, MBS_ERROR, "parameter %s is not finite (%g)", vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?", s->D[p]);
+            return say(s, "parameter %s is not finite (%g)", vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?", s->D[p]);
         }
 #ifdef MBS_WITH_EXPR
     mbs_run_programs(m, 0, s->D, NULL, 0.0);
 #endif
     mbs_derive(m, s->D);
+    if (check_rules(s)) return MBS_ERROR;
 #ifdef MBS_WITH_ELASTIC
     if ((m->hdr[H_FEATURES] & F_ELASTIC) && mbs_elastic_bind(m, s->D, s->msg, sizeof s->msg))
-        return report(s, MBS_ERROR, "%s", s->msg);
+        return MBS_ERROR;
 #endif
     for (int k = m->hdr[H_D_BODY]; k < m->hdr[H_ND]; k++)
         if (!isfinite(s->D[k]))
-            return report(s, MBS_ERROR, "the parameters give a non-finite number in the scene (entry %d of the "
-                          "compiled data): check expressions such as sqrt, log or division by a parameter", k);
+            return say(s, "the parameters give a non-finite number in the scene (entry %d of the compiled data): "
+                       "check expressions such as sqrt, log or division by a parameter", k);
     return MBS_OK;
 }
 
 static int initial_state(MbsInstance *s)
 {
     int rc = bind(s);
-    if (rc) return rc;
+    if (rc) return report(s, rc, "%s", s->msg);
     mbs_initial_state(s->m, s->D, s->x);
     s->out_valid = 0;
     for (int i = 0; i < s->n; i++) if (!isnan(s->start[i])) s->x[i] = s->start[i];
@@ -304,40 +476,80 @@ static int var(const MbsInstance *s, int vr, int *idx)
     return kind;
 }
 
-int mbs_set_real(MbsInstance *s, int vr, double value)
+/* Parameters set together: tried on the bound numbers, kept only if the scene's rules still hold; else every
+ * parameter keeps its value and the message names the values set and the quantity they made invalid. */
+static int set_parameters(MbsInstance *s, const unsigned *vr, size_t n, const double *value)
 {
-    int idx = 0, kind = var(s, vr, &idx);
-    switch (kind) {
-    case MBS_V_PARAM: {
-#ifdef MBS_WITH_ELASTIC
-        if (s->initialized && (s->m->hdr[H_FEATURES] & F_ELASTIC)) {  /* structural ones are fixed parameters */
-            char err[512];
-            double old = s->D[idx];
-            s->D[idx] = value;
-            int bad = mbs_elastic_bind(s->m, s->D, err, sizeof err);
-            s->D[idx] = old;
-            if (bad) return report(s, MBS_ERROR, "%s; it is a fixed parameter after initialization", err);
-        }
-#endif
-        s->D[idx] = value;
-        s->initial_valid = s->out_valid = s->kin_valid = 0;
+    const MbsModel *m = s->m;
+    const size_t np = (size_t)m->hdr[H_NPARAM];
+    memcpy(s->saved, s->D, np * sizeof(double));
+    for (size_t i = 0; i < n; i++)
+        if (m->vars[2 * vr[i]] == MBS_V_PARAM) s->D[m->vars[2 * vr[i] + 1]] = value[i];
+    if (!bind(s)) {
+        s->initial_valid = s->out_valid = 0;
         if (s->initialized) s->params_dirty = 1;
         return MBS_OK;
     }
-    case MBS_V_RTOL: case MBS_V_ATOL: case MBS_V_MAX_STEP: case MBS_V_STEP:
-        if (s->initialized) return report(s, MBS_ERROR, "integrator settings are fixed parameters: set them before initialization");
-        *(kind == MBS_V_RTOL ? &s->rtol : kind == MBS_V_ATOL ? &s->atol : kind == MBS_V_MAX_STEP ? &s->max_step : &s->step) = value;
-        return MBS_OK;
-    case MBS_V_QIN: case MBS_V_FIN:
-        s->u[kind == MBS_V_QIN ? idx : NVEL(s->m) + idx] = value;
-        s->inputs_dirty = 1;
-        return MBS_OK;
-    case -1:
-        return report(s, MBS_ERROR, "unknown value reference %d", vr);
-    default:
-        return report(s, MBS_ERROR, "value reference %d is %s, not a Real input or parameter", vr,
-                      kind == MBS_V_METHOD ? "a String" : "an output");
+    char set[256] = "", why[sizeof s->msg];
+    size_t used = 0, count = 0;
+    memcpy(why, s->msg, sizeof why);
+    for (size_t i = 0; i < n && used < sizeof set; i++)
+        if (m->vars[2 * vr[i]] == MBS_V_PARAM)
+            used += (size_t)snprintf(set + used, sizeof set - used, "%s%s = %g", count++ ? ", " : "", m->var_name[vr[i]], value[i]);
+    memcpy(s->D, s->saved, np * sizeof(double));
+    bind(s);  /* the numbers of the kept values again */
+    return report(s, MBS_ERROR, "%s make%s %s; the parameters keep their values", set, count > 1 ? "" : "s", why);
+}
+
+int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *value, size_t *bad)
+{
+    const MbsModel *m = s->m;
+    size_t nparam = 0;
+    char valid[96];
+    for (size_t i = 0; i < n; i++) {  /* every value against its variable first: nothing changes on a refusal */
+        const int kind = vr[i] < (unsigned)m->hdr[H_NVARS] ? m->vars[2 * vr[i]] : -1;
+        const double *d = kind >= 0 ? m->vdom + 4 * (size_t)vr[i] : NULL;
+        if (bad) *bad = i;
+        switch (kind) {
+        case MBS_V_RTOL: case MBS_V_ATOL: case MBS_V_MAX_STEP: case MBS_V_STEP:
+            if (s->initialized)
+                return report(s, MBS_ERROR, "%s is a fixed parameter: set it before initialization", m->var_name[vr[i]]);
+            /* fall through */
+        case MBS_V_PARAM:
+            if (!in_domain(d, value[i])) {
+                domain_text(d, valid, sizeof valid);
+                return report(s, MBS_ERROR, "%s = %g is outside its domain (valid: %s); %s keeps %g", m->var_name[vr[i]],
+                              value[i], valid, m->var_name[vr[i]], kind == MBS_V_PARAM ? s->D[m->vars[2 * vr[i] + 1]] :
+                              kind == MBS_V_RTOL ? s->rtol : kind == MBS_V_ATOL ? s->atol : kind == MBS_V_MAX_STEP ? s->max_step : s->step);
+            }
+            nparam += kind == MBS_V_PARAM;
+            break;
+        case MBS_V_QIN: case MBS_V_FIN:  /* a non-finite input is refused by the next step (fmi2Discard) */
+            break;
+        case -1:
+            return report(s, MBS_ERROR, "unknown value reference %u", vr[i]);
+        default:
+            return report(s, MBS_ERROR, "value reference %u is %s, not a Real input or parameter", vr[i],
+                          kind == MBS_V_METHOD ? "a String" : "an output");
+        }
     }
+    if (bad) *bad = n;  /* from here on a refusal is the combination's */
+    if (nparam && set_parameters(s, vr, n, value)) return MBS_ERROR;
+    for (size_t i = 0; i < n; i++) {
+        const int kind = m->vars[2 * vr[i]], idx = m->vars[2 * vr[i] + 1];
+        if (kind == MBS_V_QIN || kind == MBS_V_FIN) {
+            s->u[kind == MBS_V_QIN ? idx : NVEL(m) + idx] = value[i];
+            s->inputs_dirty = 1;
+        } else if (kind != MBS_V_PARAM)
+            *(kind == MBS_V_RTOL ? &s->rtol : kind == MBS_V_ATOL ? &s->atol : kind == MBS_V_MAX_STEP ? &s->max_step : &s->step) = value[i];
+    }
+    return MBS_OK;
+}
+
+int mbs_set_real(MbsInstance *s, int vr, double value)
+{
+    const unsigned u = vr < 0 ? UINT_MAX : (unsigned)vr;
+    return mbs_set_reals(s, &u, 1, &value, NULL);
 }
 
 /* World position and velocity (6 numbers each) of the output points o0 .. o1-1 at state x: one kinematics pass. */
@@ -382,7 +594,7 @@ MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart f
     case MBS_V_YD: *value = s->x[NPOS(s->m) + idx]; return MBS_OK;
     case MBS_V_OUT:
         if (!s->out_valid) {  /* all points at once: one kinematics pass per state, not one per variable */
-            if (s->params_dirty && (rc = bind(s))) return rc;  /* a parameter set since the step: its geometry */
+            if (s->params_dirty && (rc = bind(s))) return report(s, rc, "%s", s->msg);  /* a parameter set since the step */
             output_points(s, s->x, s->time, 0, s->m->hdr[H_NOUT], s->out);
             s->out_valid = 1;
         }
@@ -414,8 +626,17 @@ int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *value)
 
 int mbs_set_start(MbsInstance *s, int index, double value)
 {
+    char why[160];
     if (index < 0 || index >= s->n) return report(s, MBS_ERROR, "no state entry %d", index);
     if (s->initialized) return report(s, MBS_ERROR, "start values are set before initialization");
+    if (rule_problem(R_MAGNITUDE, &value, why, sizeof why)) {  /* the rule of the scene's `initial:` values */
+        const MbsModel *m = s->m;
+        const char *name = index < NPOS(m) ? m->coord_name[index] : NULL;
+        for (int vr = 0; !name && vr < m->hdr[H_NVARS]; vr++)
+            if (m->vars[2 * vr] == MBS_V_YD && m->vars[2 * vr + 1] == index - NPOS(m)) name = m->var_name[vr] + 3;
+        return report(s, MBS_ERROR, "%s0.%s = %g: %s; the start value is unchanged", index < NPOS(m) ? "y" : "yd",
+                      name ? name : "?", value, why);
+    }
     s->start[index] = value;
     s->initial_valid = 0;
     return MBS_OK;

@@ -143,3 +143,98 @@ def _minimize(f, a, b, iterations=60):
             d = a + _GOLDEN * (b - a)
             fd = f(d)
     return (c, fc) if not fc > fd else (d, fd)
+
+
+# -- domains of the numbers a host may change -------------------------------------------------------------
+# One table, declared here: the loader checks a scene's nominal numbers with these rules; compile.py writes
+# the same rules into the compiled scene (variable domains, and the derived-quantity rules of every number
+# that depends on a parameter), and the engine applies them when a host sets a value (sim.c: check_rules and
+# in_domain mirror check() and Domain.contains, kind by kind; tests/test_domains.py holds the two equal).
+
+NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES = range(6)   # derived rules (mbs_model.h: R_*)
+RULE_SIZE = {NONNEG: 1, MAGNITUDE: 1, INERTIA: 9, AXIS: 3, ROTATION: 9, CARRIES: 0}
+
+
+def check(rule, values):
+    """None if `values` (the rule's numbers, RULE_SIZE of them) satisfy the rule, else what is wrong."""
+    if rule == NONNEG:
+        return None if values[0] >= 0 else f"must not be negative, got {values[0]:g}"
+    if rule == MAGNITUDE:
+        v, (lo, hi) = values[0], limits.MAGNITUDE
+        return None if v == 0 or lo <= abs(v) <= hi else \
+            f"{v:g} is outside the magnitudes a model can compute with ({lo:g} to {hi:g}, or 0)"
+    if rule == AXIS:
+        length, (lo, hi) = math.hypot(*values), limits.AXIS_LENGTH
+        if length == 0:
+            return "must not be the zero vector"
+        return None if lo <= length <= hi else f"a direction of length {length:.3g} (allowed: {lo:g} to {hi:g})"
+    if rule == ROTATION:
+        R = np.reshape(values, (3, 3))
+        return None if np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0 else \
+            "is not a proper rotation (orthonormal columns, determinant +1)"
+    if rule == INERTIA:
+        I = np.reshape(values, (3, 3))
+        if not np.allclose(I, I.T, rtol=1e-9, atol=1e-12):
+            return "the inertia tensor must be symmetric"
+        lam = np.linalg.eigvalsh(I)
+        tol = 1e-9 * max(1.0, abs(lam).max())
+        if lam[0] < -tol:
+            return f"the inertia tensor is not positive semi-definite (principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g})"
+        if lam[0] + lam[1] < lam[2] - tol:
+            return f"principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g} break the triangle inequality (I1 + I2 >= I3)"
+        return None
+    raise ValueError(f"unknown rule {rule}")
+
+
+CARRIES_TEXT = "the bodies it carries have no mass or inertia, so its joint's motion is undetermined (singular mass matrix)"
+
+
+class Domain:
+    """The values a settable variable takes: lo..hi (each end open or closed), on |v| when `magnitude`, and 0
+    besides when `zero`; always finite. `text` says it for messages ("[1e-14, 1]")."""
+
+    __slots__ = ("lo", "hi", "lo_open", "hi_open", "zero", "magnitude")
+
+    def __init__(self, lo=-math.inf, hi=math.inf, lo_open=True, hi_open=True, zero=False, magnitude=False):
+        self.lo, self.hi, self.lo_open, self.hi_open, self.zero, self.magnitude = lo, hi, lo_open, hi_open, zero, magnitude
+
+    def contains(self, v):
+        if not math.isfinite(v):
+            return False
+        if self.zero and v == 0:
+            return True
+        a = abs(v) if self.magnitude else v
+        return (a > self.lo if self.lo_open else a >= self.lo) and (a < self.hi if self.hi_open else a <= self.hi)
+
+    @property
+    def text(self):
+        if self.lo == -math.inf and self.hi == math.inf:
+            return "a finite number"
+        lo = "(" if self.lo_open else "["
+        hi = ")" if self.hi_open else "]"
+        return ("0 or " if self.zero else "") + ("|v| in " if self.magnitude else "") + f"{lo}{self.lo:g}, {self.hi:g}{hi}"
+
+    def flags(self):
+        """The flags the compiled scene stores (mbs_model.h: VD_*)."""
+        return self.lo_open | self.hi_open << 1 | self.zero << 2 | self.magnitude << 3
+
+
+ANY = Domain()                                               # a parameter (its derived numbers have rules)
+INITIAL = Domain(*limits.MAGNITUDE, False, False, zero=True, magnitude=True)   # y0.*, yd0.*: like `initial:`
+
+
+def integrator_domains(experiment):
+    """{setting: Domain} of the integrator settings; fixed and largest steps must let the experiment end."""
+    h_min = (experiment["stop"] - experiment["start"]) / (100 * limits.COMMUNICATION_POINTS)
+    steps = Domain(h_min, limits.MAGNITUDE[1], False, False, zero=True)
+    return {"rtol": Domain(*limits.RTOL, False, False), "atol": Domain(0.0, limits.MAGNITUDE[1], True, False),
+            "max_step": steps, "step": steps}
+
+
+def variable_domain(name, spec):
+    """Domain of an FMU variable (a parameter or integrator setting) or a start value y0.* / yd0.*."""
+    if name.startswith("integrator."):
+        return integrator_domains(spec["experiment"]).get(name.split(".", 1)[1], ANY)
+    if name.startswith(("y0.", "yd0.")):
+        return INITIAL
+    return ANY

@@ -217,11 +217,10 @@ class _Checker:
             self.fail(parent, key, path, f"'{e.text}' is not finite", "give a finite number (.inf, .nan and overflowing expressions are refused)")
         if positive and not v > 0:
             self.fail(parent, key, path, f"must be positive, got {v:g}", "give a value > 0")
-        if nonneg and v < 0:
-            self.fail(parent, key, path, f"must not be negative, got {v:g}", "use 0 or a positive value")
-        lo, hi = limits.MAGNITUDE
-        if magnitude and v != 0 and not lo <= abs(v) <= hi:
-            self.fail(parent, key, path, f"{v:g} is outside the magnitudes a model can compute with ({lo:g} to {hi:g}, or 0)",
+        if nonneg and domains.check(domains.NONNEG, [v]):
+            self.fail(parent, key, path, domains.check(domains.NONNEG, [v]), "use 0 or a positive value")
+        if magnitude and domains.check(domains.MAGNITUDE, [v]):
+            self.fail(parent, key, path, domains.check(domains.MAGNITUDE, [v]),
                       "products of such numbers over- or underflow in double precision; check the units")
         return float(value) if isinstance(value, (int, float)) else value
 
@@ -235,13 +234,9 @@ class _Checker:
             self.fail(parent, key, path, f"a list of {n} numbers or expressions was expected, got {_shown(v)}", _NUMBER_HINT)
         out = [self.number(v, i, f"{path}[{i}]", allow_t=allow_t, magnitude=not nonzero) for i in range(n)]
         if nonzero:  # a direction: normalized by the run time, so its length must square without under- or overflow
-            length = math.hypot(*[self.value(x) for x in out])
-            if length == 0:
-                self.fail(parent, key, path, "must not be the zero vector", "give a direction, e.g. [0, 0, 1]; its length does not matter")
-            lo, hi = limits.AXIS_LENGTH
-            if not lo <= length <= hi:
-                self.fail(parent, key, path, f"a direction of length {length:.3g} (allowed: {lo:g} to {hi:g})",
-                          "give a direction such as [0, 0, 1]; its length does not matter")
+            problem = domains.check(domains.AXIS, [self.value(x) for x in out])
+            if problem:
+                self.fail(parent, key, path, problem, "give a direction such as [0, 0, 1]; its length does not matter")
         return out
 
     def matrix(self, parent, key, path):
@@ -258,9 +253,9 @@ class _Checker:
             if len(node) != 1:
                 self.fail(parent, key, path, "give either 'matrix' or 'axis' and 'angle'")
             m = self.matrix(node, "matrix", path + ".matrix")
-            R = np.array([[self.value(x) for x in row] for row in m])
-            if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
-                self.fail(node, "matrix", path + ".matrix", "is not a proper rotation (orthonormal columns, determinant +1)")
+            problem = domains.check(domains.ROTATION, [self.value(x) for row in m for x in row])
+            if problem:
+                self.fail(node, "matrix", path + ".matrix", problem)
             return {"matrix": m}
         if "axis" not in node or "angle" not in node:
             self.fail(parent, key, path, "a rotation needs 'axis' and 'angle' (radians), or 'matrix'")
@@ -412,7 +407,7 @@ class _Checker:
             if b["name"] not in loaded and any(c not in j["drive"] for c in j["coordinates"]):
                 where = node[b["name"]]
                 self.fail(where, "mass" if "mass" in where else "joint", f"bodies.{b['name']}.mass",
-                          f"body '{b['name']}' and the bodies it carries have no mass or inertia, so its joint's motion is undetermined (singular mass matrix)",
+                          f"body '{b['name']}' and {domains.CARRIES_TEXT}",
                           "give the body (or one it carries) a mass and inertia, make the joint fixed, or drive its coordinates")
 
     def body(self, bodies, name):
@@ -446,16 +441,10 @@ class _Checker:
             m = [[g["xx"], g["xy"], g["xz"]], [g["xy"], g["yy"], g["yz"]], [g["xz"], g["yz"], g["zz"]]]
         else:
             m = self.matrix(node, key, path)
-        I = np.array([[self.value(x) for x in row] for row in m])
-        if not np.allclose(I, I.T, rtol=1e-9, atol=1e-12):
-            self.fail(node, key, path, "the inertia tensor must be symmetric")
-        lam = np.linalg.eigvalsh(I)
-        tol = 1e-9 * max(1.0, abs(lam).max())
-        if lam[0] < -tol:
-            self.fail(node, key, path, f"the inertia tensor is not positive semi-definite (principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g})",
-                      "moments of inertia (about the centre of mass) are >= 0; check signs and the products xy, xz, yz")
-        if lam[0] + lam[1] < lam[2] - tol:
-            self.fail(node, key, path, f"principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g} break the triangle inequality (I1 + I2 >= I3)", "no rigid body has such an inertia")
+        problem = domains.check(domains.INERTIA, [self.value(x) for row in m for x in row])
+        if problem:
+            self.fail(node, key, path, problem, "moments of inertia (about the centre of mass) are >= 0 and no one exceeds "
+                      "the sum of the other two (no rigid body has such an inertia); check signs and the products xy, xz, yz")
         return m
 
     # -- joints ------------------------------------------------------------------------------------
@@ -804,21 +793,25 @@ class _Checker:
             out[k] = self.value(self.number(node, k, f"integrator.{k}", positive=k in ("rtol", "atol"), nonneg=True, magnitude=False)) if k in node else default
         if not 0 <= out["rho_inf"] <= 1:
             self.fail(node, "rho_inf", "integrator.rho_inf", "must lie in [0, 1]")
-        lo, hi = limits.RTOL
-        if not lo <= out["rtol"] <= hi:
-            self.fail(node, "rtol", "integrator.rtol", f"{out['rtol']:g} is outside [{lo:g}, {hi:g}]",
-                      "double precision cannot meet a relative tolerance below 1e-14")
         return out
 
     def integrator_steps(self, root, spec):
-        """Fixed and largest steps that the experiment's span can afford (a run must end)."""
+        """The settings' domains (scene/domains.py, which the engine applies to a host's values too): tolerances a
+        step can meet, fixed and largest steps that the experiment's span can afford (a run must end)."""
         node, ex = root.get("integrator") or Map(), spec["experiment"]
         span = ex["stop"] - ex["start"]
-        for k in ("step", "max_step"):
-            h = spec["integrator"][k]
-            if h > 0 and span / h > 100 * limits.COMMUNICATION_POINTS:
-                self.fail(node, k, f"integrator.{k}", f"{h:g} s would take {span / h:.3g} steps over the experiment's {span:g} s",
-                          f"at most {100 * limits.COMMUNICATION_POINTS:.0e} steps; 0 lets the method choose")
+        for k, domain in domains.integrator_domains(ex).items():
+            v = spec["integrator"][k]
+            if k not in node or domain.contains(v):
+                continue
+            if k == "rtol":
+                self.fail(node, k, f"integrator.{k}", f"{v:g} is outside {domain.text}",
+                          "double precision cannot meet a relative tolerance below 1e-14")
+            elif k == "atol":
+                self.fail(node, k, f"integrator.{k}", f"{v:g} is outside {domain.text}", "give an absolute tolerance > 0")
+            else:
+                self.fail(node, k, f"integrator.{k}", f"{v:g} s would take {span / v:.3g} steps over the experiment's {span:g} s",
+                          f"at most {100 * limits.COMMUNICATION_POINTS:.0e} steps (valid: {domain.text}); 0 lets the method choose")
 
     def experiment(self, root):
         node = root.get("experiment") or Map()
