@@ -6,6 +6,7 @@ three give the same numbers. Python compiles the scene once (engine/compile.py);
 
 import hashlib
 import json
+import math
 import uuid
 
 import numpy as np
@@ -15,6 +16,7 @@ from .engine.compile import compile_scene
 from .engine.elastic_tables import structural_parameters
 from .equations.model import Model
 from .errors import IntegrationError
+from .scene import domains
 
 METHODS = ("auto", "rk4", "dopri5", "dop853", "radau5", "gen_alpha")
 
@@ -83,8 +85,9 @@ def compiled(spec, guid=None):
 class Simulation:
     """A scene ready to step: set parameters and inputs, initialize, do_step, read outputs."""
 
-    def __init__(self, spec):
+    def __init__(self, spec, _original=None):
         self.spec = spec
+        self._original = spec if _original is None else _original  # reset() goes back to it
         self.blob, self.variables, model = compiled(spec)
         self.coordinates, self.velocity_coordinates = list(model.coordinates), list(model.velocity_coordinates)
         self.npos, self.nvel = model.npos, model.nvel
@@ -102,33 +105,45 @@ class Simulation:
     # -- variables ----------------------------------------------------------------------------------
     def set(self, name, value):
         """Set an input or parameter by FMU name; `y0.<coordinate>` / `yd0.<coordinate>` replace an initial
-        value (before initialize)."""
+        value (before initialize). A value outside the variable's domain (scene/domains.py), or one that makes a
+        quantity of the scene invalid, raises ValueError naming it; nothing changes then."""
+        vr = self._vr.get(name)
+        if name not in self._start and (vr is None or self.variables[vr].causality == "output"):
+            raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
+        string = vr is not None and self.variables[vr].type == "String"
+        if not string:
+            value = _real(name, value)
         if name in self._structural and not self.initialized:
-            self._recompile(name, float(value))
-            return
-        if name in self._start:
-            self.engine.set_start(self._start[name], float(value))
+            self._recompile(name, value)
+        elif name in self._start:
+            self.engine.set_start(self._start[name], value)
+        elif string:
+            self.engine.set_string(vr, value)
         else:
-            vr = self._vr.get(name)
-            if vr is None or self.variables[vr].causality == "output":
-                raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
-            if self.variables[vr].type == "String":
-                self.engine.set_string(vr, value)
-            else:
-                self.engine.set_real(vr, float(value))
+            self.engine.set_real(vr, value)
         if not self.initialized:
             self._settings[name] = value
 
     def _recompile(self, name, value):
+        """A structural parameter: the scene compiled again with it, what was set so far replayed; on any
+        refusal this simulation stays as it was."""
+        domain = domains.variable_domain(name, self.spec)
+        if not domain.contains(value):
+            raise ValueError(f"{name} = {value:g} is {'outside its domain' if math.isfinite(value) else 'not finite'} "
+                             f"(valid: {domain.text})")
         spec = json.loads(json.dumps(self.spec))
         for p in spec["parameters"]:
             if p["name"] == name:
                 p["value"] = value
-        settings, time = self._settings, self.time
-        self.__init__(spec)
-        self.time = time
-        for k, v in settings.items():
-            self.set(k, v)
+        try:
+            other = Simulation(spec, self._original)
+            other.time = self.time
+            for k, v in self._settings.items():
+                if k != name:
+                    other.set(k, v)
+        except (ValueError, ArithmeticError) as e:  # the generated elastic data refuses it
+            raise ValueError(f"{name} = {value:g}: {e}") from None
+        self.__dict__.update(other.__dict__)
 
     def get(self, name):
         vr = self._vr.get(name)
@@ -211,11 +226,27 @@ class Simulation:
         self.initialized = True  # the engine knows; do_step refuses when the state was saved before initialization
 
     def reset(self):
-        """Back to the state after instantiation (fmi2Reset)."""
+        """Back to the state after instantiation (fmi2Reset): the scene's parameters, structural ones too."""
+        if self.spec is not self._original:
+            self.__init__(self._original)
+            return
         self.engine.reset()
         self._settings = {}
         self.time = self.spec["experiment"]["start"]
         self.initialized = False
+
+
+def _real(name, value):
+    """A value for a Real variable, taken exactly: a real number (not a bool, text or complex)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} = {value!r}: expected a real number")
+    try:
+        x = float(value)
+    except OverflowError:
+        x = math.inf
+    if isinstance(value, (int, np.integer)) and x != value:  # rounded: not the value the caller named
+        raise ValueError(f"{name} = {value}: not representable as a double (nearest {x:.17g})")
+    return x
 
 
 def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):

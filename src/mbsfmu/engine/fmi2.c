@@ -391,24 +391,22 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     return mbs_get_reals(f->sim, vr, nvr, value) == MBS_OK ? fmi2OK : engine_status(f, MBS_ERROR, "fmi2GetReal");
 }
 
+/* All values at once (parameters that must change together: one call); on a refusal nothing is set. */
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
-    size_t i;
-    fmi2Status worst = fmi2OK;
+    size_t i, bad = 0;
+    int rc;
     CHECK(P_INSTANTIATED | P_INIT | P_STEP, "fmi2SetReal");
     if (bad_array(f, vr, value, nvr, "fmi2SetReal"))
         return fmi2Error;
-    for (i = 0; i < nvr; i++) {
-        int r = vr_int(f, vr[i], "fmi2SetReal");
-        fmi2Status st;
-        if (r < 0)
+    for (i = 0; i < nvr; i++)
+        if (vr_int(f, vr[i], "fmi2SetReal") < 0)
             return fmi2Error;
-        st = setting(f, r, mbs_set_real(f->sim, r, value[i]), "fmi2SetReal");
-        if (st >= fmi2Error)
-            return fmi2Error;
-        if (st > worst)
-            worst = st;
-    }
-    return worst;
+    rc = mbs_set_reals(f->sim, vr, nvr, value, &bad);
+    if (rc != MBS_OK)
+        return setting(f, (int)vr[bad < nvr ? bad : 0], rc, "fmi2SetReal");
+    for (i = 0; i < nvr; i++)
+        setting(f, (int)vr[i], MBS_OK, "fmi2SetReal");
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {

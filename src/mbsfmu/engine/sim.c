@@ -518,8 +518,8 @@ int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *va
         case MBS_V_PARAM:
             if (!in_domain(d, value[i])) {
                 domain_text(d, valid, sizeof valid);
-                return report(s, MBS_ERROR, "%s = %g is outside its domain (valid: %s); %s keeps %g", m->var_name[vr[i]],
-                              value[i], valid, m->var_name[vr[i]], kind == MBS_V_PARAM ? s->D[m->vars[2 * vr[i] + 1]] :
+                return report(s, MBS_ERROR, "%s = %g is %s (valid: %s); %s keeps %g", m->var_name[vr[i]], value[i],
+                              isfinite(value[i]) ? "outside its domain" : "not finite", valid, m->var_name[vr[i]], kind == MBS_V_PARAM ? s->D[m->vars[2 * vr[i] + 1]] :
                               kind == MBS_V_RTOL ? s->rtol : kind == MBS_V_ATOL ? s->atol : kind == MBS_V_MAX_STEP ? s->max_step : s->step);
             }
             nparam += kind == MBS_V_PARAM;

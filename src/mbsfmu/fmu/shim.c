@@ -759,6 +759,10 @@ EXPORT fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], si
     Inst* in;
     fmi2Status st = enter(c, __func__, SET_OK, &in);
     if (st || (st = check_refs(in, __func__, vr, n, v, 'R', 1)) || !n) return st;
+    /* a parameter may be refused (its domain, the quantities it derives): the slave says why; inputs alone
+       cannot be (a non-finite one is the next step's Discard), so a master's per-step inputs skip the question */
+    for (size_t i = 0; i < n; i++)
+        if (vars[vr[i]].causality == 'p') return checked(in, __func__, R.set_real(in->real, vr, n, v));
     return done(in, __func__, R.set_real(in->real, vr, n, v));
 }
 
