@@ -130,7 +130,7 @@ def _runner(model):
 
 def _message(e):
     from ..errors import IntegrationError, ModelError
-    if isinstance(e, (IntegrationError, ModelError)):
+    if isinstance(e, (IntegrationError, ModelError, ValueError)):  # a refused value: its message names it
         return str(e)
     if isinstance(e, KeyError) and e.args:
         return str(e.args[0])
