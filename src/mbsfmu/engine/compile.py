@@ -164,6 +164,25 @@ def compile_scene(spec, variables, guid=""):
         ib[i, IB_ROT] = ib[i, IB_IROT] = ib[i, IB_IROT_MASK] = 0
         num = lambda v, off: P.number(v, env, "body", i * DB + off)  # noqa: E731
         rule = lambda kind, off, what: R.add(kind, "body", i * DB + off, f"bodies.{b.name}.{what}")  # noqa: E731
+        db[i, DB_M] = num(s["mass"], DB_M)
+        rule(domains.NONNEG, DB_M, "mass")
+        rule(domains.MAGNITUDE, DB_M, "mass")
+        # rules in the loader's order (the first broken one is the one named)
+        for r in range(3):
+            db[i, DB_C + r] = num(s["center_of_mass"][r], DB_C + r)
+            rule(domains.MAGNITUDE, DB_C + r, f"center_of_mass[{r}]")
+        for r in range(3):
+            for c in range(3):
+                db[i, DB_I + 3 * r + c] = num(s["inertia"][r][c], DB_I + 3 * r + c)
+                rule(domains.MAGNITUDE, DB_I + 3 * r + c, f"inertia[{r}][{c}]")
+        rule(domains.INERTIA, DB_I, "inertia")
+        for r in range(3):
+            db[i, DB_AT + r] = num(j["at"][r], DB_AT + r)
+            rule(domains.MAGNITUDE, DB_AT + r, f"joint.at[{r}]")
+        if any(c not in j["drive"] for c in j["coordinates"]):
+            R.add(domains.CARRIES, "body", i, f"bodies.{b.name}.mass")
+        ib[i, IB_ROT] = _rotation(j["rotation"], lambda v, off: num(v, DB_ROT_RAW + off), db[i, DB_ROT_RAW:])
+        _rotation_rules(j["rotation"], lambda kind, off, what: rule(kind, DB_ROT_RAW + off, "joint.rotation" + what))
         for key, off in (("axis", DB_A1_RAW),):
             if key in j:
                 for r in range(3):
@@ -174,22 +193,6 @@ def compile_scene(spec, variables, guid=""):
                 for r in range(3):
                     db[i, off + r] = num(a[r], off + r)
                 rule(domains.AXIS, off, f"joint.axes[{k}]")
-        db[i, DB_M] = num(s["mass"], DB_M)
-        rule(domains.NONNEG, DB_M, "mass")
-        rule(domains.MAGNITUDE, DB_M, "mass")
-        for r in range(3):
-            db[i, DB_AT + r] = num(j["at"][r], DB_AT + r)
-            db[i, DB_C + r] = num(s["center_of_mass"][r], DB_C + r)
-            rule(domains.MAGNITUDE, DB_AT + r, f"joint.at[{r}]")
-            rule(domains.MAGNITUDE, DB_C + r, f"center_of_mass[{r}]")
-            for c in range(3):
-                db[i, DB_I + 3 * r + c] = num(s["inertia"][r][c], DB_I + 3 * r + c)
-                rule(domains.MAGNITUDE, DB_I + 3 * r + c, f"inertia[{r}][{c}]")
-        rule(domains.INERTIA, DB_I, "inertia")
-        if any(c not in j["drive"] for c in j["coordinates"]):
-            R.add(domains.CARRIES, "body", i, f"bodies.{b.name}.mass")
-        ib[i, IB_ROT] = _rotation(j["rotation"], lambda v, off: num(v, DB_ROT_RAW + off), db[i, DB_ROT_RAW:])
-        _rotation_rules(j["rotation"], lambda kind, off, what: rule(kind, DB_ROT_RAW + off, "joint.rotation" + what))
         if b.kind in ("spherical", "free"):
             ib[i, IB_IROT] = _rotation(j["initial_rotation"], lambda v, off: num(v, DB_IROT_RAW + off), db[i, DB_IROT_RAW:])
             _rotation_rules(j["initial_rotation"], lambda kind, off, what: rule(kind, DB_IROT_RAW + off, "joint.initial.rotation" + what))
