@@ -309,10 +309,8 @@ def test_bad_integrator_setting_fails_exit_of_initialization(built, tmp_path, se
     f = open_fmu(built["double_pendulum"], tmp_path, "a")
     f.setupExperiment(startTime=0.0)
     f.enterInitializationMode()
-    if isinstance(value, str):  # the engine refuses it at once, and initialization cannot use it
-        fails(3, f.setString, [f.vr[name]], [value])
-    else:
-        f.setReal([f.vr[name]], [value])
+    # the engine refuses it at once (outside its domain), and initialization cannot go on without it
+    fails(3, f.setString if isinstance(value, str) else f.setReal, [f.vr[name]], [value])
     fails(3, f.exitInitializationMode)
     assert f.log[-1][:2] == (3, "logStatusError") and f.log[-1][2], f.log
     fails(3, f.doStep, 0.0, 0.01)  # error phase: no steps
