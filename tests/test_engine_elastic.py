@@ -180,15 +180,15 @@ def test_structural_parameter_recompiles_before_initialize_and_is_refused_after(
     assert var["L"].variability == "fixed" and var["EI"].variability == "fixed"
     assert var["m_tip"].variability == "tunable"
     engine = Simulation(spec).engine
-    engine.set_real(list(var).index("L"), 1.5)
-    with pytest.raises(EngineError, match="L is structural"):
-        engine.initialize(0.0)
+    with pytest.raises(EngineError, match="L = 1.5: parameter L is structural"):  # refused when set
+        engine.set_real(list(var).index("L"), 1.5)
+    assert engine.get_real(list(var).index("L")) == 1.0
     sim.set("m_tip", 0.5)
     sim.set("L", 1.5)           # recompiled; m_tip set before is kept
     sim.initialize(0.0)
     assert sim.get("L") == 1.5 and sim.get("m_tip") == 0.5
     assert sim.get("tip.r.x") == pytest.approx(0.05 + 1.5, abs=1e-12)  # hub at the origin, beam along x
-    with pytest.raises(EngineError, match="fixed"):
+    with pytest.raises(EngineError, match="L is structural"):
         sim.set("L", 1.0)
     sim.do_step(0.0, 0.01)
     assert np.all(np.isfinite(sim.x))

@@ -33,6 +33,7 @@ struct MbsInstance {
     int out_valid;        /* out holds the output points of the current state (a master reads them one by one) */
     double *kin_x, kin_t; /* the workspace holds the kinematics at (kin_t, kin_x) when kin_valid */
     int kin_valid;
+    int rule_broken;      /* the last bind failed on a rule of the scene (a derived quantity), not otherwise */
     int time_programs;    /* the scene has expressions of t (drives, force values): run them per evaluation */
     int rhs_ok;           /* an evaluation succeeded since initialization (M was regular once) */
     double time;
@@ -186,6 +187,7 @@ static int check_rules(MbsInstance *s)
     const MbsModel *m = s->m;
     char why[400];
     int marked = 0;
+    s->rule_broken = 1;
     for (int r = 0; r < m->nrules; r++) {
         const int32_t *row = m->rules + 3 * r;
         const char *path = m->rule_names + row[2];
@@ -200,6 +202,7 @@ static int check_rules(MbsInstance *s)
         if (rule_problem(row[0], v, why, sizeof why))
             return rule_size[row[0]] == 1 ? say(s, "%s = %g: %s", path, v[0], why) : say(s, "%s: %s", path, why);
     }
+    s->rule_broken = 0;
     return MBS_OK;
 }
 
@@ -410,7 +413,7 @@ int mbs_reset(MbsInstance *s)
 static int bind(MbsInstance *s)
 {
     const MbsModel *m = s->m;
-    s->kin_valid = 0;
+    s->kin_valid = s->rule_broken = 0;
     for (int p = 0; p < m->hdr[H_NPARAM]; p++)
         if (!isfinite(s->D[p])) {
             int vr = 0;
@@ -492,13 +495,15 @@ static int set_parameters(MbsInstance *s, const unsigned *vr, size_t n, const do
     }
     char set[256] = "", why[sizeof s->msg];
     size_t used = 0, count = 0;
+    const int derived = s->rule_broken;
     memcpy(why, s->msg, sizeof why);
     for (size_t i = 0; i < n && used < sizeof set; i++)
         if (m->vars[2 * vr[i]] == MBS_V_PARAM)
             used += (size_t)snprintf(set + used, sizeof set - used, "%s%s = %g", count++ ? ", " : "", m->var_name[vr[i]], value[i]);
     memcpy(s->D, s->saved, np * sizeof(double));
     bind(s);  /* the numbers of the kept values again */
-    return report(s, MBS_ERROR, "%s make%s %s; the parameters keep their values", set, count > 1 ? "" : "s", why);
+    return report(s, MBS_ERROR, "%s%s %s; the parameters keep their values", set,
+                  !derived ? ":" : count > 1 ? " make" : " makes", why);
 }
 
 int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *value, size_t *bad)
