@@ -109,6 +109,7 @@ def _ts(spec, case, quick):
 
 def run_one(spec, case, method, ts, rtol=None, atol=None, budget=None):
     """One run through Simulation.do_step → dict with status, message, Y, YD, wall, stats."""
+    from mbsfmu.engine import EngineError
     from mbsfmu.errors import IntegrationError
     from mbsfmu.simulation import Simulation
     from .work_precision import Budget, _check_budget
@@ -138,7 +139,7 @@ def run_one(spec, case, method, ts, rtol=None, atol=None, budget=None):
             Y[k + 1], YD[k + 1] = sim.y, sim.yd
             _check_budget(c0, budget)
         out["Y"], out["YD"] = Y, YD
-    except IntegrationError as e:
+    except (IntegrationError, EngineError) as e:  # a failed step, or a value the engine refused when set
         out["status"], out["message"] = "failed", str(e)
     except Budget as e:
         out["status"], out["message"] = "budget", f"stopped {e} at t={sim.time:.4g}" if sim else str(e)
