@@ -214,6 +214,7 @@ def compile_scene(spec, variables, guid=""):
                 for c, v in b.elastic[key].items():
                     k_ = base + idx[b.elastic["coordinates"].index(c)]
                     x0[k_] = P.number(v, env, "x0", k_)
+                    R.add(domains.MAGNITUDE, "x0", k_, f"bodies.{b.name}.elastic.{key}.{c}")
     for s_, (i, k, (e, ed, edd)) in enumerate(drives):
         ib[i, IB_DRV + k] = s_
         for c, ex in enumerate((e, ed, edd)):

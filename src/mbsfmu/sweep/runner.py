@@ -239,7 +239,8 @@ class FmuRunner:
 
     def failed(self, e):
         """After an error the instance may be unusable: free it, the next case instantiates afresh."""
-        msg = "; ".join(dict.fromkeys(self.log)) or _message(e)
+        logged = list(dict.fromkeys(self.log))  # a message and the shim's copy of it ("fmi2SetReal: ..."): once
+        msg = "; ".join(m for m in logged if not any(m != o and m in o for o in logged)) or _message(e)
         self._free()
         return msg
 
