@@ -265,3 +265,52 @@ def test_fmu_refuses_values_outside_their_domain(tmp_path, kind):
     assert res["kept_after"] == [0.8, 1.0, 0.3]
     assert res["same"]
     assert res["valid_pair"][0] == 0 and res["pair_kept"] == [0.9, 0.5]
+
+
+DRIVEN = """mbsfmu: 1
+name: driven
+parameters: {{T: {T!r}, F: {F!r}}}
+bodies:
+  crank:
+    parent: world
+    joint: {{type: revolute, axis: [0, 1, 0], drive: {{crank.angle: asin(t/T)}}}}
+    mass: 1
+    inertia: {{xx: 1, yy: 1, zz: 1}}
+  slider:
+    parent: crank
+    joint: {{type: prismatic, axis: [1, 0, 0], at: [0.5, 0, 0]}}
+    mass: 1
+    inertia: {{xx: 1, yy: 1, zz: 1}}
+forces:
+  - {{type: force, body: slider, value: [sqrt(F - t), 0, 0]}}
+experiment: {{start: 0, stop: 1, step: 0.01}}
+"""
+
+
+@pytest.mark.parametrize("name, value, path, t", [
+    ("T", 0.5, "bodies.crank.joint.drive.crank.angle (its velocity)", "0.5"),   # asin(t/T)' = 1/sqrt(T² - t²)
+    ("T", -0.75, "bodies.crank.joint.drive.crank.angle (its velocity)", "0.75"),
+    ("F", 0.5, "forces[0].value[0]", "0.503906"),                               # sqrt(F - t), first sample past F
+    ("T", 1.5, None, None), ("F", 1.5, None, None)])
+def test_drives_and_force_values_of_a_parameter_stay_defined(name, value, path, t):
+    """A parameter that takes a drive (or its velocity, acceleration) or a force value of t out of its domain
+    within the experiment is refused as the loader refuses the same number in the scene (at the same sample
+    time); values that keep them defined run."""
+    values = {"T": 2.0, "F": 2.0, name: value}
+    try:
+        loads(DRIVEN.format(**values))
+        want = None
+    except ModelError as e:
+        want = e.message
+    sim = Simulation(loads(DRIVEN.format(T=2.0, F=2.0)).spec)
+    if path is None:
+        assert want is None
+        sim.set(name, value)
+        sim.initialize(0.0)
+        assert np.all(np.isfinite(sim.run(np.linspace(0, 1, 5))))
+        return
+    assert want and f"t = {t}" in want and ("first time derivative" in want) == ("velocity" in path), want
+    with pytest.raises(ValueError) as err:
+        sim.set(name, value)
+    assert f"{name} = {value:g} makes {path} = " in str(err.value) and f"at t = {t}:" in str(err.value), str(err.value)
+    assert sim.get(name) == 2.0

@@ -12,13 +12,13 @@ import numpy as np
 
 from ..equations.model import Model
 from ..expr import CONSTANTS, parse
-from ..scene import domains
+from ..scene import domains, limits
 from .elastic_tables import elastic_sections
 
 FORMAT_VERSION = 1
 # sections (mbs_model.h: S_*) and their element kinds (0 int32, 1 double, 2 bytes)
 (S_HEADER, S_BODY_I, S_FORCE_I, S_QUAT, S_PLAIN, S_VARS, S_OUT_I, S_PROG, S_CODE, S_ELASTIC_I, S_D, S_ELASTIC_D, S_NAMES,
- S_VDOM, S_RULES, S_RULE_NAMES) = range(16)
+ S_VDOM, S_RULES, S_RULE_NAMES, S_SPAN) = range(17)
 H_FIELDS = ("NB NPOS NVEL NFORCE NQUAT NPLAIN NDRV NVEC NINPUT NPARAM NVARS NOUT NPROG NCODE HAS_GRAVITY METHOD "
             "NCARDAN FEATURES MAXSTACK D_PARAM D_CONST D_BODY D_FORCE D_G D_X0 D_OUT D_INTEG ND").split()
 F_EXPR, F_ELASTIC = 1, 2
@@ -123,7 +123,9 @@ class _Rules:
         rows, names = [], b""
         for rule, region, off, path in self.rows:
             size = domains.RULE_SIZE[rule]
-            if not (any((region, off + k) in bound for k in range(size)) if size else carries):
+            keep = any((region, off + k) in bound for k in range(size)) if size else carries if rule == domains.CARRIES \
+                else True  # TIMED: added only for expressions of parameters
+            if not keep:
                 continue
             rows.append((rule, offsets[region] + off if size else off, len(names)))
             names += path.encode() + b"\0"
@@ -219,6 +221,9 @@ def compile_scene(spec, variables, guid=""):
         ib[i, IB_DRV + k] = s_
         for c, ex in enumerate((e, ed, edd)):
             P.add(1, ("td", 3 * s_ + c), ex)
+            if ex.names - {"t"} - set(CONSTANTS):
+                what = ("", " (its velocity)", " (its acceleration)")[c]
+                R.add(domains.TIMED, "td", 3 * s_ + c, f"bodies.{m.bodies[i].name}.joint.drive.{m.bodies[i].coordinates[k]}{what}")
     # force elements; vector slots in td: the inputs first (FMU input order), then time-dependent values
     nd3 = 3 * len(drives)
     inputs = list(m.inputs)
@@ -267,6 +272,8 @@ def compile_scene(spec, variables, guid=""):
                 iforce[n, IF_SRC] = slot
                 for r in range(3):
                     P.add(1, ("td", slot + r), parse(src["value"][r]))
+                    if parse(src["value"][r]).names - {"t"} - set(CONSTANTS):
+                        R.add(domains.TIMED, "td", slot + r, f"forces[{n}].value[{r}]")
             else:
                 for r in range(3):
                     forces[n, DF_VEC + r] = num(src["value"][r], DF_VEC + r)
@@ -324,7 +331,8 @@ def compile_scene(spec, variables, guid=""):
                 (S_VARS, 0, vars_), (S_OUT_I, 0, out_i), (S_PROG, 0, prog),
                 (S_CODE, 0, np.array(P.code, dtype=np.int32)), (S_ELASTIC_I, 0, elastic_i), (S_D, 1, D),
                 (S_ELASTIC_D, 1, elastic_d), (S_NAMES, 2, np.frombuffer(names, np.uint8)),
-                (S_VDOM, 1, vdom), (S_RULES, 0, rules), (S_RULE_NAMES, 2, rule_names)]
+                (S_VDOM, 1, vdom), (S_RULES, 0, rules), (S_RULE_NAMES, 2, rule_names),
+                (S_SPAN, 1, np.array([spec["experiment"]["start"], spec["experiment"]["stop"], limits.DOMAIN_SAMPLES], float))]
     return _pack(sections, guid)
 
 

@@ -31,6 +31,7 @@ enum {
     S_VDOM,         /* nvars × 4      double  domain of each variable: lo, hi, flags (VD_*), 0 */
     S_RULES,        /* nrules × 3     int   rule (R_*), D offset of its first number (R_CARRIES: body), path */
     S_RULE_NAMES,   /* bytes: the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */
+    S_SPAN,         /* 3              double  the scene's experiment start, stop, and the samples R_TIMED checks */
     S_NSECTIONS
 };
 
@@ -69,7 +70,7 @@ enum { DI_RTOL, DI_ATOL, DI_MAX_STEP, DI_STEP, DI_RHO_INF, DI };
  * a variable's domain is lo..hi, on |v| with VD_MAGNITUDE, 0 besides with VD_ZERO, always finite; a rule
  * holds for the numbers a parameter derives (R_* = domains.NONNEG ...; numbers per rule: domains.RULE_SIZE). */
 enum { VD_LO_OPEN = 1, VD_HI_OPEN = 2, VD_ZERO = 4, VD_MAGNITUDE = 8 };
-enum { R_NONNEG, R_MAGNITUDE, R_INERTIA, R_AXIS, R_ROTATION, R_CARRIES, R_N };
+enum { R_NONNEG, R_MAGNITUDE, R_INERTIA, R_AXIS, R_ROTATION, R_CARRIES, R_TIMED, R_N };  /* R_TIMED: a td slot */
 #define MBS_MAGNITUDE_LO 1e-100   /* limits.MAGNITUDE */
 #define MBS_MAGNITUDE_HI 1e100
 #define MBS_AXIS_LO 1e-9          /* limits.AXIS_LENGTH */
@@ -98,6 +99,7 @@ struct MbsModel {
     const double *vdom;                /* S_VDOM */
     const int32_t *rules;              /* S_RULES */
     const char *rule_names;            /* S_RULE_NAMES */
+    const double *span;                /* S_SPAN, NULL if absent */
     int nrules, n_rule_names;
     void *blob;                        /* owned copy of the compiled scene */
 };

@@ -120,7 +120,7 @@ static void eigenvalues3(const double *A, double lam[3])
             if (lam[j] > lam[j + 1]) { double x = lam[j]; lam[j] = lam[j + 1]; lam[j + 1] = x; }
 }
 
-static const int rule_size[R_N] = {1, 1, 9, 3, 9, 0};  /* domains.RULE_SIZE */
+static const int rule_size[R_N] = {1, 1, 9, 3, 9, 0, 0};  /* domains.RULE_SIZE */
 
 /* NULL if the rule holds for v (rule_size[rule] numbers), else what is wrong (written into buf). */
 static const char *rule_problem(int rule, const double *v, char *buf, size_t len)
@@ -191,6 +191,7 @@ static int check_rules(MbsInstance *s)
     for (int r = 0; r < m->nrules; r++) {
         const int32_t *row = m->rules + 3 * r;
         const char *path = m->rule_names + row[2];
+        if (row[0] == R_TIMED) continue;  /* check_times */
         if (row[0] == R_CARRIES) {
             if (!marked++) mark_carried(s);
             if (!s->carries[row[1]])
@@ -206,9 +207,39 @@ static int check_rules(MbsInstance *s)
     return MBS_OK;
 }
 
+/* The R_TIMED values at the loader's sample times over the scene's experiment (quiet, as check_rules). */
+static int check_times(MbsInstance *s)
+{
+#ifdef MBS_WITH_EXPR
+    const MbsModel *m = s->m;
+    int timed = 0;
+    for (int r = 0; r < m->nrules; r++) timed |= m->rules[3 * r] == R_TIMED;
+    if (!timed || !m->span) return MBS_OK;
+    const int n = (int)m->span[2];
+    s->rule_broken = 1;
+    for (int k = 0; k < n; k++) {
+        const double t = k == n - 1 ? m->span[1] : m->span[0] + k * ((m->span[1] - m->span[0]) / (n > 1 ? n - 1 : 1));
+        mbs_run_programs(m, 1, s->D, s->td, t);
+        for (int r = 0; r < m->nrules; r++) {
+            const int32_t *row = m->rules + 3 * r;
+            if (row[0] == R_TIMED && !isfinite(s->td[row[1]]))
+                return say(s, "%s = %g at t = %g: must stay finite over the experiment [%g, %g] s",
+                           m->rule_names + row[2], s->td[row[1]], t, m->span[0], m->span[1]);
+        }
+    }
+    s->rule_broken = 0;
+#else
+    (void)s;
+#endif
+    return MBS_OK;
+}
+
 int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen)
 {
-    const int nd = m->hdr[H_ND];
+    const int nd = m->hdr[H_ND], ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
+    if (m->span && !(isfinite(m->span[0]) && isfinite(m->span[1]) && m->span[0] <= m->span[1] &&
+                     m->span[2] >= 1 && m->span[2] <= 100000 && m->span[2] == (int)m->span[2]))
+        return snprintf(err, errlen, "corrupt experiment span"), 1;
     for (int k = 0; k < m->hdr[H_NVARS]; k++) {
         const double *d = m->vdom + 4 * k;
         if (!(d[2] >= 0 && d[2] < 16 && d[2] == (int)d[2]) || !(d[0] <= d[1]))
@@ -217,7 +248,8 @@ int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen)
     for (int r = 0; r < m->nrules; r++) {
         const int32_t *row = m->rules + 3 * r;
         const int size = row[0] >= 0 && row[0] < R_N ? rule_size[row[0]] : -1;
-        const int ok = size == 0 ? row[1] >= 0 && row[1] < NB(m) : size > 0 && row[1] >= 0 && row[1] <= nd - size;
+        const int ok = row[0] == R_TIMED ? row[1] >= 0 && row[1] < ntd : size == 0 ? row[1] >= 0 && row[1] < NB(m) :
+                       size > 0 && row[1] >= 0 && row[1] <= nd - size;
         if (!ok || row[2] < 0 || row[2] >= m->n_rule_names || !memchr(m->rule_names + row[2], 0, (size_t)(m->n_rule_names - row[2])))
             return snprintf(err, errlen, "corrupt rule table (row %d)", r), 1;
     }
@@ -424,7 +456,7 @@ static int bind(MbsInstance *s)
     mbs_run_programs(m, 0, s->D, NULL, 0.0);
 #endif
     mbs_derive(m, s->D);
-    if (check_rules(s)) return MBS_ERROR;
+    if (check_rules(s) || check_times(s)) return MBS_ERROR;
 #ifdef MBS_WITH_ELASTIC
     if ((m->hdr[H_FEATURES] & F_ELASTIC) && mbs_elastic_bind(m, s->D, s->msg, sizeof s->msg))
         return MBS_ERROR;

@@ -151,8 +151,11 @@ def _minimize(f, a, b, iterations=60):
 # that depends on a parameter), and the engine applies them when a host sets a value (sim.c: check_rules and
 # in_domain mirror check() and Domain.contains, kind by kind; tests/test_domains.py holds the two equal).
 
-NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES = range(6)   # derived rules (mbs_model.h: R_*)
-RULE_SIZE = {NONNEG: 1, MAGNITUDE: 1, INERTIA: 9, AXIS: 3, ROTATION: 9, CARRIES: 0}
+NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES, TIMED = range(7)   # derived rules (mbs_model.h: R_*)
+RULE_SIZE = {NONNEG: 1, MAGNITUDE: 1, INERTIA: 9, AXIS: 3, ROTATION: 9, CARRIES: 0, TIMED: 0}
+# CARRIES: the loader's `massless` check of a body; TIMED: a drive (or its derivatives) or force value of t that
+# a parameter feeds, finite at the DOMAIN_SAMPLES times of first_failure (the checks between samples stay the
+# loader's: they need the expression tree, which the engine holds as bytecode)
 
 
 def check(rule, values):
