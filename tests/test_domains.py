@@ -314,3 +314,40 @@ def test_drives_and_force_values_of_a_parameter_stay_defined(name, value, path, 
         sim.set(name, value)
     assert f"{name} = {value:g} makes {path} = " in str(err.value) and f"at t = {t}:" in str(err.value), str(err.value)
     assert sim.get(name) == 2.0
+
+
+AXES = """mbsfmu: 1
+name: axes
+parameters: {{p: {p!r}}}
+bodies:
+  b:
+    parent: world
+    joint: {{type: {kind}, axes: {axes}}}
+    mass: 1
+    inertia: {{xx: 1, yy: 1, zz: 1}}
+"""
+
+
+@pytest.mark.parametrize("kind, axes, nominal, values", [
+    ("universal", "[[0, 0, 1], [p, 1e-3, 1]]", 1.0, [0.0, 1e-7, -1e-2, 2.0]),   # parallel to 1e-9 near p = 0
+    ("planar", "[[1, 0, 0], [p, 1, 0]]", 0.0, [0.5, 1e-10, -2e-9, 0.0])])       # perpendicular to 1e-9 only at p = 0
+def test_joint_axes_relations_follow_the_loader(kind, axes, nominal, values):
+    """Two axes that a parameter turns parallel (universal) or out of perpendicular (planar): the engine's verdict
+    and reason are the loader's on the same numbers."""
+    sim = Simulation(loads(AXES.format(p=nominal, kind=kind, axes=axes)).spec)
+    verdicts = []
+    for v in values:
+        try:
+            loads(AXES.format(p=v, kind=kind, axes=axes))
+            want = None
+        except ModelError as e:
+            want = e.message
+        try:
+            sim.set("p", v)
+            got = None
+        except ValueError as e:
+            got = str(e)
+        assert (want is None) == (got is None), (v, want, got)
+        assert got is None or f"makes bodies.b.joint.axes: {want}" in got, (got, want)
+        verdicts.append(got is None)
+    assert any(verdicts) and not all(verdicts)

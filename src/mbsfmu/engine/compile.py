@@ -195,6 +195,7 @@ def compile_scene(spec, variables, guid=""):
                 for r in range(3):
                     db[i, off + r] = num(a[r], off + r)
                 rule(domains.AXIS, off, f"joint.axes[{k}]")
+            rule(domains.PERPENDICULAR if b.kind == "planar" else domains.NOT_PARALLEL, DB_A1_RAW, "joint.axes")
         if b.kind in ("spherical", "free"):
             ib[i, IB_IROT] = _rotation(j["initial_rotation"], lambda v, off: num(v, DB_IROT_RAW + off), db[i, DB_IROT_RAW:])
             _rotation_rules(j["initial_rotation"], lambda kind, off, what: rule(kind, DB_IROT_RAW + off, "joint.initial.rotation" + what))

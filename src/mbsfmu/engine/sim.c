@@ -120,7 +120,7 @@ static void eigenvalues3(const double *A, double lam[3])
             if (lam[j] > lam[j + 1]) { double x = lam[j]; lam[j] = lam[j + 1]; lam[j + 1] = x; }
 }
 
-static const int rule_size[R_N] = {1, 1, 9, 3, 9, 0, 0};  /* domains.RULE_SIZE */
+static const int rule_size[R_N] = {1, 1, 9, 3, 9, 0, 0, 6, 6};  /* domains.RULE_SIZE */
 
 /* NULL if the rule holds for v (rule_size[rule] numbers), else what is wrong (written into buf). */
 static const char *rule_problem(int rule, const double *v, char *buf, size_t len)
@@ -138,6 +138,13 @@ static const char *rule_problem(int rule, const double *v, char *buf, size_t len
         if (length == 0) return snprintf(buf, len, "must not be the zero vector"), buf;
         return length >= MBS_AXIS_LO && length <= MBS_AXIS_HI ? NULL :
                (snprintf(buf, len, "a direction of length %.3g (allowed: %g to %g)", length, MBS_AXIS_LO, MBS_AXIS_HI), buf);
+    }
+    if (rule == R_PERPENDICULAR || rule == R_NOT_PARALLEL) {  /* two axes, each checked by its R_AXIS row first */
+        const double c = fabs(v[0] * v[3] + v[1] * v[4] + v[2] * v[5]) / hypot(hypot(v[0], v[1]), v[2]) /
+                         hypot(hypot(v[3], v[4]), v[5]);
+        if (rule == R_PERPENDICULAR)
+            return c <= 1e-9 ? NULL : (snprintf(buf, len, "the two in-plane axes must be perpendicular"), buf);
+        return c <= 1 - 1e-9 ? NULL : (snprintf(buf, len, "the two axes of a universal joint must not be parallel"), buf);
     }
     if (rule == R_ROTATION) {  /* numpy.allclose(RᵀR, I, atol=1e-6) and det R > 0 */
         int ok = v[0] * (v[4] * v[8] - v[5] * v[7]) - v[1] * (v[3] * v[8] - v[5] * v[6]) + v[2] * (v[3] * v[7] - v[4] * v[6]) > 0;

@@ -151,8 +151,9 @@ def _minimize(f, a, b, iterations=60):
 # that depends on a parameter), and the engine applies them when a host sets a value (sim.c: check_rules and
 # in_domain mirror check() and Domain.contains, kind by kind; tests/test_domains.py holds the two equal).
 
-NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES, TIMED = range(7)   # derived rules (mbs_model.h: R_*)
-RULE_SIZE = {NONNEG: 1, MAGNITUDE: 1, INERTIA: 9, AXIS: 3, ROTATION: 9, CARRIES: 0, TIMED: 0}
+NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES, TIMED, PERPENDICULAR, NOT_PARALLEL = range(9)  # mbs_model.h: R_*
+RULE_SIZE = {NONNEG: 1, MAGNITUDE: 1, INERTIA: 9, AXIS: 3, ROTATION: 9, CARRIES: 0, TIMED: 0, PERPENDICULAR: 6,
+             NOT_PARALLEL: 6}
 # CARRIES: the loader's `massless` check of a body; TIMED: a drive (or its derivatives) or force value of t that
 # a parameter feeds, finite at the DOMAIN_SAMPLES times of first_failure (the checks between samples stay the
 # loader's: they need the expression tree, which the engine holds as bytecode)
@@ -171,6 +172,12 @@ def check(rule, values):
         if length == 0:
             return "must not be the zero vector"
         return None if lo <= length <= hi else f"a direction of length {length:.3g} (allowed: {lo:g} to {hi:g})"
+    if rule in (PERPENDICULAR, NOT_PARALLEL):  # two axes (planar, universal joints), each of a valid length
+        a1, a2 = np.array(values[:3]), np.array(values[3:])
+        c = abs(a1 @ a2) / np.linalg.norm(a1) / np.linalg.norm(a2)
+        if rule == PERPENDICULAR:
+            return None if c <= 1e-9 else "the two in-plane axes must be perpendicular"
+        return None if c <= 1 - 1e-9 else "the two axes of a universal joint must not be parallel"
     if rule == ROTATION:
         R = np.reshape(values, (3, 3))
         return None if np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0 else \

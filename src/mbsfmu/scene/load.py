@@ -482,12 +482,10 @@ class _Checker:
             if not isinstance(axes, list) or len(axes) != 2:
                 self.fail(j, "axes", path + ".axes", "expected two axes [a1, a2]")
             out["axes"] = [self.vector(axes, i, f"{path}.axes[{i}]", nonzero=True) for i in range(2)]
-            a1, a2 = (np.array([self.value(x) for x in a]) for a in out["axes"])
-            c = abs(a1 @ a2) / np.linalg.norm(a1) / np.linalg.norm(a2)
-            if kind == "planar" and c > 1e-9:
-                self.fail(j, "axes", path + ".axes", "the two in-plane axes must be perpendicular")
-            if kind == "universal" and c > 1 - 1e-9:
-                self.fail(j, "axes", path + ".axes", "the two axes of a universal joint must not be parallel")
+            rule = domains.PERPENDICULAR if kind == "planar" else domains.NOT_PARALLEL
+            problem = domains.check(rule, [self.value(x) for a in out["axes"] for x in a])
+            if problem:
+                self.fail(j, "axes", path + ".axes", problem)
         param = j.get("parameterization", "quaternion")
         if kind in ("spherical", "free"):
             if param not in ("quaternion", "cardan"):
