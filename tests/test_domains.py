@@ -329,7 +329,7 @@ bodies:
 
 
 @pytest.mark.parametrize("kind, axes, nominal, values", [
-    ("universal", "[[0, 0, 1], [p, 1e-3, 1]]", 1.0, [0.0, 1e-7, -1e-2, 2.0]),   # parallel to 1e-9 near p = 0
+    ("universal", "[[0, 0, 1], [p, 0, 1]]", 1.0, [0.0, 1e-7, -1e-2, 2.0]),      # parallel to 1e-9 near p = 0
     ("planar", "[[1, 0, 0], [p, 1, 0]]", 0.0, [0.5, 1e-10, -2e-9, 0.0])])       # perpendicular to 1e-9 only at p = 0
 def test_joint_axes_relations_follow_the_loader(kind, axes, nominal, values):
     """Two axes that a parameter turns parallel (universal) or out of perpendicular (planar): the engine's verdict
