@@ -351,3 +351,23 @@ def test_joint_axes_relations_follow_the_loader(kind, axes, nominal, values):
         assert got is None or f"makes bodies.b.joint.axes: {want}" in got, (got, want)
         verdicts.append(got is None)
     assert any(verdicts) and not all(verdicts)
+
+
+def test_engine_domains_are_the_declared_ones():
+    """At and around every end of every setting's domain (scene/domains.py), the engine accepts exactly what
+    Domain.contains accepts."""
+    from mbsfmu.scene.domains import variable_domain
+    spec = mbsfmu.load(REPO / "models" / "pendulum.yaml").spec
+    sim = Simulation(spec)
+    for name in ("integrator.rtol", "integrator.atol", "integrator.step", "integrator.max_step"):
+        d = variable_domain(name, spec)
+        ends = [x for x in (d.lo, d.hi) if math.isfinite(x)]
+        probes = [0.0, -0.0, 1.0, -1.0, math.nan, math.inf, 5e-324, 1e308]
+        probes += [np.nextafter(x, s) for x in ends for s in (-math.inf, math.inf)] + ends
+        for v in probes:
+            try:
+                sim.set(name, float(v))
+                got = True
+            except ValueError:
+                got = False
+            assert got == d.contains(float(v)), (name, v, d.text)

@@ -154,6 +154,8 @@ def compile_scene(spec, variables, guid=""):
     x0 = regions["x0"]
     drives = [(i, k, d) for i, b in enumerate(m.bodies) for k, *d in b.drives]
     ncardan = 0
+    for r in range(3):  # rules in the loader's order (the first broken one is the one named): gravity, bodies, ...
+        R.add(domains.MAGNITUDE, "g", r, f"gravity[{r}]")
     for i, b in enumerate(m.bodies):
         j, s = b.spec["joint"], b.spec
         ib[i, IB_PARENT] = b.parent
@@ -169,7 +171,6 @@ def compile_scene(spec, variables, guid=""):
         db[i, DB_M] = num(s["mass"], DB_M)
         rule(domains.NONNEG, DB_M, "mass")
         rule(domains.MAGNITUDE, DB_M, "mass")
-        # rules in the loader's order (the first broken one is the one named)
         for r in range(3):
             db[i, DB_C + r] = num(s["center_of_mass"][r], DB_C + r)
             rule(domains.MAGNITUDE, DB_C + r, f"center_of_mass[{r}]")
@@ -281,7 +282,6 @@ def compile_scene(spec, variables, guid=""):
                     rule(domains.MAGNITUDE, DF_VEC + r, f"value[{r}]")
     for r in range(3):
         regions["g"][r] = P.number(spec["gravity"][r], env, "g", r)
-        R.add(domains.MAGNITUDE, "g", r, f"gravity[{r}]")
     out_i = np.zeros((len(m.outputs), 3), dtype=np.int32)
     for o, spec_o in enumerate(m.outputs):
         out_i[o, 0] = m.index[spec_o["body"]]

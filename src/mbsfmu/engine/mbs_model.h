@@ -67,9 +67,9 @@ enum { DF_K, DF_D, DF_L, DF_AT_A = 3, DF_AT_B = 6, DF_VEC = 9, DF = 12 };
 enum { DI_RTOL, DI_ATOL, DI_MAX_STEP, DI_STEP, DI_RHO_INF, DI };
 
 /* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, sim.c to a host's):
- * a variable's domain is lo..hi, on |v| with VD_MAGNITUDE, 0 besides with VD_ZERO, always finite; a rule
- * holds for the numbers a parameter derives (R_* = domains.NONNEG ...; numbers per rule: domains.RULE_SIZE). */
-enum { VD_LO_OPEN = 1, VD_HI_OPEN = 2, VD_ZERO = 4, VD_MAGNITUDE = 8 };
+ * a variable's domain is lo..hi, 0 besides with VD_ZERO, always finite; a rule holds for the numbers a
+ * parameter derives (R_* = domains.NONNEG ...; numbers per rule: domains.RULE_SIZE). */
+enum { VD_LO_OPEN = 1, VD_HI_OPEN = 2, VD_ZERO = 4 };
 enum { R_NONNEG, R_MAGNITUDE, R_INERTIA, R_AXIS, R_ROTATION, R_CARRIES, R_TIMED, R_PERPENDICULAR, R_NOT_PARALLEL,
        R_N };  /* R_TIMED: a td slot */
 #define MBS_MAGNITUDE_LO 1e-100   /* limits.MAGNITUDE */

@@ -76,16 +76,15 @@ static int in_domain(const double *d, double v)
     const int flags = (int)d[2];
     if (!isfinite(v)) return 0;
     if ((flags & VD_ZERO) && v == 0.0) return 1;
-    const double a = (flags & VD_MAGNITUDE) ? fabs(v) : v;
-    return ((flags & VD_LO_OPEN) ? a > d[0] : a >= d[0]) && ((flags & VD_HI_OPEN) ? a < d[1] : a <= d[1]);
+    return ((flags & VD_LO_OPEN) ? v > d[0] : v >= d[0]) && ((flags & VD_HI_OPEN) ? v < d[1] : v <= d[1]);
 }
 
 static void domain_text(const double *d, char *buf, size_t len)
 {
     const int flags = (int)d[2];
     if (d[0] == -INFINITY && d[1] == INFINITY) { snprintf(buf, len, "a finite number"); return; }
-    snprintf(buf, len, "%s%s%c%g, %g%c", flags & VD_ZERO ? "0 or " : "", flags & VD_MAGNITUDE ? "|v| in " : "",
-             flags & VD_LO_OPEN ? '(' : '[', d[0], d[1], flags & VD_HI_OPEN ? ')' : ']');
+    snprintf(buf, len, "%s%c%g, %g%c", flags & VD_ZERO ? "0 or " : "", flags & VD_LO_OPEN ? '(' : '[', d[0], d[1],
+             flags & VD_HI_OPEN ? ')' : ']');
 }
 
 /* Eigenvalues of the symmetric part of a 3 × 3 matrix, ascending (cyclic Jacobi: accurate near repeated ones). */
@@ -249,7 +248,7 @@ int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen)
         return snprintf(err, errlen, "corrupt experiment span"), 1;
     for (int k = 0; k < m->hdr[H_NVARS]; k++) {
         const double *d = m->vdom + 4 * k;
-        if (!(d[2] >= 0 && d[2] < 16 && d[2] == (int)d[2]) || !(d[0] <= d[1]))
+        if (!(d[2] >= 0 && d[2] < 8 && d[2] == (int)d[2]) || !(d[0] <= d[1]))
             return snprintf(err, errlen, "corrupt variable domain (row %d)", k), 1;
     }
     for (int r = 0; r < m->nrules; r++) {

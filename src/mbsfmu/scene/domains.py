@@ -200,21 +200,20 @@ CARRIES_TEXT = "the bodies it carries have no mass or inertia, so its joint's mo
 
 
 class Domain:
-    """The values a settable variable takes: lo..hi (each end open or closed), on |v| when `magnitude`, and 0
-    besides when `zero`; always finite. `text` says it for messages ("[1e-14, 1]")."""
+    """The values a settable variable takes: lo..hi (each end open or closed), and 0 besides when `zero`; always
+    finite. `text` says it for messages ("[1e-14, 1]")."""
 
-    __slots__ = ("lo", "hi", "lo_open", "hi_open", "zero", "magnitude")
+    __slots__ = ("lo", "hi", "lo_open", "hi_open", "zero")
 
-    def __init__(self, lo=-math.inf, hi=math.inf, lo_open=True, hi_open=True, zero=False, magnitude=False):
-        self.lo, self.hi, self.lo_open, self.hi_open, self.zero, self.magnitude = lo, hi, lo_open, hi_open, zero, magnitude
+    def __init__(self, lo=-math.inf, hi=math.inf, lo_open=True, hi_open=True, zero=False):
+        self.lo, self.hi, self.lo_open, self.hi_open, self.zero = lo, hi, lo_open, hi_open, zero
 
     def contains(self, v):
         if not math.isfinite(v):
             return False
         if self.zero and v == 0:
             return True
-        a = abs(v) if self.magnitude else v
-        return (a > self.lo if self.lo_open else a >= self.lo) and (a < self.hi if self.hi_open else a <= self.hi)
+        return (v > self.lo if self.lo_open else v >= self.lo) and (v < self.hi if self.hi_open else v <= self.hi)
 
     @property
     def text(self):
@@ -222,15 +221,14 @@ class Domain:
             return "a finite number"
         lo = "(" if self.lo_open else "["
         hi = ")" if self.hi_open else "]"
-        return ("0 or " if self.zero else "") + ("|v| in " if self.magnitude else "") + f"{lo}{self.lo:g}, {self.hi:g}{hi}"
+        return ("0 or " if self.zero else "") + f"{lo}{self.lo:g}, {self.hi:g}{hi}"
 
     def flags(self):
         """The flags the compiled scene stores (mbs_model.h: VD_*)."""
-        return self.lo_open | self.hi_open << 1 | self.zero << 2 | self.magnitude << 3
+        return self.lo_open | self.hi_open << 1 | self.zero << 2
 
 
-ANY = Domain()                                               # a parameter (its derived numbers have rules)
-INITIAL = Domain(*limits.MAGNITUDE, False, False, zero=True, magnitude=True)   # y0.*, yd0.*: like `initial:`
+ANY = Domain()  # a parameter: its derived numbers have the rules above; a start value y0.*/yd0.* has MAGNITUDE's
 
 
 def integrator_domains(experiment):
@@ -242,9 +240,8 @@ def integrator_domains(experiment):
 
 
 def variable_domain(name, spec):
-    """Domain of an FMU variable (a parameter or integrator setting) or a start value y0.* / yd0.*."""
+    """Domain of an FMU variable (a parameter, an integrator setting; inputs: finite, else the next step's
+    Discard)."""
     if name.startswith("integrator."):
         return integrator_domains(spec["experiment"]).get(name.split(".", 1)[1], ANY)
-    if name.startswith(("y0.", "yd0.")):
-        return INITIAL
     return ANY
