@@ -371,3 +371,22 @@ def test_engine_domains_are_the_declared_ones():
             except ValueError:
                 got = False
             assert got == d.contains(float(v)), (name, v, d.text)
+
+
+def test_quaternion_start_values_must_be_a_rotation():
+    """y0 of one quaternion component alone would start the body with a scaled 'rotation' (then normalized
+    after the first step: not the value named); a unit quaternion given in full is used exactly."""
+    spec = mbsfmu.load(REPO / "models" / "free_body.yaml").spec
+    sim = Simulation(spec)
+    scene_q = np.array([sim.get(f"y.block.q{k}") for k in range(4)])  # before initialize: the scene's start
+    sim.set("y0.block.q0", 0.5)
+    norm = np.linalg.norm(np.r_[0.5, scene_q[1:]])
+    with pytest.raises(ValueError, match=r"quaternion \(y0.block.q0, y0.block.q1, y0.block.q2, y0.block.q3\) = "
+                                         rf"\(0.5, .*\) of norm {norm:.6g}, not a rotation"):
+        sim.initialize(0.0)
+    sim.reset()
+    q = np.array([0.5, 0.5, -0.5, 0.5])  # a 120° turn about (1, -1, 1)/√3
+    for c, v in zip(("q0", "q1", "q2", "q3"), q):
+        sim.set(f"y0.block.{c}", float(v))
+    sim.initialize(0.0)
+    assert list(sim.y[3:7]) == list(q)

@@ -112,7 +112,7 @@ class Simulation:
             raise KeyError(f"'{name}' is not an input or parameter of {self.spec['name']}")
         string = vr is not None and self.variables[vr].type == "String"
         if not string:
-            value = _real(name, value)
+            value = as_real(name, value)
         if name in self._structural and not self.initialized:
             self._recompile(name, value)
         elif name in self._start:
@@ -236,7 +236,7 @@ class Simulation:
         self.initialized = False
 
 
-def _real(name, value):
+def as_real(name, value):
     """A value for a Real variable, taken exactly: a real number (not a bool, text or complex)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{name} = {value!r}: expected a real number")
@@ -281,4 +281,4 @@ def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
     return ts, X[:, :sim.npos], X[:, sim.npos:]
 
 
-__all__ = ["Simulation", "Variable", "simulate", "variables", "compiled", "IntegrationError"]
+__all__ = ["Simulation", "Variable", "simulate", "variables", "compiled", "IntegrationError", "as_real"]

@@ -483,6 +483,16 @@ static int initial_state(MbsInstance *s)
     for (int i = 0; i < s->n; i++) if (!isnan(s->start[i])) s->x[i] = s->start[i];
     for (int i = 0; i < s->n; i++)
         if (!isfinite(s->x[i])) return report(s, MBS_ERROR, "initial value of %s is not finite", i < NPOS(s->m) ? s->m->coord_name[i] : "a velocity");
+    for (int j = 0; j < s->m->hdr[H_NQUAT]; j++) {  /* start values of a quaternion: a rotation, else not used as given */
+        const int *qi = s->m->quat + 7 * j;
+        const double *x = s->x;
+        const double norm = sqrt(x[qi[0]] * x[qi[0]] + x[qi[1]] * x[qi[1]] + x[qi[2]] * x[qi[2]] + x[qi[3]] * x[qi[3]]);
+        if (!(fabs(norm - 1) <= 1e-9))
+            return report(s, MBS_ERROR, "start values make the quaternion (y0.%s, y0.%s, y0.%s, y0.%s) = (%g, %g, %g, %g) of "
+                          "norm %g, not a rotation: give all four components of a unit quaternion", s->m->coord_name[qi[0]],
+                          s->m->coord_name[qi[1]], s->m->coord_name[qi[2]], s->m->coord_name[qi[3]], x[qi[0]], x[qi[1]],
+                          x[qi[2]], x[qi[3]], norm);
+    }
     s->initial_valid = 1;
     return MBS_OK;
 }

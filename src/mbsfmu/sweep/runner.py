@@ -207,6 +207,7 @@ class FmuRunner:
         return self.fmu
 
     def run(self, values, setup):
+        from ..simulation import as_real
         ts = setup.ts
         self.log.clear()
         fmu = self._instance()
@@ -216,12 +217,14 @@ class FmuRunner:
                 raise KeyError(f"'{name}' is not an input or parameter of {self.md.modelName}")
             if var.type == "String":
                 fmu.setString([var.valueReference], [str(v)])
-            elif var.type in ("Integer", "Enumeration"):
-                fmu.setInteger([var.valueReference], [int(v)])
-            elif var.type == "Boolean":
-                fmu.setBoolean([var.valueReference], [bool(v)])
+            elif var.type in ("Integer", "Enumeration", "Boolean"):  # the value exactly, or the case fails naming it
+                x = float(v) if var.type == "Boolean" and isinstance(v, (bool, np.bool_)) else as_real(name, v)
+                if x != int(x) or (var.type == "Boolean" and x not in (0, 1)):
+                    raise ValueError(f"{name} = {v!r}: expected {'0 or 1' if var.type == 'Boolean' else 'an integer'}")
+                setter = fmu.setBoolean if var.type == "Boolean" else fmu.setInteger
+                setter([var.valueReference], [bool(x) if var.type == "Boolean" else int(x)])
             else:
-                fmu.setReal([var.valueReference], [float(v)])
+                fmu.setReal([var.valueReference], [as_real(name, v)])
         fmu.setupExperiment(startTime=ts[0], stopTime=ts[-1])
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
