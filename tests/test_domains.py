@@ -390,3 +390,22 @@ def test_quaternion_start_values_must_be_a_rotation():
         sim.set(f"y0.block.{c}", float(v))
     sim.initialize(0.0)
     assert list(sim.y[3:7]) == list(q)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or CC is None, reason="FMU binaries for linux64")
+def test_fmu_sweep_case_fails_naming_the_value(tmp_path):
+    """Through a built FMU (fmpy): a negative mass, a bool and text for a Real, an rtol out of range fail their
+    case naming the value, once; the valid case runs as the same case in-process."""
+    import pandas as pd
+    fmu = mbsfmu.build_fmu(REPO / "models" / "pendulum.yaml", tmp_path)
+    cases = pd.DataFrame({"m_bob": [-0.05, True, 1.0, 1.0, 0.5], "L": [0.8, 0.8, "long", 0.8, 0.7],
+                          "integrator.rtol": [1e-8, 1e-8, 1e-8, 1e9, 1e-10]})
+    table = mbsfmu.sweep(str(fmu), vary=cases, stop=0.2, step=0.05, scheduler="inprocess", outputs=["y.theta"])
+    status = table["status"].tolist()
+    for k, words in enumerate([["m_bob = -0.05 makes bodies.bob.mass"], ["m_bob = True", "real number"],
+                               ["L = 'long'", "real number"], ["integrator.rtol = 1e+09", "[1e-14, 1]"]]):
+        assert all(w in status[k] for w in words) and status[k].count(words[0]) == 1, (k, status[k])
+    assert status[4] == "ok"
+    same = mbsfmu.sweep(REPO / "models" / "pendulum.yaml", vary=cases.iloc[4:], stop=0.2, step=0.05,
+                        scheduler="inprocess", outputs=["y.theta"])
+    assert table["y.theta"][4] == same["y.theta"][0]
