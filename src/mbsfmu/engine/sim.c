@@ -487,7 +487,8 @@ static int initial_state(MbsInstance *s)
         const int *qi = s->m->quat + 7 * j;
         const double *x = s->x;
         const double norm = sqrt(x[qi[0]] * x[qi[0]] + x[qi[1]] * x[qi[1]] + x[qi[2]] * x[qi[2]] + x[qi[3]] * x[qi[3]]);
-        if (!(fabs(norm - 1) <= 1e-9))
+        const int given = !isnan(s->start[qi[0]]) || !isnan(s->start[qi[1]]) || !isnan(s->start[qi[2]]) || !isnan(s->start[qi[3]]);
+        if (given && !(fabs(norm - 1) <= 1e-9))
             return report(s, MBS_ERROR, "start values make the quaternion (y0.%s, y0.%s, y0.%s, y0.%s) = (%g, %g, %g, %g) of "
                           "norm %g, not a rotation: give all four components of a unit quaternion", s->m->coord_name[qi[0]],
                           s->m->coord_name[qi[1]], s->m->coord_name[qi[2]], s->m->coord_name[qi[3]], x[qi[0]], x[qi[1]],
@@ -570,10 +571,11 @@ int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *va
             /* fall through */
         case MBS_V_PARAM:
             if (!in_domain(d, value[i])) {
+                const double old = kind == MBS_V_PARAM ? s->D[m->vars[2 * vr[i] + 1]] : kind == MBS_V_RTOL ? s->rtol :
+                                   kind == MBS_V_ATOL ? s->atol : kind == MBS_V_MAX_STEP ? s->max_step : s->step;
                 domain_text(d, valid, sizeof valid);
                 return report(s, MBS_ERROR, "%s = %g is %s (valid: %s); %s keeps %g", m->var_name[vr[i]], value[i],
-                              isfinite(value[i]) ? "outside its domain" : "not finite", valid, m->var_name[vr[i]], kind == MBS_V_PARAM ? s->D[m->vars[2 * vr[i] + 1]] :
-                              kind == MBS_V_RTOL ? s->rtol : kind == MBS_V_ATOL ? s->atol : kind == MBS_V_MAX_STEP ? s->max_step : s->step);
+                              isfinite(value[i]) ? "outside its domain" : "not finite", valid, m->var_name[vr[i]], old);
             }
             nparam += kind == MBS_V_PARAM;
             break;
