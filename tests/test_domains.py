@@ -121,7 +121,8 @@ def test_massless_subtree_is_refused_as_the_loader_refuses_it():
 
 @pytest.mark.parametrize("name, value, valid", [
     ("integrator.rtol", 1e9, "[1e-14, 1]"), ("integrator.rtol", 1e-15, "[1e-14, 1]"),
-    ("integrator.atol", 0.0, "(0, 1e+100]"), ("integrator.atol", -1e-9, "(0, 1e+100]"),
+    ("integrator.atol", 0.0, "[1e-100, 1e+100]"), ("integrator.atol", -1e-9, "[1e-100, 1e+100]"),
+    ("integrator.atol", 1e-200, "[1e-100, 1e+100]"),
     ("integrator.step", -0.01, "0 or [1e-09, 1e+100]"), ("integrator.max_step", 1e-12, "0 or [1e-09, 1e+100]"),
     ("integrator.rtol", math.nan, "[1e-14, 1]"), ("m_bob", math.inf, "a finite number")])
 def test_integrator_settings_and_parameters_have_one_domain(name, value, valid):
@@ -252,7 +253,7 @@ def test_fmu_refuses_values_outside_their_domain(tmp_path, kind):
     assert r.returncode == 0 and lines, (r.stdout[-2000:], r.stderr[-2000:])
     res = json.loads(lines[-1][7:])
     expected = [["m_bob = -0.05 makes bodies.bob.mass = -0.05", "must not be negative"],
-                ["integrator.rtol = 1e+09", "valid: [1e-14, 1]"], ["integrator.atol = 0", "valid: (0, 1e+100]"],
+                ["integrator.rtol = 1e+09", "valid: [1e-14, 1]"], ["integrator.atol = 0", "valid: [1e-100, 1e+100]"],
                 ["integrator.step = -1", "valid: 0 or [1e-09, 1e+100]"]]
     for (st, logs), words in zip(res["before"], expected):
         assert st == 3 and any(all(w in m for w in words) for m in logs), (kind, st, logs, words)

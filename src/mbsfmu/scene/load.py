@@ -806,7 +806,8 @@ class _Checker:
                 self.fail(node, k, f"integrator.{k}", f"{v:g} is outside {domain.text}",
                           "double precision cannot meet a relative tolerance below 1e-14")
             elif k == "atol":
-                self.fail(node, k, f"integrator.{k}", f"{v:g} is outside {domain.text}", "give an absolute tolerance > 0")
+                self.fail(node, k, f"integrator.{k}", f"{v:g} is outside {domain.text}",
+                          "an absolute tolerance below 1e-100 overflows the error weights")
             else:
                 self.fail(node, k, f"integrator.{k}", f"{v:g} s would take {span / v:.3g} steps over the experiment's {span:g} s",
                           f"at most {100 * limits.COMMUNICATION_POINTS:.0e} steps (valid: {domain.text}); 0 lets the method choose")
