@@ -18,7 +18,7 @@ from .elastic_tables import elastic_sections
 FORMAT_VERSION = 1
 # sections (mbs_model.h: S_*) and their element kinds (0 int32, 1 double, 2 bytes)
 (S_HEADER, S_BODY_I, S_FORCE_I, S_QUAT, S_PLAIN, S_VARS, S_OUT_I, S_PROG, S_CODE, S_ELASTIC_I, S_D, S_ELASTIC_D, S_NAMES,
- S_VDOM, S_RULES, S_RULE_NAMES, S_SPAN) = range(17)
+ S_VDOM, S_RULES, S_RULE_NAMES, S_LIMITS) = range(17)
 H_FIELDS = ("NB NPOS NVEL NFORCE NQUAT NPLAIN NDRV NVEC NINPUT NPARAM NVARS NOUT NPROG NCODE HAS_GRAVITY METHOD "
             "NCARDAN FEATURES MAXSTACK D_PARAM D_CONST D_BODY D_FORCE D_G D_X0 D_OUT D_INTEG ND").split()
 F_EXPR, F_ELASTIC = 1, 2
@@ -333,7 +333,8 @@ def compile_scene(spec, variables, guid=""):
                 (S_CODE, 0, np.array(P.code, dtype=np.int32)), (S_ELASTIC_I, 0, elastic_i), (S_D, 1, D),
                 (S_ELASTIC_D, 1, elastic_d), (S_NAMES, 2, np.frombuffer(names, np.uint8)),
                 (S_VDOM, 1, vdom), (S_RULES, 0, rules), (S_RULE_NAMES, 2, rule_names),
-                (S_SPAN, 1, np.array([spec["experiment"]["start"], spec["experiment"]["stop"], limits.DOMAIN_SAMPLES], float))]
+                (S_LIMITS, 1, np.array([spec["experiment"]["start"], spec["experiment"]["stop"], limits.DOMAIN_SAMPLES,
+                                        *limits.MAGNITUDE, *limits.AXIS_LENGTH], float))]
     return _pack(sections, guid)
 
 

@@ -31,7 +31,7 @@ enum {
     S_VDOM,         /* nvars × 4      double  domain of each variable: lo, hi, flags (VD_*), 0 */
     S_RULES,        /* nrules × 3     int   rule (R_*), D offset of its first number (R_CARRIES: body), path */
     S_RULE_NAMES,   /* bytes: the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */
-    S_SPAN,         /* 3              double  the scene's experiment start, stop, and the samples R_TIMED checks */
+    S_LIMITS,       /* LIM_N          double  the limits the rules use (below) */
     S_NSECTIONS
 };
 
@@ -72,10 +72,9 @@ enum { DI_RTOL, DI_ATOL, DI_MAX_STEP, DI_STEP, DI_RHO_INF, DI };
 enum { VD_LO_OPEN = 1, VD_HI_OPEN = 2, VD_ZERO = 4 };
 enum { R_NONNEG, R_MAGNITUDE, R_INERTIA, R_AXIS, R_ROTATION, R_CARRIES, R_TIMED, R_PERPENDICULAR, R_NOT_PARALLEL,
        R_N };  /* R_TIMED: a td slot */
-#define MBS_MAGNITUDE_LO 1e-100   /* limits.MAGNITUDE */
-#define MBS_MAGNITUDE_HI 1e100
-#define MBS_AXIS_LO 1e-9          /* limits.AXIS_LENGTH */
-#define MBS_AXIS_HI 1e100
+/* S_LIMITS: the scene's experiment and the sample count of R_TIMED (limits.DOMAIN_SAMPLES), limits.MAGNITUDE,
+ * limits.AXIS_LENGTH */
+enum { LIM_START, LIM_STOP, LIM_SAMPLES, LIM_MAGNITUDE_LO, LIM_MAGNITUDE_HI, LIM_AXIS_LO, LIM_AXIS_HI, LIM_N };
 int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen);  /* sim.c: at load, every row in range */
 
 /* bytecode */
@@ -100,7 +99,7 @@ struct MbsModel {
     const double *vdom;                /* S_VDOM */
     const int32_t *rules;              /* S_RULES */
     const char *rule_names;            /* S_RULE_NAMES */
-    const double *span;                /* S_SPAN, NULL if absent */
+    const double *limits;              /* S_LIMITS */
     int nrules, n_rule_names;
     void *blob;                        /* owned copy of the compiled scene */
 };

@@ -207,7 +207,7 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     SEC(m->vdom, S_VDOM, 1, 4 * (int64_t)H[H_NVARS]);
     m->rules = section(b, len, tab, nsec, S_RULES, 0, -1, &m->nrules);
     m->rule_names = section(b, len, tab, nsec, S_RULE_NAMES, 2, -1, &m->n_rule_names);
-    m->span = section(b, len, tab, nsec, S_SPAN, 1, 3, NULL);
+    SEC(m->limits, S_LIMITS, 1, LIM_N);
     if (!m->rules || !m->rule_names) m->nrules = m->n_rule_names = 0;
     if (m->nrules % 3) FAIL("corrupt rule table");
     m->nrules /= 3;

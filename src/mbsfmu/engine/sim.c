@@ -122,21 +122,23 @@ static void eigenvalues3(const double *A, double lam[3])
 static const int rule_size[R_N] = {1, 1, 9, 3, 9, 0, 0, 6, 6};  /* domains.RULE_SIZE */
 
 /* NULL if the rule holds for v (rule_size[rule] numbers), else what is wrong (written into buf). */
-static const char *rule_problem(int rule, const double *v, char *buf, size_t len)
+static const char *rule_problem(const MbsModel *m, int rule, const double *v, char *buf, size_t len)
 {
+    const double *lim = m->limits;
     for (int k = 0; k < rule_size[rule]; k++)
         if (!isfinite(v[k])) return snprintf(buf, len, "is not finite (%g)", v[k]), buf;
     if (rule == R_NONNEG)
         return v[0] >= 0 ? NULL : (snprintf(buf, len, "must not be negative, got %g", v[0]), buf);
     if (rule == R_MAGNITUDE)
-        return v[0] == 0 || (fabs(v[0]) >= MBS_MAGNITUDE_LO && fabs(v[0]) <= MBS_MAGNITUDE_HI) ? NULL :
+        return v[0] == 0 || (fabs(v[0]) >= lim[LIM_MAGNITUDE_LO] && fabs(v[0]) <= lim[LIM_MAGNITUDE_HI]) ? NULL :
                (snprintf(buf, len, "%g is outside the magnitudes a model can compute with (%g to %g, or 0)", v[0],
-                         MBS_MAGNITUDE_LO, MBS_MAGNITUDE_HI), buf);
+                         lim[LIM_MAGNITUDE_LO], lim[LIM_MAGNITUDE_HI]), buf);
     if (rule == R_AXIS) {
         const double length = hypot(hypot(v[0], v[1]), v[2]);
         if (length == 0) return snprintf(buf, len, "must not be the zero vector"), buf;
-        return length >= MBS_AXIS_LO && length <= MBS_AXIS_HI ? NULL :
-               (snprintf(buf, len, "a direction of length %.3g (allowed: %g to %g)", length, MBS_AXIS_LO, MBS_AXIS_HI), buf);
+        return length >= lim[LIM_AXIS_LO] && length <= lim[LIM_AXIS_HI] ? NULL :
+               (snprintf(buf, len, "a direction of length %.3g (allowed: %g to %g)", length, lim[LIM_AXIS_LO],
+                         lim[LIM_AXIS_HI]), buf);
     }
     if (rule == R_PERPENDICULAR || rule == R_NOT_PARALLEL) {  /* two axes, each checked by its R_AXIS row first */
         const double c = fabs(v[0] * v[3] + v[1] * v[4] + v[2] * v[5]) / hypot(hypot(v[0], v[1]), v[2]) /
@@ -206,7 +208,7 @@ static int check_rules(MbsInstance *s)
             continue;
         }
         const double *v = s->D + row[1];
-        if (rule_problem(row[0], v, why, sizeof why))
+        if (rule_problem(m, row[0], v, why, sizeof why))
             return rule_size[row[0]] == 1 ? say(s, "%s = %g: %s", path, v[0], why) : say(s, "%s: %s", path, why);
     }
     s->rule_broken = 0;
@@ -220,17 +222,19 @@ static int check_times(MbsInstance *s)
     const MbsModel *m = s->m;
     int timed = 0;
     for (int r = 0; r < m->nrules; r++) timed |= m->rules[3 * r] == R_TIMED;
-    if (!timed || !m->span) return MBS_OK;
-    const int n = (int)m->span[2];
+    if (!timed) return MBS_OK;
+    const double *lim = m->limits;
+    const int n = (int)lim[LIM_SAMPLES];
     s->rule_broken = 1;
     for (int k = 0; k < n; k++) {
-        const double t = k == n - 1 ? m->span[1] : m->span[0] + k * ((m->span[1] - m->span[0]) / (n > 1 ? n - 1 : 1));
+        const double step = (lim[LIM_STOP] - lim[LIM_START]) / (n > 1 ? n - 1 : 1);  /* numpy.linspace's times */
+        const double t = k == n - 1 ? lim[LIM_STOP] : lim[LIM_START] + k * step;
         mbs_run_programs(m, 1, s->D, s->td, t);
         for (int r = 0; r < m->nrules; r++) {
             const int32_t *row = m->rules + 3 * r;
             if (row[0] == R_TIMED && !isfinite(s->td[row[1]]))
                 return say(s, "%s = %g at t = %g: must stay finite over the experiment [%g, %g] s",
-                           m->rule_names + row[2], s->td[row[1]], t, m->span[0], m->span[1]);
+                           m->rule_names + row[2], s->td[row[1]], t, lim[LIM_START], lim[LIM_STOP]);
         }
     }
     s->rule_broken = 0;
@@ -243,9 +247,12 @@ static int check_times(MbsInstance *s)
 int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen)
 {
     const int nd = m->hdr[H_ND], ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
-    if (m->span && !(isfinite(m->span[0]) && isfinite(m->span[1]) && m->span[0] <= m->span[1] &&
-                     m->span[2] >= 1 && m->span[2] <= 100000 && m->span[2] == (int)m->span[2]))
-        return snprintf(err, errlen, "corrupt experiment span"), 1;
+    const double *lim = m->limits;
+    if (!(isfinite(lim[LIM_START]) && isfinite(lim[LIM_STOP]) && lim[LIM_START] <= lim[LIM_STOP] &&
+          lim[LIM_SAMPLES] >= 1 && lim[LIM_SAMPLES] <= 100000 && lim[LIM_SAMPLES] == (int)lim[LIM_SAMPLES] &&
+          lim[LIM_MAGNITUDE_LO] > 0 && lim[LIM_MAGNITUDE_LO] <= lim[LIM_MAGNITUDE_HI] && isfinite(lim[LIM_MAGNITUDE_HI]) &&
+          lim[LIM_AXIS_LO] > 0 && lim[LIM_AXIS_LO] <= lim[LIM_AXIS_HI] && isfinite(lim[LIM_AXIS_HI])))
+        return snprintf(err, errlen, "corrupt limits"), 1;
     for (int k = 0; k < m->hdr[H_NVARS]; k++) {
         const double *d = m->vdom + 4 * k;
         if (!(d[2] >= 0 && d[2] < 8 && d[2] == (int)d[2]) || !(d[0] <= d[1]))
@@ -684,7 +691,7 @@ int mbs_set_start(MbsInstance *s, int index, double value)
     char why[160];
     if (index < 0 || index >= s->n) return report(s, MBS_ERROR, "no state entry %d", index);
     if (s->initialized) return report(s, MBS_ERROR, "start values are set before initialization");
-    if (rule_problem(R_MAGNITUDE, &value, why, sizeof why)) {  /* the rule of the scene's `initial:` values */
+    if (rule_problem(s->m, R_MAGNITUDE, &value, why, sizeof why)) {  /* the rule of the scene's `initial:` values */
         const MbsModel *m = s->m;
         const char *name = index < NPOS(m) ? m->coord_name[index] : NULL;
         for (int vr = 0; !name && vr < m->hdr[H_NVARS]; vr++)
