@@ -410,3 +410,28 @@ def test_fmu_sweep_case_fails_naming_the_value(tmp_path):
     same = mbsfmu.sweep(REPO / "models" / "pendulum.yaml", vary=cases.iloc[4:], stop=0.2, step=0.05,
                         scheduler="inprocess", outputs=["y.theta"])
     assert table["y.theta"][4] == same["y.theta"][0]
+
+
+def _corrupt(blob, sid, index, value):
+    """The compiled scene with entry `index` of section `sid` replaced (the layout of engine/compile.py: _pack)."""
+    import struct
+    nsec = struct.unpack_from("<i", blob, 72)[0]
+    table = {s: (k, off) for s, k, off, _ in (struct.unpack_from("<iiqq", blob, 76 + 24 * n) for n in range(nsec))}
+    kind, off = table[sid]
+    b = bytearray(blob)
+    struct.pack_into("<d" if kind == 1 else "<i", b, off + (8 if kind == 1 else 4) * index, value)
+    return bytes(b)
+
+
+@pytest.mark.parametrize("section, index, value", [
+    ("S_RULES", 0, 99), ("S_RULES", 0, -1), ("S_RULES", 1, -5), ("S_RULES", 1, 10**9), ("S_RULES", 2, 10**6),
+    ("S_RULES", 2, -1), ("S_VDOM", 2, 8.0), ("S_VDOM", 2, 0.5), ("S_VDOM", 0, math.nan), ("S_LIMITS", 2, 0.0),
+    ("S_LIMITS", 2, 1e9), ("S_LIMITS", 1, -1.0), ("S_LIMITS", 3, 0.0), ("S_LIMITS", 6, math.inf)])
+def test_corrupt_domain_tables_are_refused_at_load(section, index, value):
+    """A compiled scene whose rule, domain or limit tables point outside the scene or make no sense is refused
+    when loaded, with a message (a host reading a damaged scene.bin is not crashed by the checks)."""
+    from mbsfmu.engine import EngineError, Instance, compile as engine_compile
+    sim = Simulation(loads(RULES.format(**NOMINAL)).spec)
+    blob = _corrupt(sim.blob, getattr(engine_compile, section), index, value)
+    with pytest.raises(EngineError, match="corrupt"):
+        Instance(blob)
