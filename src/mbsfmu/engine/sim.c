@@ -696,8 +696,8 @@ int mbs_set_start(MbsInstance *s, int index, double value)
         const char *name = index < NPOS(m) ? m->coord_name[index] : NULL;
         for (int vr = 0; !name && vr < m->hdr[H_NVARS]; vr++)
             if (m->vars[2 * vr] == MBS_V_YD && m->vars[2 * vr + 1] == index - NPOS(m)) name = m->var_name[vr] + 3;
-        return report(s, MBS_ERROR, "%s0.%s = %g: %s; the start value is unchanged", index < NPOS(m) ? "y" : "yd",
-                      name ? name : "?", value, why);
+        return report(s, MBS_ERROR, "%s0.%s = %g%s%s; the start value is unchanged", index < NPOS(m) ? "y" : "yd",
+                      name ? name : "?", value, isfinite(value) ? ": " : " is not finite", isfinite(value) ? why : "");
     }
     s->start[index] = value;
     s->initial_valid = 0;
