@@ -435,3 +435,18 @@ def test_corrupt_domain_tables_are_refused_at_load(section, index, value):
     blob = _corrupt(sim.blob, getattr(engine_compile, section), index, value)
     with pytest.raises(EngineError, match="corrupt"):
         Instance(blob)
+
+
+def test_moments_that_only_make_sense_together_are_set_together():
+    """From moments (1, 1, 1) to (10, 10, 10): one at a time, (10, 1, 1) on the way breaks the triangle
+    inequality; set together (Simulation.set_many, a sweep's case, one fmi2SetReal) they are taken exactly."""
+    import pandas as pd
+    spec = loads(RULES.format(**NOMINAL)).spec
+    sim = Simulation(spec)
+    with pytest.raises(ValueError, match="triangle"):
+        sim.set("Ixx", 10.0)
+    sim.set_many({"Ixx": 10.0, "Iyy": 10.0, "Izz": 10.0})
+    assert [sim.get(n) for n in ("Ixx", "Iyy", "Izz")] == [10.0, 10.0, 10.0]
+    table = mbsfmu.sweep(spec, vary=pd.DataFrame({"Ixx": [10.0], "Iyy": [10.0], "Izz": [10.0]}), stop=0.1,
+                         scheduler="inprocess")
+    assert table["status"].tolist() == ["ok"]

@@ -110,7 +110,7 @@ def test_failing_cases_are_recorded_and_the_rest_complete():
                                                           "integrator.method": "dop853,bogus"}, stop=0.5, scheduler="inprocess", outputs=["y.theta"])
     status = dict(zip(zip(table["m_rod"], table["m_bob"], table["integrator.method"]), table["status"]))
     for m_bob in (0.0, 1.0):
-        assert "m_rod = 0 makes bodies.rod.inertia" in status[(0.0, m_bob, "dop853")]
+        assert "m_rod = 0" in status[(0.0, m_bob, "dop853")] and "bodies.rod.inertia" in status[(0.0, m_bob, "dop853")]
         assert "triangle inequality" in status[(0.0, m_bob, "dop853")]
         assert "bogus" in status[(1e-6, m_bob, "bogus")]
     assert status[(1e-6, 1.0, "dop853")] == "ok"
@@ -199,7 +199,7 @@ def test_sweep_of_a_built_fmu(tmp_path):
                           "integrator.rtol": [1e-11] * 3})
     table = mbsfmu.sweep(str(fmu), vary=cases, stop=STOP, step=0.05, scheduler="inprocess", outputs=["y.theta"])
     assert table["status"].tolist()[::2] == ["ok", "ok"]
-    assert "m_rod = 0 makes bodies.rod.inertia" in table["status"][1] and "triangle" in table["status"][1]
+    assert "m_rod = 0, m_bob = 0 make bodies.rod.inertia" in table["status"][1] and "triangle" in table["status"][1]
     for _, row in table.iloc[::2].iterrows():
         assert row["y.theta"] == pytest.approx(pendulum_angle(row["L"], math.pi / 6), abs=1e-6)
 

@@ -124,6 +124,24 @@ class Simulation:
         if not self.initialized:
             self._settings[name] = value
 
+    def set_many(self, values):
+        """Set {name: value} at once: the Real parameters, inputs and integrator settings together (values that
+        must change together, such as the moments of an inertia, are checked together and none changes on a
+        refusal), structural parameters, start values and integrator.method first, one by one as `set`."""
+        together = {}
+        for name, value in values.items():
+            vr = self._vr.get(name)
+            if vr is None or name in self._structural or self.variables[vr].type == "String":
+                self.set(name, value)
+            elif self.variables[vr].causality != "output":
+                together[name] = as_real(name, value)
+            else:
+                self.set(name, value)  # refused naming it
+        if together:
+            self.engine.set_reals([self._vr[n] for n in together], list(together.values()))
+            if not self.initialized:
+                self._settings.update(together)
+
     def _recompile(self, name, value):
         """A structural parameter: the scene compiled again with it, what was set so far replayed; on any
         refusal this simulation stays as it was."""
@@ -138,9 +156,7 @@ class Simulation:
         try:
             other = Simulation(spec, self._original)
             other.time = self.time
-            for k, v in self._settings.items():
-                if k != name:
-                    other.set(k, v)
+            other.set_many({k: v for k, v in self._settings.items() if k != name})
         except (ValueError, ArithmeticError) as e:  # the generated elastic data refuses it
             raise ValueError(f"{name} = {value:g}: {e}") from None
         self.__dict__.update(other.__dict__)

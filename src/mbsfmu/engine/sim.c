@@ -553,9 +553,11 @@ static int set_parameters(MbsInstance *s, const unsigned *vr, size_t n, const do
     size_t used = 0, count = 0;
     const int derived = s->rule_broken;
     memcpy(why, s->msg, sizeof why);
-    for (size_t i = 0; i < n && used < sizeof set; i++)
-        if (m->vars[2 * vr[i]] == MBS_V_PARAM)
-            used += (size_t)snprintf(set + used, sizeof set - used, "%s%s = %g", count++ ? ", " : "", m->var_name[vr[i]], value[i]);
+    for (int changed_only = 1; changed_only >= 0 && !count; changed_only--)  /* the values that changed, else all */
+        for (size_t i = 0; i < n && used < sizeof set; i++)
+            if (m->vars[2 * vr[i]] == MBS_V_PARAM && (!changed_only || value[i] != s->saved[m->vars[2 * vr[i] + 1]]))
+                used += (size_t)snprintf(set + used, sizeof set - used, "%s%s = %g", count++ ? ", " : "",
+                                         m->var_name[vr[i]], value[i]);
     memcpy(s->D, s->saved, np * sizeof(double));
     bind(s);  /* the numbers of the kept values again */
     return report(s, MBS_ERROR, "%s%s %s; the parameters keep their values", set,

@@ -152,8 +152,7 @@ class SceneRunner:
     def run(self, values, setup):
         sim, ts = self.sim, setup.ts
         sim.reset()
-        for name, v in {**setup.inputs, **values}.items():
-            sim.set(name, v)
+        sim.set_many({**setup.inputs, **values})  # together: parameters that only make sense together
         sim.initialize(ts[0])
         if not setup.series:
             sim.run(ts)
@@ -211,6 +210,7 @@ class FmuRunner:
         ts = setup.ts
         self.log.clear()
         fmu = self._instance()
+        reals = {}  # set in one fmi2SetReal: parameters that only make sense together are checked together
         for name, v in {**setup.inputs, **values}.items():
             var = self.vars.get(name)
             if var is None or var.causality not in ("parameter", "input"):
@@ -224,7 +224,9 @@ class FmuRunner:
                 setter = fmu.setBoolean if var.type == "Boolean" else fmu.setInteger
                 setter([var.valueReference], [bool(x) if var.type == "Boolean" else int(x)])
             else:
-                fmu.setReal([var.valueReference], [as_real(name, v)])
+                reals[var.valueReference] = as_real(name, v)
+        if reals:
+            fmu.setReal(list(reals), list(reals.values()))
         fmu.setupExperiment(startTime=ts[0], stopTime=ts[-1])
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
