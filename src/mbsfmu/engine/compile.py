@@ -309,7 +309,9 @@ def compile_scene(spec, variables, guid=""):
     quat = np.array([np.r_[p, w] for p, w in zip(m.quaternions, m.quat_vel)], dtype=np.int32).reshape(-1, 7)
     plain = np.concatenate([m.plain_pos, m.plain_vel]).astype(np.int32)
     vars_ = np.array([_variable(v, params, m, inputs) for v in variables], dtype=np.int32).reshape(-1, 2)
-    vdom = np.array([_domain_row(domains.variable_domain(v.name, spec)) for v in variables]).reshape(-1, 4)
+    # the domain of each settable kind, rows MBS_V_PARAM .. MBS_V_STEP (every parameter's is the same)
+    kinds = ("", "integrator.method", "integrator.rtol", "integrator.atol", "integrator.max_step", "integrator.step")
+    vdom = np.array([_domain_row(domains.variable_domain(name, spec)) for name in kinds])
     bound = {target for st, target, _, _ in P.rows if st == 0}
     masses = any(t[0] == "body" and t[1] % DB in (DB_M, DB_I, DB_I + 4, DB_I + 8) for t in bound)
     rules, rule_names = R.section(bound, offsets, carries=masses)  # what a body carries changes with a mass or moment only
@@ -382,8 +384,8 @@ def _rotation_rules(rot, rule):
 
 
 def _domain_row(d):
-    """lo, hi, flags (domains.Domain.flags), 0: a variable's domain as the compiled scene stores it."""
-    return [d.lo, d.hi, float(d.flags()), 0.0]
+    """lo, hi, flags (domains.Domain.flags): a domain as the compiled scene stores it."""
+    return [d.lo, d.hi, float(d.flags())]
 
 
 def _node_index(model, body, node):

@@ -28,7 +28,7 @@ enum {
     S_D,            /* all numbers    double (layout below) */
     S_ELASTIC_D,    /* elastic.c (double) */
     S_NAMES,        /* bytes: npos coordinate, nb body, nvars variable names, each NUL-terminated (messages) */
-    S_VDOM,         /* nvars × 4      double  domain of each variable: lo, hi, flags (VD_*), 0 */
+    S_VDOM,         /* 6 × 3          double  domain of each settable kind MBS_V_PARAM .. MBS_V_STEP: lo, hi, flags (VD_*) */
     S_RULES,        /* nrules × 3     int   rule (R_*), D offset of its first number (R_CARRIES: body), path */
     S_RULE_NAMES,   /* bytes: the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */
     S_LIMITS,       /* LIM_N          double  the limits the rules use (below) */

@@ -204,7 +204,7 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     m->elastic_d = section(b, len, tab, nsec, S_ELASTIC_D, 1, -1, &ne_d);
     m->n_elastic_i = m->elastic_i ? ne_i : 0;
     m->n_elastic_d = m->elastic_d ? ne_d : 0;
-    SEC(m->vdom, S_VDOM, 1, 4 * (int64_t)H[H_NVARS]);
+    SEC(m->vdom, S_VDOM, 1, 3 * (MBS_V_STEP + 1));
     m->rules = section(b, len, tab, nsec, S_RULES, 0, -1, &m->nrules);
     m->rule_names = section(b, len, tab, nsec, S_RULE_NAMES, 2, -1, &m->n_rule_names);
     SEC(m->limits, S_LIMITS, 1, LIM_N);

@@ -253,8 +253,8 @@ int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen)
           lim[LIM_MAGNITUDE_LO] > 0 && lim[LIM_MAGNITUDE_LO] <= lim[LIM_MAGNITUDE_HI] && isfinite(lim[LIM_MAGNITUDE_HI]) &&
           lim[LIM_AXIS_LO] > 0 && lim[LIM_AXIS_LO] <= lim[LIM_AXIS_HI] && isfinite(lim[LIM_AXIS_HI])))
         return snprintf(err, errlen, "corrupt limits"), 1;
-    for (int k = 0; k < m->hdr[H_NVARS]; k++) {
-        const double *d = m->vdom + 4 * k;
+    for (int k = 0; k <= MBS_V_STEP; k++) {
+        const double *d = m->vdom + 3 * k;
         if (!(d[2] >= 0 && d[2] < 8 && d[2] == (int)d[2]) || !(d[0] <= d[1]))
             return snprintf(err, errlen, "corrupt variable domain (row %d)", k), 1;
     }
@@ -571,7 +571,7 @@ int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *va
     char valid[96];
     for (size_t i = 0; i < n; i++) {  /* every value against its variable first: nothing changes on a refusal */
         const int kind = vr[i] < (unsigned)m->hdr[H_NVARS] ? m->vars[2 * vr[i]] : -1;
-        const double *d = kind >= 0 ? m->vdom + 4 * (size_t)vr[i] : NULL;
+        const double *d = kind >= MBS_V_PARAM && kind <= MBS_V_STEP ? m->vdom + 3 * kind : NULL;
         if (bad) *bad = i;
         switch (kind) {
         case MBS_V_RTOL: case MBS_V_ATOL: case MBS_V_MAX_STEP: case MBS_V_STEP:
