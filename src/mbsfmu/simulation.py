@@ -130,13 +130,11 @@ class Simulation:
         refusal), structural parameters, start values and integrator.method first, one by one as `set`."""
         together = {}
         for name, value in values.items():
-            vr = self._vr.get(name)
-            if vr is None or name in self._structural or self.variables[vr].type == "String":
-                self.set(name, value)
-            elif self.variables[vr].causality != "output":
+            v = self.variables[self._vr[name]] if name in self._vr else None
+            if v is not None and name not in self._structural and v.type == "Real" and v.causality != "output":
                 together[name] = as_real(name, value)
             else:
-                self.set(name, value)  # refused naming it
+                self.set(name, value)  # one by one (an unknown name or an output: refused naming it)
         if together:
             self.engine.set_reals([self._vr[n] for n in together], list(together.values()))
             if not self.initialized:
