@@ -65,6 +65,12 @@ int mbs_set_real(MbsInstance *s, int vr, double v) {
     else return MBS_ERROR;
     return MBS_OK;
 }
+int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *v, size_t *bad) {
+    for (size_t i = 0; i < n; i++)  /* all or nothing, as the engine */
+        if (vr[i] > 1) { if (bad) *bad = i; return MBS_ERROR; }
+    for (size_t i = 0; i < n; i++) mbs_set_real(s, (int)vr[i], v[i]);
+    return MBS_OK;
+}
 int mbs_get_real(MbsInstance *s, int vr, double *v) {
     if (vr < 0 || vr >= 2 + s->m->n) return MBS_ERROR;
     *v = vr == 0 ? s->a : vr == 1 ? s->u : s->x[vr - 2];
