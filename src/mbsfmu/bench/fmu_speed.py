@@ -50,9 +50,11 @@ def compile_host(dest: Path) -> Path:
 def build_trivial_fmu(outdir: Path, n: int = 1) -> Path:
     """A native FMU of n states x_i' = -a x_i + u: fmi2.c over fmu_trivial.c, packaged like a scene's native FMU."""
     from ..fmu.build import _version, model_description
+    from ..engine.build import linked_sources
     from ..fmu.native import FMI_LAYER, COSIMULATION, c_names, collect_sources, package
     from ..simulation import Variable
-    sources = collect_sources([FMI_LAYER, TRIVIAL_SOURCE])
+    # the FMI layer's calls that fmu_trivial.c does not answer (resource locations) reach the engine's files
+    sources = collect_sources(linked_sources([FMI_LAYER, TRIVIAL_SOURCE], []))
     guid = "{" + str(uuid.uuid4()) + "}"
     variables = [Variable("a", "parameter", "tunable", unit="1", description="decay rate", start=1.0),
                  Variable("u", "input", "continuous", unit="1", description="input")]
