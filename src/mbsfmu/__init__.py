@@ -10,17 +10,18 @@ __version__ = "0.1.0"
 __all__ = ["load", "loads", "compile", "simulate", "animate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
 
 
-def load(path, allow_outside=False):
-    """Read and validate a scene file; raises ModelError (only) with file:line, key and a hint. Data files must
-    lie in the scene's folder unless allow_outside=True."""
+def load(path, allow_outside=False, repair=False):
+    """Read and validate a scene file or a URDF (`.urdf`); raises ModelError (only) with file:line, key and a
+    hint. Data files must lie in the scene's folder unless allow_outside=True. repair=True fixes a URDF's
+    massless moving links and unphysical inertias instead of refusing them (listed in `scene.repairs`)."""
     from .scene import load as _load
-    return _load(path, allow_outside=allow_outside)
+    return _load(path, allow_outside=allow_outside, repair=repair)
 
 
-def loads(text, file="<string>", base=None, allow_outside=False):
+def loads(text, file="<string>", base=None, allow_outside=False, repair=False):
     """Validate a scene given as YAML text (data files relative to `base`, default the current folder)."""
     from .scene import loads as _loads
-    return _loads(text, file=file, base=base, allow_outside=allow_outside)
+    return _loads(text, file=file, base=base, allow_outside=allow_outside, repair=repair)
 
 
 def compile(scene):

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..expr import FUNCTIONS, ExprError, parse
-from . import datafile, domains, limits, names
+from . import datafile, domains, limits, names, urdf
 from .shapes import check_shapes
 from .yaml_lines import Date, Map, Seq, read_yaml
 
@@ -32,19 +32,24 @@ _COORD = re.compile(r"[A-Za-z][A-Za-z0-9_.]*")
 class Scene:
     """A validated scene: `spec` (normalized, JSON-able), `name`, `path`."""
 
-    def __init__(self, spec, path=None):
+    def __init__(self, spec, path=None, repairs=()):
         self.spec, self.path, self.name = spec, path, spec["name"]
+        self.repairs = list(repairs)  # what `repair` changed in an imported URDF, one line each
 
     def __repr__(self):
         return f"<Scene {self.name} ({len(self.spec['bodies'])} bodies)>"
 
 
-def load(path, allow_outside=False):
-    """Read and validate a scene file (format: docs/scene-format.md); raises ModelError and nothing else.
+def load(path, allow_outside=False, repair=False):
+    """Read and validate a scene file or a URDF (format: docs/scene-format.md); raises ModelError and nothing else.
 
-    Data files (`nodal: {file: ...}`) must lie inside the scene's folder unless `allow_outside` is true.
+    Data files (`nodal: {file: ...}`, `urdf: {file: ...}`) must lie inside the scene's folder unless
+    `allow_outside` is true. `repair`: fix a URDF's massless moving links and unphysical inertias (reported
+    in `Scene.repairs`) instead of refusing them.
     """
     path = Path(path)
+    if path.suffix.lower() in (".urdf", ".xacro"):
+        return _checked(lambda: urdf.read(path, repair=repair), str(path), path.parent, allow_outside)
     try:
         with limits.open_regular(path) as f:
             raw = f.read(limits.DOCUMENT_BYTES + 1)  # bounded
@@ -56,22 +61,34 @@ def load(path, allow_outside=False):
     except UnicodeDecodeError as e:
         raise ModelError(f"byte 0x{raw[e.start]:02x} is not UTF-8", file=str(path), line=raw.count(b"\n", 0, e.start) + 1,
                          hint="save the scene as UTF-8 text") from None
-    return loads(text, file=str(path), base=path.parent, allow_outside=allow_outside)
+    return loads(text, file=str(path), base=path.parent, allow_outside=allow_outside, repair=repair)
 
 
-def loads(text, file="<string>", base=None, allow_outside=False):
+def loads(text, file="<string>", base=None, allow_outside=False, repair=False):
     """Validate a scene given as YAML text; data files are looked up relative to `base` (default: the current folder)."""
+    base = Path(base) if base else Path.cwd()
+
+    def document():
+        root = read_yaml(text, file)
+        if isinstance(root, Map) and "urdf" in root:  # a URDF with this YAML over it (scene/urdf.py)
+            return urdf.include(root, file, base, allow_outside, repair)
+        return root, ()
+    return _checked(document, file, base, allow_outside)
+
+
+def _checked(document, file, base, allow_outside):
+    """Scene of the document that `document()` gives (a Map/Seq tree and the repairs made while reading it)."""
     try:
         with _collector_paused():
-            root = read_yaml(text, file)
-            spec = _Checker(file, Path(base) if base else Path.cwd(), allow_outside).scene(root)
+            root, repairs = document()
+            spec = _Checker(file, base, allow_outside).scene(root)
             json.dumps(spec)  # the run time gets the spec as JSON: it must stay plain data
     except ModelError as e:
         raise _short(e) from None
     except Exception as e:  # noqa: BLE001
         # a check this file slipped past: still a ModelError (the promise of `load`), naming what happened
         raise _short(ModelError(f"cannot read this scene ({type(e).__name__}: {e})", file=file)) from None
-    return Scene(spec, file)
+    return Scene(spec, file, repairs)
 
 
 @contextmanager

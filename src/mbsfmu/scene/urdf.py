@@ -1,0 +1,417 @@
+"""URDF robot descriptions → the scene document a YAML scene gives (issue 25), so that validation, compilation
+and the FMUs are the existing path; `include` merges one into a YAML scene (`urdf: {file: ...}`).
+
+XML from outside is hostile until proven otherwise: defusedxml's expat reader refuses entity declarations and
+external references, the file and its element counts are bounded (limits.py), and every problem is one
+ModelError with the file, the line and the element. Links on fixed joints stay bodies on fixed joints (the
+engine adds no coordinates for them: the dynamics are those of Pinocchio's merged links, and their names stay
+usable for outputs, forces and drawing).
+"""
+
+import io
+import math
+import re
+import xml.sax
+from pathlib import Path
+
+import numpy as np
+from defusedxml import DefusedXmlException
+from defusedxml.expatreader import DefusedExpatParser
+
+from ..errors import ModelError
+from . import datafile, domains, limits
+from .yaml_lines import Map, Seq
+
+JOINT_KINDS = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
+BASES = ("fixed", "free")
+INCLUDE_KEYS = ("file", "package_dirs", "base", "repair")
+_XACRO_HINT = "run xacro first (xacro robot.urdf.xacro > robot.urdf) and load the URDF it writes"
+
+
+class _Element:
+    """An XML element with the line it starts on (ElementTree keeps no line numbers)."""
+
+    __slots__ = ("tag", "attrs", "line", "children")
+
+    def __init__(self, tag, attrs, line):
+        self.tag, self.attrs, self.line, self.children = tag, attrs, line, []
+
+    def find(self, tag):
+        return next((c for c in self.children if c.tag == tag), None)
+
+
+class _Builder(xml.sax.ContentHandler):
+    """SAX events → _Element tree, counting elements as they come (bounded work for any file)."""
+
+    def __init__(self, fail):
+        super().__init__()
+        self.fail, self.stack, self.root, self.count = fail, [], None, 0
+
+    def startElement(self, tag, attrs):
+        line = self._locator.getLineNumber() if self._locator else None
+        if tag.startswith("xacro:"):
+            self.fail(line, tag, "a xacro macro file, not a URDF", _XACRO_HINT)
+        self.count += 1
+        if self.count > limits.NODES:
+            self.fail(line, tag, f"more than {limits.NODES:,} XML elements", "a robot description needs far fewer")
+        if len(self.stack) >= limits.DEPTH:
+            self.fail(line, tag, f"elements nested deeper than {limits.DEPTH}", "URDF elements nest 3-4 deep")
+        e = _Element(tag, dict(attrs), line)
+        if self.stack:
+            self.stack[-1].children.append(e)
+        else:
+            self.root = e
+        self.stack.append(e)
+
+    def endElement(self, tag):
+        self.stack.pop()
+
+
+def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None):
+    """The URDF file `path` → (scene document of Map/Seq as a YAML scene gives it, [repair reports]).
+
+    base: 'fixed' (the root link fixed to the world) or 'free' (a free joint, a floating base). repair: merge
+    massless moving subtrees into their parents and project unphysical inertias instead of refusing them.
+    line_of_include: the line every node of the document reports (the YAML's `urdf:` line), else URDF lines."""
+    path = Path(path)
+    fail = _failer(str(path))
+    if path.suffix.lower() == ".xacro":
+        fail(None, None, "a xacro file, not a URDF", _XACRO_HINT)
+    root = _parse(path, fail)
+    if root.tag != "robot":
+        fail(root.line, root.tag, f"the document's element is <{root.tag}>, a URDF's is <robot>", "give a URDF file")
+    robot = _Robot(root, fail, repair)
+    doc = robot.document(base)
+    return _tree(doc, robot.lines, line_of_include), robot.repairs
+
+
+def _failer(file):
+    def fail(line, element, message, hint=None):
+        raise ModelError(message, file=file, line=line, key=f"<{element}>" if element else None, hint=hint)
+    return fail
+
+
+def _parse(path, fail):
+    try:
+        with limits.open_regular(path) as f:
+            data = f.read(limits.DOCUMENT_BYTES + 1)  # bounded
+    except OSError as e:
+        fail(None, None, f"cannot read the URDF file: {e.strerror or e}", "give the path of a regular URDF file")
+    if len(data) > limits.DOCUMENT_BYTES:
+        fail(None, None, f"the file is larger than {limits.DOCUMENT_BYTES // 2**20} MiB", "a robot description is far smaller")
+    builder = _Builder(fail)
+    parser = DefusedExpatParser()  # entity declarations and external references are refused where they stand
+    parser.setContentHandler(builder)
+    parser.setFeature(xml.sax.handler.feature_external_ges, False)
+    try:
+        parser.parse(io.BytesIO(data))  # parse, not feed: it gives the handler the locator of line numbers
+    except DefusedXmlException as e:
+        line = parser.getLineNumber() if parser._parser else None
+        fail(line, None, f"{type(e).__name__}: {e}: entity declarations and external references are refused",
+             "a URDF needs neither; expand them before loading")
+    except xml.sax.SAXParseException as e:
+        fail(e.getLineNumber(), None, f"not well-formed XML: {e.getMessage()}", "fix the XML (an editor that checks XML helps)")
+    if builder.root is None:
+        fail(None, None, "an empty document", "give a URDF file (<robot name=...> with links and joints)")
+    return builder.root
+
+
+class _Robot:
+    """Links and joints of one URDF, checked; `document` writes the scene."""
+
+    def __init__(self, root, fail, repair):
+        self.fail, self.repair, self.repairs, self.lines = fail, repair, [], {}
+        self.name = _identifier(root.attrs.get("name") or "robot", "model")
+        self.links, self.joints = {}, {}
+        for e in root.children:
+            if e.tag in ("link", "joint"):
+                table = self.links if e.tag == "link" else self.joints
+                name = self.attr(e, "name")
+                if name in table:
+                    fail(e.line, e.tag, f"a second {e.tag} named '{name}' (first at line {table[name].line})", f"give every {e.tag} its own name")
+                if len(table) >= limits.ENTRIES:
+                    fail(e.line, e.tag, f"more than {limits.ENTRIES:,} {e.tag}s", "a robot description needs far fewer")
+                table[name] = e
+        if not self.links:
+            fail(root.line, "robot", "no <link> in the robot", "a URDF describes links and the joints between them")
+        self.parent_joint = {}  # child link → joint element
+        for name, j in self.joints.items():
+            for end in ("parent", "child"):
+                link = self.attr(self.child(j, end), "link")
+                if link not in self.links:
+                    fail(self.child(j, end).line, end, f"joint '{name}' names the {end} link '{link}', which the robot does not have",
+                         "links: " + ", ".join(list(self.links)[:20]))
+            child = self.child(j, "child").attrs["link"]
+            if child in self.parent_joint:
+                fail(j.line, "joint", f"link '{child}' is the child of two joints ('{self.parent_joint[child].attrs['name']}' and '{name}')",
+                     "a URDF is a tree: closed loops are not supported")
+            self.parent_joint[child] = j
+        roots = [n for n in self.links if n not in self.parent_joint]
+        if len(roots) != 1:
+            where = self.links[roots[1]] if len(roots) > 1 else root
+            fail(where.line, "link", f"the links form {'no tree (a cycle: every link is a child)' if not roots else f'{len(roots)} trees (roots {roots[:5]})'}",
+                 "a URDF is one tree: exactly one link (the base) is no joint's child")
+        self.root = roots[0]
+        self.order = self._depth_first()
+        if len(self.order) != len(self.links):
+            cyc = next(n for n in self.links if n not in set(self.order))
+            fail(self.links[cyc].line, "link", f"link '{cyc}' lies on a cycle of joints", "a URDF is a tree: closed loops are not supported")
+
+    def attr(self, e, key):
+        v = e.attrs.get(key)
+        if v is None:
+            self.fail(e.line, e.tag, f"<{e.tag}> needs the attribute '{key}'")
+        return v
+
+    def child(self, e, tag):
+        c = e.find(tag)
+        if c is None:
+            self.fail(e.line, e.tag, f"<{e.tag} name=\"{e.attrs.get('name', '')}\"> needs a <{tag}> element")
+        return c
+
+    def numbers(self, e, key, n, default):
+        text = e.attrs.get(key) if e is not None else None
+        if text is None:
+            return list(default)
+        try:
+            v = [float(x) for x in text.split()]
+        except ValueError:
+            v = []
+        if len(v) != n or not all(math.isfinite(x) for x in v):
+            self.fail(e.line, e.tag, f"{key}=\"{text[:60]}\" is not {n} finite number{'s' if n > 1 else ''}")
+        return v
+
+    def _depth_first(self):
+        children = {}
+        for j in self.joints.values():
+            children.setdefault(j.find("parent").attrs["link"], []).append(j)
+        order, stack = [], [self.root]
+        while stack and len(order) <= len(self.links):
+            link = stack.pop()
+            order.append(link)
+            stack.extend(j.find("child").attrs["link"] for j in reversed(children.get(link, [])))
+        return order
+
+    # -- the scene document -----------------------------------------------------------------------
+    def document(self, base):
+        if base not in BASES:
+            self.fail(None, None, f"unknown base '{base}'", "base: fixed (the root link held in the world) or free (a floating base)")
+        inertial = {n: self.inertial(n) for n in self.order}
+        moving = self.moving_links(inertial)
+        bodies, forces, self.body_of = {}, [], {}
+        for link in self.order:
+            self.body_of[link] = _identifier(link, "body")
+        for link in self.order:
+            e = self.links[link]
+            name = self.body_of[link]
+            if link == self.root and link == "world" and base == "fixed":
+                self.body_of[link] = "world"  # the URDF's own world link: the scene's world
+                continue
+            if name in bodies or name == "world":
+                self.fail(e.line, "link", f"link '{link}' would be the scene body '{name}', which another link or the world already is",
+                          "rename one of the links (scene body names are letters, digits and '_')")
+            if link == self.root:
+                joint = {"type": base}
+            else:
+                joint = self.joint(self.parent_joint[link], link in moving, forces)
+            body = {"parent": "world" if link == self.root else self.body_of[self.parent_joint[link].find("parent").attrs["link"]],
+                    "joint": joint}
+            m, com, inertia = inertial[link]
+            if m > 0 or np.any(inertia):
+                body.update(mass=m, center_of_mass=com, inertia=inertia.tolist())
+            bodies[name] = body
+            self.lines[name] = e.line
+        doc = {"mbsfmu": 1, "name": self.name, "bodies": bodies}
+        if forces:
+            doc["forces"] = forces
+        return doc
+
+    def inertial(self, link):
+        """(mass, centre of mass, inertia about it in the link frame), refused or repaired when unphysical."""
+        e = self.links[link].find("inertial")
+        if e is None:
+            return 0.0, [0.0] * 3, np.zeros((3, 3))
+        origin = e.find("origin")
+        com = self.numbers(origin, "xyz", 3, [0.0] * 3)
+        R = rpy_matrix(self.numbers(origin, "rpy", 3, [0.0] * 3))
+        m = self.numbers(e.find("mass"), "value", 1, [0.0])[0]
+        if m < 0:
+            self.fail(e.find("mass").line, "mass", f"link '{link}' has the negative mass {m:g}")
+        i = e.find("inertia")
+        I = np.zeros((3, 3))
+        if i is not None:
+            xx, xy, xz, yy, yz, zz = (self.numbers(i, k, 1, [0.0])[0] for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
+            I = R @ np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]) @ R.T  # the inertial frame's tensor in the link frame
+        defect = domains.check(domains.INERTIA, I.ravel())
+        if defect:
+            if not self.repair:
+                self.fail((i or e).line, "inertia", f"link '{link}': {defect}", "no rigid body has such an inertia; load with repair "
+                          "(repair: true, --repair) to project it onto the nearest physical inertia")
+            I, before = nearest_physical_inertia(I), np.linalg.eigvalsh(I)
+            self.repairs.append(f"link '{link}': principal moments {_moments(before)} projected onto the nearest "
+                                f"physical ones {_moments(np.linalg.eigvalsh(I))}")
+        return m, com, I
+
+    def moving_links(self, inertial):
+        """Links on non-fixed joints. A moving subtree without mass or inertia makes M singular: refused, or
+        (repair) its joint is fixed, merging the massless links into their parent."""
+        loaded = {n: inertial[n][0] > 0 or bool(np.trace(inertial[n][2]) > 0) for n in self.order}
+        for link in reversed(self.order):  # children first
+            j = self.parent_joint.get(link)
+            if j is not None and loaded[link]:
+                loaded[j.find("parent").attrs["link"]] = True
+        moving = set()
+        for link in self.order:
+            j = self.parent_joint.get(link)
+            if j is None or self.attr(j, "type") == "fixed":
+                continue
+            if loaded[link]:
+                moving.add(link)
+            elif not self.repair:
+                self.fail(j.line, "joint", f"joint '{j.attrs['name']}' moves link '{link}', which with the links it carries has no mass "
+                          "or inertia: its motion is undetermined (singular mass matrix)",
+                          "give the links <inertial> data, or load with repair (repair: true, --repair) to merge them into their parent")
+            else:
+                self.repairs.append(f"joint '{j.attrs['name']}' fixed: link '{link}' and the links it carries have no mass or inertia")
+        return moving
+
+    def joint(self, j, moving, forces):
+        name, kind = j.attrs["name"], self.attr(j, "type")
+        if kind not in JOINT_KINDS:
+            from .load import _suggest
+            self.fail(j.line, "joint", f"joint '{name}' has the unknown type '{kind}'", _suggest(kind, JOINT_KINDS))
+        if j.find("mimic") is not None:
+            self.fail(j.find("mimic").line, "mimic", f"joint '{name}' mimics joint '{j.find('mimic').attrs.get('joint', '?')}': "
+                      "a coupled coordinate (a closed constraint), which the scene format cannot state",
+                      "remove the <mimic> element to make the joint independent")
+        origin = j.find("origin")
+        out = {"type": kind if moving else "fixed", "at": self.numbers(origin, "xyz", 3, [0.0] * 3)}
+        rpy = self.numbers(origin, "rpy", 3, [0.0] * 3)
+        if any(rpy):
+            out["rotation"] = {"matrix": rpy_matrix(rpy).tolist()}
+        if not moving:
+            return out
+        coordinate = _identifier(name, "coordinate", dots=True)
+        axis = self.numbers(j.find("axis"), "xyz", 3, [1.0, 0.0, 0.0])
+        norm = math.sqrt(sum(a * a for a in axis))
+        if kind in ("revolute", "continuous", "prismatic", "planar") and not norm > 0:
+            self.fail(j.find("axis").line, "axis", f"joint '{name}' has the zero axis")
+        axis = [a / norm for a in axis] if norm else axis
+        if kind in ("revolute", "continuous", "prismatic"):
+            out.update(type="prismatic" if kind == "prismatic" else "revolute", axis=axis, coordinates=[coordinate])
+        elif kind == "planar":  # URDF gives the plane's normal
+            ax = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+            ax /= np.linalg.norm(ax)
+            out.update(axes=[ax.tolist(), np.cross(axis, ax).tolist()],
+                       coordinates=[f"{coordinate}.x", f"{coordinate}.y", f"{coordinate}.angle"])
+        else:
+            out["type"] = "free"
+        d = j.find("dynamics")
+        damping = self.numbers(d, "damping", 1, [0.0])[0] if d is not None else 0.0
+        if damping < 0:
+            self.fail(d.line, "dynamics", f"joint '{name}' has the negative damping {damping:g}")
+        if damping > 0 and len(out.get("coordinates", ())) == 1:
+            forces.append({"type": "joint_spring_damper", "coordinate": coordinate, "stiffness": 0, "damping": damping})
+        return out
+
+
+def rpy_matrix(rpy):
+    """URDF's fixed-axis roll, pitch, yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def nearest_physical_inertia(I):
+    """The physical inertia nearest to I in its principal moments (same principal axes): negative moments
+    raised to 0, then the moments projected onto the plane I1 + I2 = I3 when the triangle inequality fails."""
+    lam, V = np.linalg.eigh(I)
+    lam = np.maximum(lam, 0.0)
+    excess = lam[2] - lam[0] - lam[1]
+    if excess > 0:  # orthogonal projection onto I1 + I2 - I3 = 0 along its normal (1, 1, -1)
+        lam = lam + excess / 3 * np.array([1.0, 1.0, -1.0])
+    return V @ np.diag(lam) @ V.T
+
+
+def _moments(lam):
+    return "(" + ", ".join(f"{x:.4g}" for x in lam) + ")"
+
+
+def _identifier(name, what, dots=False):
+    """A URDF name as a scene name: characters other than letters, digits, '_' (and '.' for coordinates)
+    become '_'; a name that does not start with a letter gets the prefix 'l_'."""
+    out = re.sub(r"[^A-Za-z0-9_.]" if dots else r"[^A-Za-z0-9_]", "_", name)[:limits.NAME_CHARS]
+    return out if re.match(r"[A-Za-z]", out) else "l_" + out
+
+
+def _tree(value, lines, line, depth_key=None):
+    """Plain data → Map/Seq as read_yaml gives, every node reporting `line` (or its body's URDF line)."""
+    if isinstance(value, dict):
+        out = Map(value)
+        here = line if line is not None else lines.get(depth_key)
+        for k, v in value.items():
+            key_line = line if line is not None else lines.get(k, here)
+            out[k] = _tree(v, lines, line, k if k in lines else depth_key)
+            out.lines = {**out.lines, k: key_line}
+        out.line = here
+        return out
+    if isinstance(value, list):
+        out = Seq(_tree(v, lines, line, depth_key) for v in value)
+        out.line = line if line is not None else lines.get(depth_key)
+        out.lines = {i: out.line for i in range(len(out))}
+        return out
+    return value
+
+
+def include(root, file, base, allow_outside=False, repair=False):
+    """A YAML scene with `urdf: {file, package_dirs, base, repair}` → the merged document and the repairs.
+
+    The URDF gives bodies (and joint dampers); the YAML adds or overrides the rest. Its `bodies:` entries are
+    merged key by key into the URDF's (joint initial values, drives, shapes) or add bodies; its `forces` and
+    `outputs` follow the URDF's."""
+    from .load import _suggest
+    spec = root["urdf"]
+    line = root.lines.get("urdf", root.line)
+    if isinstance(spec, str):
+        spec = Map({"file": spec})
+    if not isinstance(spec, Map) or "file" not in spec:
+        raise ModelError("expected {file: robot.urdf} (optionally package_dirs, base, repair)", file=file, line=line, key="urdf")
+    for k in spec:
+        if k not in INCLUDE_KEYS:
+            raise ModelError(f"unknown key '{k}'", file=file, line=spec.lines.get(k, line), key=f"urdf.{k}", hint=_suggest(k, INCLUDE_KEYS))
+    try:
+        path = datafile.resolve(base, spec["file"], allow_outside)
+    except ModelError as e:
+        raise ModelError(e.message.replace("data file", "URDF file"), file=file, line=line, key="urdf.file", hint=e.hint) from None
+    kind = spec.get("base", "fixed")
+    if kind not in BASES:
+        raise ModelError(f"unknown base {kind!r}", file=file, line=spec.lines.get("base", line), key="urdf.base",
+                         hint="fixed (the root link held in the world) or free (a floating base)")
+    repair = spec.get("repair", repair)
+    if not isinstance(repair, bool):
+        raise ModelError("expected true or false", file=file, line=spec.lines.get("repair", line), key="urdf.repair")
+    doc, repairs = read(path, base=kind, repair=repair, line_of_include=line)
+    merged = _merge(doc, Map({k: v for k, v in root.items() if k != "urdf"}), ("forces", "outputs"))
+    merged.lines = {**doc.lines, **{k: v for k, v in root.lines.items() if k != "urdf"}}
+    merged.line = root.line
+    return merged, repairs
+
+
+def _merge(a, b, appended=()):
+    """b over a: mappings merged key by key, the `appended` lists concatenated, anything else replaced."""
+    if not (isinstance(a, Map) and isinstance(b, Map)):
+        return b
+    out = Map(a)
+    out.line, out.lines = a.line, dict(a.lines)
+    for k, v in b.items():
+        if k in appended and isinstance(a.get(k), Seq) and isinstance(v, Seq):
+            s = Seq(list(a[k]) + list(v))
+            s.line, s.lines = v.line, {**{i: a[k].line for i in range(len(a[k]))}, **{len(a[k]) + i: l for i, l in v.lines.items()}}
+            out[k] = s
+        else:
+            out[k] = _merge(a[k], v) if k in a else v
+        out.lines[k] = b.lines.get(k, b.line)
+    return out
