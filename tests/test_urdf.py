@@ -1,0 +1,116 @@
+"""URDF import (issue 25): real robots against Pinocchio's model of the same file (an independent URDF parser
+and dynamics), the URDF conventions against closed forms, hostile and broken URDFs refused in one line."""
+
+import sysconfig
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mbsfmu
+from mbsfmu.errors import ModelError
+from mbsfmu.scene.urdf import nearest_physical_inertia, rpy_matrix
+from mbsfmu.simulation import Simulation
+
+pin = pytest.importorskip("pinocchio")
+ROBOTS = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
+if not ROBOTS.is_dir():
+    pytest.skip("example-robot-data is not installed", allow_module_level=True)
+
+# (file, base): fixed-base arms, quadrupeds on a floating base, humanoids of 32 and 43 dof, a 39-dof centaur
+REAL = [("ur_description/urdf/ur5_robot.urdf", "fixed"), ("kinova_description/robots/kinova.urdf", "fixed"),
+        ("xarm_description/urdf/xarm7.urdf", "fixed"), ("solo_description/robots/solo12.urdf", "free"),
+        ("go2_description/urdf/go2.urdf", "free"), ("icub_description/robots/icub.urdf", "free"),
+        ("g1_description/urdf/g1_29dof_with_hand_rev_1_0.urdf", "free"), ("centauro_description/urdf/centauro.urdf", "fixed")]
+
+
+def _scene(file, base="fixed", extra=""):
+    return mbsfmu.loads(f"mbsfmu: 1\nurdf: {{file: {file}, base: {base}}}\n{extra}", base=ROBOTS)
+
+
+def _pinocchio(file, base):
+    path = str(ROBOTS / file)
+    return pin.buildModelFromUrdf(path, pin.JointModelFreeFlyer()) if base == "free" else pin.buildModelFromUrdf(path)
+
+
+class _Twin:
+    """Our state ↔ Pinocchio's. Pinocchio's free flyer takes the linear velocity in the body frame (ours: in
+    the world) and its quaternion as (x, y, z, w) (ours: w first); a continuous joint is (cos, sin) there."""
+
+    def __init__(self, ev, pm):
+        self.ev, self.pm = ev, pm
+        self.free = ev.model.bodies[0].kind == "free"
+        index = {}
+        for jid in range(1, pm.njoints):
+            j = pm.joints[jid]
+            name = "root" if pm.names[jid] == "root_joint" else pm.names[jid]
+            index[name] = (j.idx_q, j.nq, j.idx_v)
+        self.index = index
+        vel = ev.velocity_coordinates
+        self.P = np.array([self._v(c, k) for k, c in enumerate(vel)])  # our velocity i ↔ Pinocchio's v[P[i]]
+
+    def _v(self, c, k):
+        if self.free and k < 6:
+            return k
+        return self.index[c][2]
+
+    def state(self, y, yd, ydd):
+        pm, nv = self.pm, self.pm.nv
+        q, v, a = np.zeros(pm.nq), np.zeros(nv), np.zeros(nv)
+        v[self.P], a[self.P] = yd, ydd
+        for k, c in enumerate(self.ev.coordinates):
+            if self.free and k < 7:
+                continue
+            iq, nq, _ = self.index[c]
+            q[iq:iq + nq] = [y[k]] if nq == 1 else [np.cos(y[k]), np.sin(y[k])]
+        T = np.zeros((nv, nv))  # v = T ẏ
+        T[self.P, np.arange(nv)] = 1.0
+        if self.free:
+            w, x, yy, z = y[3:7]
+            q[:3], q[3:7] = y[:3], [x, yy, z, w]
+            R = pin.Quaternion(w, x, yy, z).toRotationMatrix()
+            T[:3, :3] = R.T
+            v[:3] = R.T @ yd[:3]
+            a[:3] = R.T @ ydd[:3] - np.cross(yd[3:6], v[:3])  # d/dt (Rᵀ ẋ) = Rᵀ ẍ − ω × (Rᵀ ẋ)
+        return q, v, a, T
+
+
+def _random_state(ev, rng):
+    y = rng.uniform(-1, 1, len(ev.coordinates))
+    if ev.model.bodies[0].kind == "free":
+        y[3:7] /= np.linalg.norm(y[3:7])
+    n = len(ev.velocity_coordinates)
+    return y, rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+
+
+@pytest.mark.parametrize("file,base", REAL, ids=[Path(f).stem for f, _ in REAL])
+def test_real_robot_matches_pinocchio(file, base):
+    """M, k, q and ÿ of a real robot against Pinocchio's model of the same URDF: RNEA (k − q = τ at ÿ = 0,
+    gravity included), CRBA (M) and ABA (ÿ), with the URDF's joint damping added to Pinocchio's torques."""
+    ev = mbsfmu.compile(_scene(file, base))
+    pm = _pinocchio(file, base)
+    pd = pm.createData()
+    twin = _Twin(ev, pm)
+    engine = Simulation(ev.model.spec).engine
+    assert sorted(twin.P) == list(range(pm.nv))  # every Pinocchio velocity is one of ours
+    rng = np.random.default_rng(len(file))
+    for _ in range(2):
+        y, yd, ydd = _random_state(ev, rng)
+        q, v, a, T = twin.state(y, yd, ydd)
+        damping = pm.damping * v  # Pinocchio's damping, read by its own parser; T = 1 on the 1-dof joints
+        tau = T.T @ (pin.rnea(pm, pd, q, v, a) + damping)
+        Mp = pin.crba(pm, pd, q)
+        Mp = np.triu(Mp) + np.triu(Mp, 1).T
+        a_free = pin.aba(pm, pd, q, v, -damping)
+        ydd_p = a_free[twin.P]
+        if twin.free:  # back to our world-frame linear acceleration: ẍ = R (a + ω × v)
+            R = pin.Quaternion(y[3], *y[4:7]).toRotationMatrix()
+            ydd_p[:3] = R @ (a_free[:3] + np.cross(v[3:6], v[:3]))
+        for M, k, qf in (ev.equations(y, yd, 0.0), engine.equations(0.0, np.concatenate([y, yd]))):
+            scale = max(1.0, np.abs(tau).max())
+            np.testing.assert_allclose(M @ ydd + k - qf, tau, rtol=0, atol=1e-10 * scale)
+            np.testing.assert_allclose(M, T.T @ Mp @ T, rtol=0, atol=1e-10 * max(1.0, np.abs(M).max()))
+            # two backward-stable solves differ by up to ε·cond(M) relative (icub's tiny links: cond 1e7)
+            rel = max(1e-10, 1e-15 * np.linalg.cond(M))
+            np.testing.assert_allclose(np.linalg.solve(M, qf - k), ydd_p, rtol=0, atol=rel * max(1.0, np.abs(ydd_p).max()))
