@@ -120,7 +120,7 @@ def _build(args):
     scenes = []
     for path in args.scene:
         _need_scene(path)
-        scenes.append(load(path, allow_outside=args.allow_outside))
+        scenes.append(load(path, allow_outside=args.allow_outside, repair=args.repair))
     files.check({f"the FMU of {path}": fmu_path(s, args.output) for path, s in zip(args.scene, scenes)},
                 {f"the scene {path}": path for path in args.scene},
                 hint="give the models different names (name:) or build them into different folders")
@@ -136,13 +136,20 @@ def _build(args):
 def _check(args):
     from . import compile, load
     _need_scene(args.scene)
-    scene = load(args.scene, allow_outside=args.allow_outside)
+    scene = load(args.scene, allow_outside=args.allow_outside, repair=args.repair)
     ev = compile(scene)
     nb, nf = len(scene.spec["bodies"]), len(ev.velocity_coordinates)
     print(f"{scene.name}: {nb} bod{'y' if nb == 1 else 'ies'}, {nf} degree{'' if nf == 1 else 's'} of freedom")
     print("  y  = " + ", ".join(ev.coordinates))
     print("  ẏ  = " + ", ".join(ev.velocity_coordinates))
     print("  inputs: " + ", ".join(ev.inputs))
+
+
+def _convert(args):
+    from .scene.urdf import to_yaml
+    files.check({"--output": args.output}, {"the URDF": args.urdf})
+    text = to_yaml(args.urdf, base=args.base, repair=args.repair)
+    print(files.write_text(args.output, text))
 
 
 def _crosscheck(args):
@@ -160,7 +167,7 @@ def _simulate(args):
     if args.input and not is_fmu:  # inputs from a CSV go through an FMU built in a temporary folder
         from . import build_fmu, load
         with tempfile.TemporaryDirectory(prefix="mbsfmu_sim_") as tmp:
-            result = _run_fmu(str(build_fmu(load(args.model, allow_outside=args.allow_outside), tmp)), args)
+            result = _run_fmu(str(build_fmu(load(args.model, allow_outside=args.allow_outside, repair=args.repair), tmp)), args)
     else:
         result = _run_fmu(args.model, args) if is_fmu else _run_scene(args.model, args)
     title, t, cols, names, units = result
@@ -194,7 +201,7 @@ def _run_scene(path, args):
     import numpy as np
     from . import load, simulate
     from .simulation import Simulation
-    scene = load(path, allow_outside=args.allow_outside)
+    scene = load(path, allow_outside=args.allow_outside, repair=args.repair)
     spec, e = scene.spec, scene.spec["experiment"]
     stop, step = args.stop or e["stop"], args.step or e["step"]
     _check_times(e["start"], stop, step)
@@ -345,6 +352,9 @@ def _fresh_folder(name, scene):
 
 # -- the parser ----------------------------------------------------------------------------------------
 def _allow_outside(p):
+    p.add_argument("--repair", action="store_true",
+                   help="a URDF's massless moving links and unphysical inertias: repair them, each reported "
+                        "(default: refused)")
     p.add_argument("--allow-outside", action="store_true",
                    help="read data files (nodal .npz) outside the scene's folder too (default: refused)")
 
@@ -386,6 +396,13 @@ def parser():
     p.add_argument("--plot", metavar="FILE", help="write a PNG plot, one panel per unit")
     _allow_outside(p)
     p.set_defaults(run=_simulate)
+    p = sub.add_parser("convert", help="write the scene YAML equivalent to a URDF robot description")
+    p.add_argument("urdf", help="URDF file (.urdf)")
+    p.add_argument("-o", "--output", required=True, help="scene file to write (.yaml)")
+    p.add_argument("--base", choices=("fixed", "free"), default="fixed",
+                   help="the root link fixed in the world (default) or on a free joint (a floating base)")
+    p.add_argument("--repair", action="store_true", help="repair massless moving links and unphysical inertias")
+    p.set_defaults(run=_convert)
     p = sub.add_parser("animate", help="write a self-contained HTML page that plays the motion in 3-D")
     p.add_argument("model", help="scene .yaml or mbsfmu .fmu")
     p.add_argument("-o", "--output", default="animation.html", help="HTML file to write (default: animation.html)")

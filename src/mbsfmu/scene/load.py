@@ -8,6 +8,7 @@ import gc
 import json
 import math
 import re
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -88,6 +89,8 @@ def _checked(document, file, base, allow_outside):
     except Exception as e:  # noqa: BLE001
         # a check this file slipped past: still a ModelError (the promise of `load`), naming what happened
         raise _short(ModelError(f"cannot read this scene ({type(e).__name__}: {e})", file=file)) from None
+    for r in repairs:  # the CLI shows each as a note
+        warnings.warn(f"{file}: repaired {r}", stacklevel=3)
     return Scene(spec, file, repairs)
 
 

@@ -218,7 +218,7 @@ class _Robot:
                     "joint": joint}
             m, com, inertia = inertial[link]
             if m > 0 or np.any(inertia):
-                body.update(mass=m, center_of_mass=com, inertia=inertia.tolist())
+                body.update(mass=m, center_of_mass=com, inertia=_entries(inertia))
             bodies[name] = body
             self.lines[name] = e.line
         doc = {"mbsfmu": 1, "name": self.name, "bodies": bodies}
@@ -313,6 +313,13 @@ class _Robot:
         if damping > 0 and len(out.get("coordinates", ())) == 1:
             forces.append({"type": "joint_spring_damper", "coordinate": coordinate, "stiffness": 0, "damping": damping})
         return out
+
+
+def _entries(I):
+    """An inertia tensor as the scene's {xx, yy, zz, xy, xz, yz} (zero products left out)."""
+    I = (I + I.T) / 2  # the rotated tensor, symmetric to the last bit
+    out = {k: float(I[i, j]) for k, (i, j) in zip(("xx", "yy", "zz", "xy", "xz", "yz"), ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)))}
+    return {k: v for k, v in out.items() if v != 0 or k in ("xx", "yy", "zz")}
 
 
 def rpy_matrix(rpy):
@@ -415,3 +422,16 @@ def _merge(a, b, appended=()):
             out[k] = _merge(a[k], v) if k in a else v
         out.lines[k] = b.lines.get(k, b.line)
     return out
+
+
+def to_yaml(path, base="fixed", repair=False):
+    """The URDF at `path` as the text of an equivalent scene YAML (what `mbsfmu convert` writes)."""
+    import json
+
+    import yaml
+    doc, repairs = read(path, base=base, repair=repair)
+    plain = json.loads(json.dumps(doc))  # Map/Seq → plain data; floats keep every digit (repr)
+    head = [f"# {Path(path).name} converted by mbsfmu convert (base: {base}); joint limits and friction are not modelled"]
+    head += [f"# repaired: {r}" for r in repairs]
+    return "\n".join(head) + "\n" + yaml.safe_dump(plain, sort_keys=False, default_flow_style=None, width=120)
+
