@@ -114,3 +114,63 @@ def test_real_robot_matches_pinocchio(file, base):
             # two backward-stable solves differ by up to ε·cond(M) relative (icub's tiny links: cond 1e7)
             rel = max(1e-10, 1e-15 * np.linalg.cond(M))
             np.testing.assert_allclose(np.linalg.solve(M, qf - k), ydd_p, rtol=0, atol=rel * max(1.0, np.abs(ydd_p).max()))
+
+
+# ---- the URDF conventions against closed forms ------------------------------------------------------------
+def _urdf(tmp_path, body, name="robot.urdf"):
+    path = tmp_path / name
+    path.write_text(f'<?xml version="1.0"?>\n<robot name="t">\n{body}\n</robot>\n')
+    return path
+
+
+_BOX = '<inertial><origin xyz="{c}" rpy="{rpy}"/><mass value="{m}"/><inertia ixx="{ixx}" iyy="{iyy}" izz="{izz}" ixy="0" ixz="0" iyz="0"/></inertial>'
+
+
+def _link(name, m=2.0, c="0 0 0", rpy="0 0 0", ixx=0.1, iyy=0.2, izz=0.25):
+    return f'<link name="{name}">{_BOX.format(c=c, rpy=rpy, m=m, ixx=ixx, iyy=iyy, izz=izz)}</link>'
+
+
+def test_rpy_is_fixed_axis_roll_pitch_yaw():
+    from scipy.spatial.transform import Rotation
+    for rpy in ([0.3, -0.7, 1.9], [np.pi / 2, 0, 0], [0.1, 1.2, -2.5]):
+        np.testing.assert_allclose(rpy_matrix(rpy), Rotation.from_euler("xyz", rpy).as_matrix(), atol=1e-15)  # extrinsic x, y, z
+
+
+def test_prismatic_on_a_rotated_origin_falls_along_its_world_axis(tmp_path):
+    """A slider whose joint frame is turned by rpy: M = m, and gravity drives it with m·g·(R·axis)."""
+    rpy, m = [0.4, -0.3, 1.1], 2.0
+    path = _urdf(tmp_path, _link("base") + _link("slider", m=m, c="0.1 0.2 0.3", rpy="0.5 0.2 0.1")
+                 + f'<joint name="s" type="prismatic"><origin xyz="1 2 3" rpy="{" ".join(map(str, rpy))}"/>'
+                   '<parent link="base"/><child link="slider"/><axis xyz="0 3 4"/></joint>')
+    ev = mbsfmu.compile(mbsfmu.load(path))
+    M, k, q = ev.equations(np.array([0.7]), np.array([1.3]))
+    axis_world = rpy_matrix(rpy) @ np.array([0, 0.6, 0.8])
+    np.testing.assert_allclose(M, [[m]], atol=1e-14)
+    np.testing.assert_allclose(q - k, [m * np.array([0, 0, -9.81]) @ axis_world], atol=1e-13)
+
+
+def test_inertial_rpy_rotates_the_tensor_into_the_link_frame(tmp_path):
+    """A wheel about z whose inertial frame is rolled by 90°: its polar moment iyy becomes the link's zz."""
+    path = _urdf(tmp_path, _link("base") + _link("wheel", m=1.0, rpy=f"{np.pi / 2} 0 0", ixx=0.4, iyy=0.7, izz=0.35)
+                 + '<joint name="w" type="continuous"><parent link="base"/><child link="wheel"/><axis xyz="0 0 1"/></joint>')
+    M, _, _ = mbsfmu.compile(mbsfmu.load(path)).equations(np.zeros(1), np.zeros(1))
+    np.testing.assert_allclose(M, [[0.7]], atol=1e-14)
+
+
+def test_planar_and_floating_joints_fall_freely(tmp_path):
+    """In free fall a body on a floating joint accelerates with g; one on a vertical planar joint (normal y)
+    with g inside the plane; neither turns. M: m for translations, the moment about the normal for the turn."""
+    body = (_link("base") + _link("board", m=3.0) + _link("ball", m=1.5)
+            + '<joint name="p" type="planar"><parent link="base"/><child link="board"/><axis xyz="0 1 0"/></joint>'
+            + '<joint name="f" type="floating"><origin xyz="0 0 1"/><parent link="base"/><child link="ball"/></joint>')
+    ev = mbsfmu.compile(mbsfmu.load(_urdf(tmp_path, body)))
+    assert ev.velocity_coordinates[:3] == ["p.x", "p.y", "p.angle"]
+    y, yd = np.zeros(len(ev.coordinates)), np.zeros(len(ev.velocity_coordinates))
+    y[6] = 1.0  # the ball's quaternion (1, 0, 0, 0)
+    M, k, q = ev.equations(y, yd)
+    ydd = np.linalg.solve(M, q - k)
+    np.testing.assert_allclose(np.diag(M)[:3], [3.0, 3.0, 0.2], atol=1e-14)  # iyy = 0.2 about the normal y
+    np.testing.assert_allclose(np.linalg.norm(ydd[:2]), 9.81, atol=1e-13)  # g lies in the plane normal to y
+    np.testing.assert_allclose(ydd[2], 0, atol=1e-14)
+    np.testing.assert_allclose(ydd[3:6], [0, 0, -9.81], atol=1e-13)
+    np.testing.assert_allclose(ydd[6:], 0, atol=1e-14)
