@@ -174,3 +174,115 @@ def test_planar_and_floating_joints_fall_freely(tmp_path):
     np.testing.assert_allclose(ydd[2], 0, atol=1e-14)
     np.testing.assert_allclose(ydd[3:6], [0, 0, -9.81], atol=1e-13)
     np.testing.assert_allclose(ydd[6:], 0, atol=1e-14)
+
+
+# ---- imperfect robots: refused by default, repaired on request ---------------------------------------------
+def test_nearest_physical_inertia_is_the_projection_of_the_moments():
+    """diag(1, 1, 3) breaks I1 + I2 >= I3 by 1: its nearest physical moments are (4/3, 4/3, 8/3); no physical
+    diagonal tensor of a random sample lies closer."""
+    I = nearest_physical_inertia(np.diag([1.0, 1.0, 3.0]))
+    np.testing.assert_allclose(I, np.diag([4 / 3, 4 / 3, 8 / 3]), atol=1e-15)
+    rng = np.random.default_rng(0)
+    lam = rng.uniform(0, 3, (20000, 3))
+    ok = (lam[:, 0] + lam[:, 1] >= lam[:, 2]) & (lam[:, 0] + lam[:, 2] >= lam[:, 1]) & (lam[:, 1] + lam[:, 2] >= lam[:, 0])
+    dist = np.linalg.norm(lam[ok] - [1.0, 1.0, 3.0], axis=1)
+    assert dist.min() >= np.linalg.norm(np.diag(I) - [1.0, 1.0, 3.0]) - 1e-12
+
+
+def test_unphysical_inertia_refused_naming_the_link_then_repaired(tmp_path):
+    path = _urdf(tmp_path, _link("base") + _link("arm", ixx=0.1, iyy=0.1, izz=0.3)
+                 + '<joint name="j" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/></joint>')
+    with pytest.raises(ModelError, match=r"robot.urdf:3: <inertia>: link 'arm': .*triangle inequality.*repair"):
+        mbsfmu.load(path)
+    with pytest.warns(UserWarning, match="repaired link 'arm'"):
+        scene = mbsfmu.load(path, repair=True)
+    assert len(scene.repairs) == 1
+    M, _, _ = mbsfmu.compile(scene).equations(np.zeros(1), np.zeros(1))
+    np.testing.assert_allclose(M, [[0.3 - 0.1 / 3]], atol=1e-14)  # (0.1, 0.1, 0.3) → (0.1 + d, 0.1 + d, 0.3 − d), d = 0.1/3
+
+
+def test_massless_moving_leaves_refused_then_merged(tmp_path):
+    path = _urdf(tmp_path, _link("base") + _link("arm") + '<link name="finger"/><link name="tip"/>'
+                 + '<joint name="j" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/></joint>'
+                 + '<joint name="f" type="revolute"><parent link="arm"/><child link="finger"/><axis xyz="0 1 0"/></joint>'
+                 + '<joint name="t" type="prismatic"><parent link="finger"/><child link="tip"/><axis xyz="1 0 0"/></joint>')
+    with pytest.raises(ModelError, match=r":3: <joint>: joint 'f' moves link 'finger', which with the links it carries has no mass"):
+        mbsfmu.load(path)
+    with pytest.warns(UserWarning):
+        scene = mbsfmu.load(path, repair=True)
+    assert [r.split(":")[0] for r in scene.repairs] == ["joint 'f' fixed", "joint 't' fixed"]
+    ev = mbsfmu.compile(scene)
+    assert ev.coordinates == ["j"] and {"finger", "tip"} <= {b["name"] for b in scene.spec["bodies"]}  # still frames
+
+
+def test_romeo_massless_fingers_and_romeo_small_inertias():
+    """Pinocchio accepts both silently (romeo's M is singular); here they are refused, and repaired on request."""
+    for file, what in (("romeo_description/urdf/romeo.urdf", "no mass or inertia"),
+                       ("romeo_description/urdf/romeo_small.urdf", "triangle inequality")):
+        with pytest.raises(ModelError, match=what):
+            mbsfmu.load(ROBOTS / file)
+        with pytest.warns(UserWarning):
+            ev = mbsfmu.compile(mbsfmu.load(ROBOTS / file, repair=True))
+        y, yd, _ = _random_state(ev, np.random.default_rng(3))
+        assert np.linalg.eigvalsh(ev.equations(y, yd)[0]).min() > 0  # M positive definite
+
+
+# ---- hostile and broken URDFs: one ModelError line each, quickly --------------------------------------------
+LAUGHS = ('<?xml version="1.0"?>\n<!DOCTYPE robot [<!ENTITY a "aaaaaaaaaa">' +
+          "".join(f'<!ENTITY {chr(98 + i)} "{("&" + chr(97 + i) + ";") * 10}">' for i in range(9)) + "]>\n<robot name=\"&j;\"/>\n")
+HOSTILE = {
+    "billion_laughs": (LAUGHS, r":2: .*EntitiesForbidden.*refused"),
+    "external_entity": ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n<robot name="&x;"/>',
+                        r":2: .*refused"),
+    "parameter_entity": ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY % x SYSTEM "http://example.com/x.dtd"> %x;]>\n<robot/>',
+                         r":2: .*refused"),
+    "not_xml": ("<robot><link name='a'></robot>", r":1: not well-formed XML"),
+    "not_a_robot": ('<?xml version="1.0"?>\n<sdf/>', r":2: <sdf>: .*a URDF's is <robot>"),
+    "xacro": ('<robot xmlns:xacro="http://www.ros.org/wiki/xacro">\n<xacro:macro name="leg"/>\n</robot>', r":2: <xacro:macro>: .*run xacro first"),
+    "missing_link": ('<robot name="r">\n<link name="a"/>\n<joint name="j" type="fixed"><parent link="a"/>\n<child link="b"/></joint>\n</robot>',
+                     r":4: <child>: joint 'j' names the child link 'b'"),
+    "cycle": ('<robot name="r">\n<link name="a"/><link name="b"/><link name="c"/>\n'
+              '<joint name="j1" type="fixed"><parent link="a"/><child link="b"/></joint>\n'
+              '<joint name="j2" type="fixed"><parent link="c"/><child link="c"/></joint>\n</robot>', r"cycle"),
+    "two_parents": ('<robot name="r">\n<link name="a"/><link name="b"/>\n'
+                    '<joint name="j1" type="fixed"><parent link="a"/><child link="b"/></joint>\n'
+                    '<joint name="j2" type="fixed"><parent link="a"/><child link="b"/></joint>\n</robot>', r":4: <joint>: link 'b' is the child of two joints"),
+    "unknown_joint_type": ('<robot name="r">\n<link name="a"/><link name="b"/>\n'
+                           '<joint name="j" type="revolut"><parent link="a"/><child link="b"/></joint>\n</robot>',
+                           r":3: <joint>: joint 'j' has the unknown type 'revolut' \(did you mean 'revolute'"),
+    "mimic": ('<robot name="r">\n' + _link("a") + _link("b") + _link("c") +
+              '\n<joint name="j" type="revolute"><parent link="a"/><child link="b"/></joint>\n'
+              '<joint name="k" type="revolute"><parent link="b"/><child link="c"/>\n<mimic joint="j"/></joint>\n</robot>',
+              r":5: <mimic>: joint 'k' mimics joint 'j'"),
+    "nan_origin": ('<robot name="r">\n' + _link("a") + _link("b") + '\n<joint name="j" type="revolute"><parent link="a"/>'
+                   '<child link="b"/>\n<origin xyz="0 nan 0"/></joint>\n</robot>', r":4: <origin>: xyz=\"0 nan 0\" is not 3 finite numbers"),
+    "negative_mass": ('<robot name="r">\n<link name="a"><inertial>\n<mass value="-1"/></inertial></link>\n</robot>', r":3: <mass>: .*negative mass"),
+    "huge_counts": ('<robot name="r">\n' + '<link name="l"/>' * (limits_entries := 10_001) + '\n</robot>', r"a second link named 'l'"),
+    "many_links": ('<robot name="r">\n' + "".join(f'<link name="l{i}"/>' for i in range(limits_entries)) + '\n</robot>', r"more than 10,000 links"),
+    "deep": ('<robot name="r">' + "<a>" * 100 + "</a>" * 100 + "</robot>", r"nested deeper than 64"),
+}
+
+
+@pytest.mark.parametrize("case", HOSTILE)
+def test_hostile_urdf_is_one_model_error_line(tmp_path, case):
+    text, pattern = HOSTILE[case]
+    path = tmp_path / "robot.urdf"
+    path.write_text(text)
+    t0 = time.process_time()
+    with pytest.raises(ModelError, match=pattern) as e:
+        mbsfmu.load(path)
+    assert time.process_time() - t0 < 1.0
+    assert "\n" not in str(e.value) and str(e.value).startswith(str(path))
+
+
+def test_xacro_suffix_and_urdf_outside_the_scene_folder_refused(tmp_path):
+    (tmp_path / "arm.urdf.xacro").write_text("<robot/>")
+    with pytest.raises(ModelError, match="run xacro first"):
+        mbsfmu.load(tmp_path / "arm.urdf.xacro")
+    inner = tmp_path / "scene"
+    inner.mkdir()
+    _urdf(tmp_path, _link("base"))
+    with pytest.raises(ModelError, match=r"scene.yaml:2: urdf.file: the URDF file '../robot.urdf' lies outside the scene's folder"):
+        (inner / "scene.yaml").write_text("mbsfmu: 1\nurdf: {file: ../robot.urdf}\n")
+        mbsfmu.load(inner / "scene.yaml")
+    assert mbsfmu.load(inner / "scene.yaml", allow_outside=True).spec["bodies"][0]["name"] == "base"

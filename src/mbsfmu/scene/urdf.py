@@ -146,6 +146,9 @@ class _Robot:
                 fail(j.line, "joint", f"link '{child}' is the child of two joints ('{self.parent_joint[child].attrs['name']}' and '{name}')",
                      "a URDF is a tree: closed loops are not supported")
             self.parent_joint[child] = j
+            if self.attr(j, "type") not in JOINT_KINDS:
+                from .load import _suggest
+                fail(j.line, "joint", f"joint '{name}' has the unknown type '{j.attrs['type']}'", _suggest(j.attrs["type"], JOINT_KINDS))
         roots = [n for n in self.links if n not in self.parent_joint]
         if len(roots) != 1:
             where = self.links[roots[1]] if len(roots) > 1 else root
@@ -276,14 +279,7 @@ class _Robot:
         return moving
 
     def joint(self, j, moving, forces):
-        name, kind = j.attrs["name"], self.attr(j, "type")
-        if kind not in JOINT_KINDS:
-            from .load import _suggest
-            self.fail(j.line, "joint", f"joint '{name}' has the unknown type '{kind}'", _suggest(kind, JOINT_KINDS))
-        if j.find("mimic") is not None:
-            self.fail(j.find("mimic").line, "mimic", f"joint '{name}' mimics joint '{j.find('mimic').attrs.get('joint', '?')}': "
-                      "a coupled coordinate (a closed constraint), which the scene format cannot state",
-                      "remove the <mimic> element to make the joint independent")
+        name, kind = j.attrs["name"], j.attrs["type"]
         origin = j.find("origin")
         out = {"type": kind if moving else "fixed", "at": self.numbers(origin, "xyz", 3, [0.0] * 3)}
         rpy = self.numbers(origin, "rpy", 3, [0.0] * 3)
@@ -291,6 +287,10 @@ class _Robot:
             out["rotation"] = {"matrix": rpy_matrix(rpy).tolist()}
         if not moving:
             return out
+        if j.find("mimic") is not None:  # (a repaired massless joint drops its mimic with its motion)
+            self.fail(j.find("mimic").line, "mimic", f"joint '{name}' mimics joint '{j.find('mimic').attrs.get('joint', '?')}': "
+                      "a coupled coordinate (a closed constraint), which the scene format cannot state",
+                      "remove the <mimic> element to make the joint independent")
         coordinate = _identifier(name, "coordinate", dots=True)
         axis = self.numbers(j.find("axis"), "xyz", 3, [1.0, 0.0, 0.0])
         norm = math.sqrt(sum(a * a for a in axis))
