@@ -286,3 +286,58 @@ def test_xacro_suffix_and_urdf_outside_the_scene_folder_refused(tmp_path):
         (inner / "scene.yaml").write_text("mbsfmu: 1\nurdf: {file: ../robot.urdf}\n")
         mbsfmu.load(inner / "scene.yaml")
     assert mbsfmu.load(inner / "scene.yaml", allow_outside=True).spec["bodies"][0]["name"] == "base"
+
+
+# ---- a YAML over a URDF: inputs, outputs, initial state; its native FMU ------------------------------------
+UR5 = "ur_description/urdf/ur5_robot.urdf"
+OVERLAY = """mbsfmu: 1
+name: ur5_torques
+urdf: {file: ur5.urdf, base: fixed}
+bodies:
+  upper_arm_link: {joint: {initial: {shoulder_lift_joint: -1.0}, initial_velocity: {shoulder_lift_joint: 0.5}}}
+  forearm_link: {joint: {initial: {elbow_joint: 0.8}}}
+outputs:
+  - {body: ee_link, point: [0.1, 0, 0], quantities: [position], name: tool}
+integrator: {method: dop853, rtol: 1e-11, atol: 1e-12}
+experiment: {stop: 0.3, step: 0.01}
+"""
+TORQUES = {"q.shoulder_pan_joint": 3.0, "q.elbow_joint": -2.0, "q.wrist_2_joint": 0.5}
+
+
+def _pinocchio_run(stop):
+    """Pinocchio's forward dynamics (ABA) with the same torques, integrated by scipy at rtol 1e-12."""
+    from scipy.integrate import solve_ivp
+    pm = _pinocchio(UR5, "fixed")
+    pd = pm.createData()
+    names = [pm.names[j] for j in range(1, pm.njoints)]
+    tau = np.array([TORQUES.get(f"q.{n}", 0.0) for n in names])
+    q0, v0 = np.zeros(pm.nq), np.zeros(pm.nv)
+    q0[names.index("shoulder_lift_joint")], q0[names.index("elbow_joint")] = -1.0, 0.8
+    v0[names.index("shoulder_lift_joint")] = 0.5
+    sol = solve_ivp(lambda t, x: np.concatenate([x[6:], pin.aba(pm, pd, x[:6], x[6:], tau)]), (0, stop),
+                    np.concatenate([q0, v0]), method="DOP853", rtol=1e-12, atol=1e-12)
+    q = sol.y[:6, -1]
+    pin.framesForwardKinematics(pm, pd, q)
+    frame = pd.oMf[pm.getFrameId("ee_link")]
+    return names, q, frame.act(np.array([0.1, 0.0, 0.0]))
+
+
+def test_overlay_arm_native_fmu_against_pinocchio(tmp_path):
+    """The overlay's initial state, torque inputs and end-effector output point: the in-process run against
+    Pinocchio's forward dynamics and frame placement; the native FMU (fmpy) validates and matches the run."""
+    from fmpy import read_model_description, simulate_fmu
+    from fmpy.validation import validate_fmu
+    (tmp_path / "ur5.urdf").write_bytes((ROBOTS / UR5).read_bytes())
+    (tmp_path / "ur5.yaml").write_text(OVERLAY)
+    scene = mbsfmu.load(tmp_path / "ur5.yaml")
+    t, Y, YD = mbsfmu.simulate(scene, inputs=TORQUES)
+    names, q_ref, tool_ref = _pinocchio_run(t[-1])
+    ev = mbsfmu.compile(scene)
+    np.testing.assert_allclose(Y[-1], q_ref[[names.index(c) for c in ev.coordinates]], atol=1e-9)
+    fmu = mbsfmu.build_fmu(scene, tmp_path / "native", kind="native")
+    assert validate_fmu(str(fmu)) == []
+    outs = [v.name for v in read_model_description(str(fmu)).modelVariables if v.causality == "output"]
+    res = simulate_fmu(str(fmu), stop_time=0.3, output_interval=0.01, start_values=TORQUES, output=outs)
+    F = np.column_stack([res[f"y.{c}"] for c in ev.coordinates])
+    np.testing.assert_allclose(F, Y, rtol=0, atol=1e-12)
+    np.testing.assert_allclose([res[f"tool.r.{x}"][-1] for x in "xyz"], tool_ref, atol=1e-9)
