@@ -341,3 +341,28 @@ def test_overlay_arm_native_fmu_against_pinocchio(tmp_path):
     F = np.column_stack([res[f"y.{c}"] for c in ev.coordinates])
     np.testing.assert_allclose(F, Y, rtol=0, atol=1e-12)
     np.testing.assert_allclose([res[f"tool.r.{x}"][-1] for x in "xyz"], tool_ref, atol=1e-9)
+
+
+# ---- mbsfmu convert -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("file,base", [("kinova_description/robots/kinova.urdf", "fixed"), ("icub_description/robots/icub.urdf", "free")])
+def test_convert_writes_the_equivalent_scene(tmp_path, file, base, capsys):
+    """The written YAML loads to the very scene the URDF gives (floats written with every digit), dampers and
+    rotated inertias included."""
+    from mbsfmu.cli import main
+    out = tmp_path / "robot.yaml"
+    assert main(["convert", str(ROBOTS / file), "-o", str(out), "--base", base]) == 0
+    direct = _scene(file, base).spec
+    assert mbsfmu.load(out).spec == direct
+
+
+def test_convert_and_check_fail_in_one_line(tmp_path, capsys):
+    from mbsfmu.cli import main
+    out = tmp_path / "robot.yaml"
+    for argv in (["convert", str(ROBOTS / "panda_description/urdf/panda.urdf"), "-o", str(out)],
+                 ["check", str(ROBOTS / "romeo_description/urdf/romeo_small.urdf")]):
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err and (".urdf:" in err)
+    assert not out.exists()
+    assert main(["check", "--repair", str(ROBOTS / "romeo_description/urdf/romeo_small.urdf")]) == 0
+    assert "note: " in capsys.readouterr().err
