@@ -366,3 +366,43 @@ def test_convert_and_check_fail_in_one_line(tmp_path, capsys):
     assert not out.exists()
     assert main(["check", "--repair", str(ROBOTS / "romeo_description/urdf/romeo_small.urdf")]) == 0
     assert "note: " in capsys.readouterr().err
+
+
+# ---- visuals: drawn shapes, package:// confined --------------------------------------------------------------
+def _stl(path):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid t\n")
+
+
+def test_visuals_become_shapes_and_package_uris_stay_in_their_folder(tmp_path):
+    _stl(tmp_path / "pkgs/arm_description/meshes/link.stl")
+    visual = ('<material name="blue"><color rgba="0 0 1 1"/></material>'
+              '<link name="base">' + _BOX.format(c="0 0 0", rpy="0 0 0", m=1, ixx=0.1, iyy=0.1, izz=0.1) +
+              '<visual><origin xyz="0 0 0.1" rpy="0 0 1.5"/><geometry><box size="0.2 0.3 0.4"/></geometry>'
+              '<material name="blue"/></visual><visual><geometry><mesh filename="package://arm_description/meshes/link.stl" scale="0.001 0.001 0.001"/>'
+              '</geometry></visual><visual><geometry><mesh filename="package://arm_description/meshes/link.dae"/></geometry></visual>'
+              '<visual><geometry><cylinder radius="0.05" length="0.5"/></geometry><material name="m"><color rgba="1 0 0 0.5"/></material></visual></link>')
+    (tmp_path / "robot").mkdir()
+    _urdf(tmp_path / "robot", visual)
+    (tmp_path / "scene.yaml").write_text("mbsfmu: 1\nurdf: {file: robot/robot.urdf, package_dirs: [pkgs], base: free}\n")
+    with pytest.warns(UserWarning, match=r"visual meshes not drawn: 1 \.dae files"):
+        scene = mbsfmu.load(tmp_path / "scene.yaml")
+    box, mesh, cyl = scene.spec["bodies"][0]["shape"]
+    assert box["size"] == [0.2, 0.3, 0.4] and box["at"] == [0, 0, 0.1] and box["color"] == "#0000ff"
+    np.testing.assert_allclose(box["rotation"]["matrix"], rpy_matrix([0, 0, 1.5]), atol=1e-15)
+    assert mesh["file"] == "pkgs/arm_description/meshes/link.stl" and mesh["scale"] == [0.001] * 3
+    assert cyl["type"] == "cylinder" and cyl["opacity"] == 0.5 and cyl["color"] == "#ff0000"
+    page = mbsfmu.animate(scene, str(tmp_path / "anim.html"), stop=0.1)
+    assert Path(page).stat().st_size > 0
+    # a package:// name that climbs out of its package folder is refused where it stands
+    (tmp_path / "robot/robot.urdf").write_text('<robot name="r">\n<link name="a"><visual><geometry>\n'
+                                               '<mesh filename="package://arm_description/../../../secret.stl"/></geometry></visual></link>\n</robot>')
+    _stl(tmp_path / "secret.stl")
+    with pytest.raises(ModelError, match=r"robot.urdf:3: <mesh>: the mesh file 'package://arm_description/../../../secret.stl' leaves its folder"):
+        mbsfmu.load(tmp_path / "scene.yaml")
+    # a mesh of 1 GB (sparse) is refused by its size before a byte is read
+    (tmp_path / "robot/robot.urdf").write_text(visual.join(['<robot name="r">\n', '\n</robot>']))
+    with open(tmp_path / "pkgs/arm_description/meshes/link.stl", "wb") as f:
+        f.truncate(2**30)
+    with pytest.raises(ModelError, match=r"bodies\.base\.shape\[1\]\.file: .*larger than 64 MB"):
+        mbsfmu.load(tmp_path / "scene.yaml")

@@ -146,9 +146,11 @@ def _check(args):
 
 
 def _convert(args):
+    from pathlib import Path
+
     from .scene.urdf import to_yaml
     files.check({"--output": args.output}, {"the URDF": args.urdf})
-    text = to_yaml(args.urdf, base=args.base, repair=args.repair)
+    text = to_yaml(args.urdf, base=args.base, repair=args.repair, scene_dir=Path(args.output).parent)
     print(files.write_text(args.output, text))
 
 

@@ -20,6 +20,7 @@ from defusedxml.expatreader import DefusedExpatParser
 
 from ..errors import ModelError
 from . import datafile, domains, limits
+from .shapes import MESH_SUFFIXES
 from .yaml_lines import Map, Seq
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
@@ -67,11 +68,13 @@ class _Builder(xml.sax.ContentHandler):
         self.stack.pop()
 
 
-def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None):
+def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None, scene_dir=None):
     """The URDF file `path` → (scene document of Map/Seq as a YAML scene gives it, [repair reports]).
 
     base: 'fixed' (the root link fixed to the world) or 'free' (a free joint, a floating base). repair: merge
     massless moving subtrees into their parents and project unphysical inertias instead of refusing them.
+    package_dirs: folders (resolved) that `package://NAME/...` mesh files are looked up in, each mesh confined
+    to the folder it is found in. scene_dir: the folder mesh shapes are named relative to (default the URDF's).
     line_of_include: the line every node of the document reports (the YAML's `urdf:` line), else URDF lines."""
     path = Path(path)
     fail = _failer(str(path))
@@ -81,6 +84,7 @@ def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None
     if root.tag != "robot":
         fail(root.line, root.tag, f"the document's element is <{root.tag}>, a URDF's is <robot>", "give a URDF file")
     robot = _Robot(root, fail, repair)
+    robot.meshes = _Meshes(path.parent, package_dirs, scene_dir or path.parent, fail)
     doc = robot.document(base)
     return _tree(doc, robot.lines, line_of_include), robot.repairs
 
@@ -123,6 +127,7 @@ class _Robot:
         self.fail, self.repair, self.repairs, self.lines = fail, repair, [], {}
         self.name = _identifier(root.attrs.get("name") or "robot", "model")
         self.links, self.joints = {}, {}
+        self.materials = {e.attrs.get("name"): e for e in root.children if e.tag == "material"}
         for e in root.children:
             if e.tag in ("link", "joint"):
                 table = self.links if e.tag == "link" else self.joints
@@ -222,12 +227,57 @@ class _Robot:
             m, com, inertia = inertial[link]
             if m > 0 or np.any(inertia):
                 body.update(mass=m, center_of_mass=com, inertia=_entries(inertia))
+            shapes = self.visuals(e)
+            if shapes:
+                body["shape"] = shapes
             bodies[name] = body
             self.lines[name] = e.line
+        self.meshes.report()
         doc = {"mbsfmu": 1, "name": self.name, "bodies": bodies}
         if forces:
             doc["forces"] = forces
         return doc
+
+    def visuals(self, link):
+        """The link's <visual> geometry as `shape:` entries (drawing only): boxes, cylinders (along z in both),
+        spheres, STL/OBJ meshes; the colour of an inline or named material."""
+        out = []
+        for v in link.children:
+            g = v.find("geometry") if v.tag == "visual" else None
+            if g is None or not g.children:
+                continue
+            geom = g.children[0]
+            if geom.tag == "box":
+                shape = {"type": "box", "size": self.numbers(geom, "size", 3, [0.0] * 3)}
+            elif geom.tag == "cylinder":
+                shape = {"type": "cylinder", "radius": self.numbers(geom, "radius", 1, [0.0])[0], "length": self.numbers(geom, "length", 1, [0.0])[0]}
+            elif geom.tag == "sphere":
+                shape = {"type": "sphere", "radius": self.numbers(geom, "radius", 1, [0.0])[0]}
+            elif geom.tag == "mesh":
+                name = self.meshes.find(geom, self.attr(geom, "filename"))
+                if name is None:
+                    continue
+                shape = {"type": "mesh", "file": name, "scale": self.numbers(geom, "scale", 3, [1.0] * 3)}
+            else:
+                continue
+            origin = v.find("origin")
+            shape["at"] = self.numbers(origin, "xyz", 3, [0.0] * 3)
+            rpy = self.numbers(origin, "rpy", 3, [0.0] * 3)
+            if any(rpy):
+                shape["rotation"] = {"matrix": rpy_matrix(rpy).tolist()}
+            rgba = self.color(v.find("material"))
+            if rgba:
+                shape["color"], shape["opacity"] = [min(max(c, 0.0), 1.0) for c in rgba[:3]], min(max(rgba[3], 1e-3), 1.0)
+            out.append(shape)
+        return out
+
+    def color(self, material):
+        if material is None:
+            return None
+        c = material.find("color")
+        if c is None and material.attrs.get("name") in self.materials:
+            c = self.materials[material.attrs["name"]].find("color")
+        return self.numbers(c, "rgba", 4, [0.5, 0.5, 0.5, 1.0]) if c is not None else None
 
     def inertial(self, link):
         """(mass, centre of mass, inertia about it in the link frame), refused or repaired when unphysical."""
@@ -322,6 +372,48 @@ def _entries(I):
     return {k: v for k, v in out.items() if v != 0 or k in ("xx", "yy", "zz")}
 
 
+class _Meshes:
+    """Mesh file names of <mesh filename=...> → names relative to the scene's folder: `package://NAME/rest` in
+    the named package folders, other names relative to the URDF's folder; a name that leaves its folder is
+    refused. Meshes the drawing cannot show (DAE, outside the scene's folder, not found) are counted and
+    reported in one note."""
+
+    def __init__(self, urdf_dir, package_dirs, scene_dir, fail):
+        self.urdf_dir, self.package_dirs, self.scene_dir, self.fail = urdf_dir.resolve(), list(package_dirs), scene_dir.resolve(), fail
+        self.skipped = {}
+
+    def find(self, e, uri):
+        if uri.startswith("package://"):
+            package, _, rest = uri[len("package://"):].partition("/")
+            found = [(d / package).resolve() for d in self.package_dirs if (d / package).is_dir()]
+            if not found:
+                return self.skip("in no named package folder (urdf: package_dirs)")
+            folder = found[0]
+        elif "://" in uri:
+            return self.skip(f"{uri.split('://')[0]}:// names")
+        else:
+            folder, rest = self.urdf_dir, uri
+        path = (folder / rest).resolve()
+        if not path.is_relative_to(folder):
+            self.fail(e.line, "mesh", f"the mesh file '{uri[:200]}' leaves its folder {folder}", "mesh files must lie inside their package folder")
+        if path.suffix.lower() not in MESH_SUFFIXES:
+            return self.skip(f"{path.suffix or 'no suffix'} files")
+        if not path.is_file():
+            return self.skip("not found")
+        if not path.is_relative_to(self.scene_dir):
+            return self.skip("outside the scene's folder")
+        return path.relative_to(self.scene_dir).as_posix()
+
+    def skip(self, why):
+        self.skipped[why] = self.skipped.get(why, 0) + 1
+        return None
+
+    def report(self):
+        if self.skipped:
+            import warnings
+            warnings.warn("visual meshes not drawn: " + ", ".join(f"{n} {why}" for why, n in self.skipped.items()), stacklevel=4)
+
+
 def rpy_matrix(rpy):
     """URDF's fixed-axis roll, pitch, yaw: R = Rz(yaw) Ry(pitch) Rx(roll)."""
     r, p, y = rpy
@@ -400,11 +492,26 @@ def include(root, file, base, allow_outside=False, repair=False):
     repair = spec.get("repair", repair)
     if not isinstance(repair, bool):
         raise ModelError("expected true or false", file=file, line=spec.lines.get("repair", line), key="urdf.repair")
-    doc, repairs = read(path, base=kind, repair=repair, line_of_include=line)
+    doc, repairs = read(path, _package_dirs(spec, file, line, base, allow_outside), kind, repair, line, base)
     merged = _merge(doc, Map({k: v for k, v in root.items() if k != "urdf"}), ("forces", "outputs"))
     merged.lines = {**doc.lines, **{k: v for k, v in root.lines.items() if k != "urdf"}}
     merged.line = root.line
     return merged, repairs
+
+
+def _package_dirs(spec, file, line, base, allow_outside):
+    """`urdf.package_dirs`: folders relative to the scene's, inside it unless allow_outside."""
+    dirs = spec.get("package_dirs", [])
+    if not isinstance(dirs, list) or len(dirs) > 64:
+        raise ModelError("expected a list of folders", file=file, line=spec.lines.get("package_dirs", line), key="urdf.package_dirs")
+    out = []
+    for i, d in enumerate(dirs):
+        try:
+            out.append(datafile.resolve(base, d, allow_outside))
+        except ModelError as e:
+            raise ModelError(e.message.replace("data file", "package folder"), file=file, line=spec.lines.get("package_dirs", line),
+                             key=f"urdf.package_dirs[{i}]", hint=e.hint) from None
+    return out
 
 
 def _merge(a, b, appended=()):
@@ -424,12 +531,13 @@ def _merge(a, b, appended=()):
     return out
 
 
-def to_yaml(path, base="fixed", repair=False):
-    """The URDF at `path` as the text of an equivalent scene YAML (what `mbsfmu convert` writes)."""
+def to_yaml(path, base="fixed", repair=False, scene_dir=None):
+    """The URDF at `path` as the text of an equivalent scene YAML to be written into `scene_dir` (default the
+    URDF's folder: mesh files are named relative to it), what `mbsfmu convert` writes."""
     import json
 
     import yaml
-    doc, repairs = read(path, base=base, repair=repair)
+    doc, repairs = read(path, base=base, repair=repair, scene_dir=scene_dir)
     plain = json.loads(json.dumps(doc))  # Map/Seq → plain data; floats keep every digit (repr)
     head = [f"# {Path(path).name} converted by mbsfmu convert (base: {base}); joint limits and friction are not modelled"]
     head += [f"# repaired: {r}" for r in repairs]
