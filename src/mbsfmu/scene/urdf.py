@@ -86,7 +86,8 @@ def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None
     robot = _Robot(root, fail, repair)
     robot.meshes = _Meshes(path.parent, package_dirs, scene_dir or path.parent, fail)
     doc = robot.document(base)
-    return _tree(doc, robot.lines, line_of_include), robot.repairs
+    tree = _tree(doc, line_of_include) if line_of_include is not None else _with_urdf_lines(doc, robot.lines, robot.damper_lines)
+    return tree, robot.repairs
 
 
 def _failer(file):
@@ -124,7 +125,8 @@ class _Robot:
     """Links and joints of one URDF, checked; `document` writes the scene."""
 
     def __init__(self, root, fail, repair):
-        self.fail, self.repair, self.repairs, self.lines = fail, repair, [], {}
+        self.fail, self.repair, self.repairs = fail, repair, []
+        self.lines, self.damper_lines = {}, []  # URDF lines of the bodies (by name) and of the joint dampers
         self.name = _identifier(root.attrs.get("name") or "robot", "model")
         self.links, self.joints = {}, {}
         self.materials = {e.attrs.get("name"): e for e in root.children if e.tag == "material"}
@@ -362,6 +364,7 @@ class _Robot:
             self.fail(d.line, "dynamics", f"joint '{name}' has the negative damping {damping:g}")
         if damping > 0 and len(out.get("coordinates", ())) == 1:
             forces.append({"type": "joint_spring_damper", "coordinate": coordinate, "stiffness": 0, "damping": damping})
+            self.damper_lines.append(d.line)
         return out
 
 
@@ -446,23 +449,30 @@ def _identifier(name, what, dots=False):
     return out if re.match(r"[A-Za-z]", out) else "l_" + out
 
 
-def _tree(value, lines, line, depth_key=None):
-    """Plain data → Map/Seq as read_yaml gives, every node reporting `line` (or its body's URDF line)."""
+def _tree(value, line):
+    """Plain data → Map/Seq as read_yaml gives them, every node reporting `line`."""
     if isinstance(value, dict):
-        out = Map(value)
-        here = line if line is not None else lines.get(depth_key)
-        for k, v in value.items():
-            key_line = line if line is not None else lines.get(k, here)
-            out[k] = _tree(v, lines, line, k if k in lines else depth_key)
-            out.lines = {**out.lines, k: key_line}
-        out.line = here
-        return out
-    if isinstance(value, list):
-        out = Seq(_tree(v, lines, line, depth_key) for v in value)
-        out.line = line if line is not None else lines.get(depth_key)
-        out.lines = {i: out.line for i in range(len(out))}
-        return out
-    return value
+        out = Map({k: _tree(v, line) for k, v in value.items()})
+        out.lines = dict.fromkeys(value, line)
+    elif isinstance(value, list):
+        out = Seq(_tree(v, line) for v in value)
+        out.lines = dict.fromkeys(range(len(value)), line)
+    else:
+        return value
+    out.line = line
+    return out
+
+
+def _with_urdf_lines(doc, lines, damper_lines):
+    """The document with each body and joint damper reporting the line of its URDF element."""
+    tree = _tree(doc, 1)
+    for name, body in doc["bodies"].items():
+        tree["bodies"][name] = _tree(body, lines[name])
+        tree["bodies"].lines[name] = lines[name]
+    for i, force in enumerate(doc.get("forces", ())):
+        tree["forces"][i] = _tree(force, damper_lines[i])
+        tree["forces"].lines[i] = damper_lines[i]
+    return tree
 
 
 def include(root, file, base, allow_outside=False, repair=False):
