@@ -259,6 +259,12 @@ HOSTILE = {
     "negative_mass": ('<robot name="r">\n<link name="a"><inertial>\n<mass value="-1"/></inertial></link>\n</robot>', r":3: <mass>: .*negative mass"),
     "huge_counts": ('<robot name="r">\n' + '<link name="l"/>' * (limits_entries := 10_001) + '\n</robot>', r"a second link named 'l'"),
     "many_links": ('<robot name="r">\n' + "".join(f'<link name="l{i}"/>' for i in range(limits_entries)) + '\n</robot>', r"more than 10,000 links"),
+    "names_collide": ('<robot name="r">\n' + _link("a") + _link("b") + _link("c") + '\n<joint name="j-1" type="revolute"><parent link="a"/>'
+                      '<child link="b"/></joint>\n<joint name="j_1" type="revolute"><parent link="b"/><child link="c"/></joint>\n</robot>',
+                      r":4: <joint>: joint 'j_1' would name the coordinate 'j_1', which joint 'j-1' already names"),
+    "links_collide": ('<robot name="r">\n' + _link("a") + '\n' + _link("b-1") + '\n' + _link("b_1") + '\n<joint name="j" type="fixed"><parent link="a"/>'
+                      '<child link="b-1"/></joint><joint name="k" type="fixed"><parent link="a"/><child link="b_1"/></joint>\n</robot>',
+                      r":4: <link>: link 'b_1' would be the scene body 'b_1', which another link"),
     "deep": ('<robot name="r">' + "<a>" * 100 + "</a>" * 100 + "</robot>", r"nested deeper than 64"),
 }
 

@@ -126,6 +126,7 @@ class _Robot:
 
     def __init__(self, root, fail, repair):
         self.fail, self.repair, self.repairs = fail, repair, []
+        self.coordinates = {}  # coordinate name → the URDF joint that gives it
         self.lines, self.damper_lines = {}, []  # URDF lines of the bodies (by name) and of the joint dampers
         self.name = _identifier(root.attrs.get("name") or "robot", "model")
         self.links, self.joints = {}, {}
@@ -344,6 +345,10 @@ class _Robot:
                       "a coupled coordinate (a closed constraint), which the scene format cannot state",
                       "remove the <mimic> element to make the joint independent")
         coordinate = _identifier(name, "coordinate", dots=True)
+        if coordinate in self.coordinates:
+            self.fail(j.line, "joint", f"joint '{name}' would name the coordinate '{coordinate}', which joint '{self.coordinates[coordinate]}' already names",
+                      "rename one of the joints (coordinate names are letters, digits, '_' and '.')")
+        self.coordinates[coordinate] = name
         axis = self.numbers(j.find("axis"), "xyz", 3, [1.0, 0.0, 0.0])
         norm = math.sqrt(sum(a * a for a in axis))
         if kind in ("revolute", "continuous", "prismatic", "planar") and not norm > 0:
