@@ -265,6 +265,7 @@ HOSTILE = {
     "links_collide": ('<robot name="r">\n' + _link("a") + '\n' + _link("b-1") + '\n' + _link("b_1") + '\n<joint name="j" type="fixed"><parent link="a"/>'
                       '<child link="b-1"/></joint><joint name="k" type="fixed"><parent link="a"/><child link="b_1"/></joint>\n</robot>',
                       r":4: <link>: link 'b_1' would be the scene body 'b_1', which another link"),
+    "many_elements": ('<robot name="r">' + "<a/>" * 100_001 + "</robot>", r":1: <a>: more than 100,000 XML elements"),
     "deep": ('<robot name="r">' + "<a>" * 100 + "</a>" * 100 + "</robot>", r"nested deeper than 64"),
 }
 

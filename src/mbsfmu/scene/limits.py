@@ -13,6 +13,7 @@ ALIAS_NODES = 1_000_000         # nodes that aliases may add to the document onc
 SCALAR_CHARS = 65_536           # one string (a description, an expression)
 INT_CHARS = 100                 # one integer literal (digits, sign, base prefix)
 EXPRESSION_CHARS = 4096         # one numeric expression
+URDF_ELEMENTS = 100_000         # XML elements of a URDF (Talos, 1,939 with visuals, collisions and transmissions)
 MESSAGE_CHARS = 400             # an error message (quoted input is shortened)
 
 NPZ_BYTES = 64 * 2**20          # an .npz file, and the arrays read from it (declared uncompressed sizes)

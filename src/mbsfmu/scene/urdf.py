@@ -53,8 +53,8 @@ class _Builder(xml.sax.ContentHandler):
         if tag.startswith("xacro:"):
             self.fail(line, tag, "a xacro macro file, not a URDF", _XACRO_HINT)
         self.count += 1
-        if self.count > limits.NODES:
-            self.fail(line, tag, f"more than {limits.NODES:,} XML elements", "a robot description needs far fewer")
+        if self.count > limits.URDF_ELEMENTS:
+            self.fail(line, tag, f"more than {limits.URDF_ELEMENTS:,} XML elements", "a robot description needs far fewer")
         if len(self.stack) >= limits.DEPTH:
             self.fail(line, tag, f"elements nested deeper than {limits.DEPTH}", "URDF elements nest 3-4 deep")
         e = _Element(tag, dict(attrs), line)
