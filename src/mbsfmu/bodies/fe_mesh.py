@@ -1,0 +1,272 @@
+"""A solid mesh plus material (E, ν, ρ) → FEModel: consistent mass and stiffness assembled with scikit-fem (issue 24).
+
+Build time only (the `fe` extra: meshio reads the file, scikit-fem assembles); nothing of this reaches an FMU.
+
+Elements, from the mesh's solid cell type unless `element=` says otherwise:
+- tet4 (meshio 'tetra'): linear tetrahedra; `element="tet10"` on such a mesh adds a node at every edge midpoint;
+- tet10 ('tetra10'): quadratic tetrahedra with straight edges (midside nodes at the edge midpoints; curved
+  edges are refused rather than silently straightened); `element="tet4"` drops the midside nodes;
+- hex8 ('hexahedron'): trilinear hexahedra.
+hex20/hex27, wedges, pyramids and mixed solid cell types are refused with the supported list.
+
+Nodes (FEModel.nodes, the DOF-carrying nodes, scikit-fem's `basis.doflocs`): first the vertices of the solid
+cells in the order of the file (points no solid cell uses are dropped), then for tet10 one node per edge in
+scikit-fem's edge order. DOFs are node-major, x y z per node; scikit-fem numbers vector DOFs its own way, so
+`_node_major` maps them explicitly. Node sets: the file's point sets, and the points of its named cell sets
+(Abaqus *ELSET, gmsh physical groups), mapped to these nodes; a file's midside point maps to its edge's node.
+
+Bounded: the file is read whole (at most limits.FE_MESH_BYTES) and parsed from memory, the assembled size is
+checked against limits.FE_DOFS before any assembly, and nothing outside the one file is read (Abaqus *INCLUDE
+is refused).
+"""
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ModelError
+from ..scene import datafile, limits
+from ._fe_stub import FEModel
+
+ELEMENTS = ("tet4", "tet10", "hex8")
+CELL_ELEMENT = {"tetra": "tet4", "tetra10": "tet10", "hexahedron": "hex8"}
+SOLID_CELLS = ("tetra", "tetra10", "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
+               "wedge12", "wedge15", "pyramid", "pyramid13", "pyramid14")
+FORMATS = {".msh": "gmsh", ".inp": "abaqus", ".vtk": "vtk", ".vtu": "vtu"}   # parsed from memory, self-contained
+TET10_EDGES = ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3))                 # meshio/VTK midside node order
+MIDSIDE_TOL = 1e-6                                                             # of the edge's length
+
+
+def assemble_solid(mesh, E, nu, rho, element=None, *, base=".", allow_outside=False):
+    """FEModel of the solid `mesh` (a file name relative to `base`, confined to it unless `allow_outside`, or a
+    meshio.Mesh) with Young's modulus E, Poisson's ratio nu and density rho; `element` one of ELEMENTS or None."""
+    E, nu, rho = _material(E, nu, rho)
+    if isinstance(mesh, (str, os.PathLike)):
+        source = str(mesh)
+        mesh = read_mesh(datafile.resolve(base, str(mesh), allow_outside))
+    else:
+        source = "<meshio.Mesh>"
+    try:
+        return _assemble(mesh, E, nu, rho, element, source)
+    except ModelError as err:
+        raise ModelError(err.message, file=source, key=err.key, hint=err.hint) from None
+
+
+def _material(E, nu, rho):
+    """E > 0, -1 < ν < 0.5, ρ > 0, all finite: the range in which the elasticity form is positive definite."""
+    checks = (("E", E, lambda v: v > 0, "a positive Young's modulus in Pa"),
+              ("nu", nu, lambda v: -1 < v < 0.5, "a Poisson's ratio in (-1, 0.5)"),
+              ("rho", rho, lambda v: v > 0, "a positive density in kg/m³"))
+    out = []
+    for key, v, ok, what in checks:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or not ok(v):
+            raise ModelError(f"expected {what}, got {v!r}", key=f"material.{key}")
+        out.append(float(v))
+    return out
+
+
+def read_mesh(path):
+    """The meshio.Mesh in the regular file `path`, read whole into memory first (size bounded)."""
+    path = Path(path)
+    fmt = FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise ModelError(f"unknown mesh format '{path.suffix}'", file=str(path),
+                         hint="give a gmsh .msh, Abaqus .inp, VTK .vtk or .vtu file")
+    try:
+        with limits.open_regular(path) as f:
+            data = f.read(limits.FE_MESH_BYTES + 1)  # not fstat alone: the file may grow while it is read
+    except OSError as e:
+        raise ModelError(f"cannot read the mesh file: {e.strerror or e}", file=str(path),
+                         hint="give a regular mesh file next to the scene") from None
+    if len(data) > limits.FE_MESH_BYTES:
+        raise ModelError(f"the mesh file is larger than {limits.FE_MESH_BYTES // 2**20} MiB", file=str(path),
+                         hint=f"a mesh of at most {limits.FE_DOFS:,} DOFs fits well below that")
+    if fmt == "abaqus" and any(line.lstrip().lower().startswith(b"*include") for line in data.splitlines()):
+        raise ModelError("the Abaqus file includes other files (*INCLUDE), which are not followed", file=str(path),
+                         hint="write the mesh into one .inp file")
+    return _parse(data, fmt, path)
+
+
+def _parse(data, fmt, path):
+    """meshio's reader for `fmt` on the bytes, from a private temporary copy (the readers want a file name; the
+    copy cannot change or grow); any failure of the foreign parser becomes one ModelError."""
+    import meshio
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            copy = Path(tmp) / ("mesh" + path.suffix.lower())
+            copy.write_bytes(data)
+            return meshio.read(copy, file_format=fmt)
+    except Exception as e:  # a third-party parser on foreign bytes: ReadError, ValueError, IndexError, struct.error, ...
+        text = str(e).splitlines()[0][:200] if str(e) else ""
+        raise ModelError(f"cannot read the {fmt} mesh: {type(e).__name__}: {text}", file=str(path),
+                         hint="write the mesh again from the mesher (gmsh, Abaqus, meshio)") from None
+
+
+def _assemble(mesh, E, nu, rho, element, source):
+    kind, cells = _solid_cells(mesh)
+    element = _element(kind, element)
+    points = np.asarray(mesh.points, float)
+    if points.ndim != 2 or points.shape[1] not in (2, 3) or not np.all(np.isfinite(points)):
+        raise ModelError(f"the mesh's points are not finite 3-D coordinates (shape {points.shape})")
+    if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
+        raise ModelError("a cell refers to a point the mesh does not have", hint="the file is corrupt")
+    points = np.column_stack([points, np.zeros(len(points))]) if points.shape[1] == 2 else points
+    corners = cells[:, :8 if kind == "hexahedron" else 4]
+    used = np.unique(corners)
+    _check_size(element, len(used), len(cells))
+    vertex = np.full(len(points), -1)
+    vertex[used] = np.arange(len(used))
+    p, t = points[used], vertex[corners]
+    _check_orientation(p, t, kind)
+    if kind == "tetra10":
+        _check_straight(points, cells)
+    basis = _basis(p, t, element)
+    M, K = _matrices(basis, E, nu, rho)
+    order, nodes = _node_major(basis, element)
+    point_node = _point_nodes(len(points), vertex, basis, cells if kind == "tetra10" and element == "tet10" else None)
+    return FEModel(nodes=nodes, M=M[order][:, order].tocsr(), K=K[order][:, order].tocsr(),
+                   node_sets=_node_sets(mesh, point_node), source=source)
+
+
+def _solid_cells(mesh):
+    """(meshio cell type, connectivity) of the mesh's solid cells, all blocks of the one supported type."""
+    types = sorted({c.type for c in mesh.cells if len(c.data)})
+    if not types:
+        raise ModelError("the mesh has no cells", hint="mesh the volume of the part (gmsh: Mesh 3D)")
+    solid = [t for t in types if t in SOLID_CELLS]
+    supported = ", ".join(f"{c} ({e})" for c, e in CELL_ELEMENT.items())
+    if not solid:
+        raise ModelError(f"the mesh has no solid cells, only {', '.join(types)}", hint=f"mesh the volume: {supported}")
+    if len(solid) > 1:
+        raise ModelError(f"the mesh mixes solid cell types {', '.join(solid)}", hint=f"use one of {supported}")
+    if solid[0] not in CELL_ELEMENT:
+        raise ModelError(f"solid cells of type '{solid[0]}' are not supported", hint=f"use {supported}")
+    data = [np.asarray(c.data) for c in mesh.cells if c.type == solid[0]]
+    return solid[0], np.concatenate(data).astype(np.int64)
+
+
+def _element(kind, element):
+    """The element to assemble: the cell type's own, or `element` where the cells carry it."""
+    own = CELL_ELEMENT[kind]
+    if element is None:
+        return own
+    if element not in ELEMENTS:
+        raise ModelError(f"unknown element {element!r}", key="element", hint=f"use one of {', '.join(ELEMENTS)}")
+    if (element == "hex8") != (own == "hex8"):
+        raise ModelError(f"element {element} does not fit the mesh's '{kind}' cells", key="element",
+                         hint="tet4 or tet10 on tetrahedra, hex8 on hexahedra")
+    return element
+
+
+def _check_size(element, vertices, cells):
+    """Refuse before assembling: DOFs counted from vertices and edges (a tet mesh has about 1.2 edges per cell)."""
+    nodes = vertices + (int(1.2 * cells) + vertices if element == "tet10" else 0)
+    if 3 * nodes > limits.FE_DOFS:
+        raise ModelError(f"the mesh has about {3 * nodes:,} DOFs as {element}, more than {limits.FE_DOFS:,}",
+                         hint="coarsen the mesh: a few thousand quadratic elements resolve the lowest modes")
+
+
+def _check_orientation(p, t, kind):
+    """Every element's corner Jacobians positive (VTK/meshio node order): an inverted or flat element is refused."""
+    if kind == "hexahedron":
+        # at corner i, the three edges to its neighbours in the VTK hexahedron (bottom 0-3, top 4-7)
+        nb = [(1, 3, 4), (2, 0, 5), (3, 1, 6), (0, 2, 7), (7, 5, 0), (4, 6, 1), (5, 7, 2), (6, 4, 3)]
+        dets = np.column_stack([_triple(p, t, i, *n) for i, n in enumerate(nb)])
+    else:
+        dets = _triple(p, t, 0, 1, 2, 3)[:, None]
+    scale = np.ptp(p, axis=0).max() ** 3 if len(p) else 1.0
+    bad = np.nonzero((dets <= 1e-12 * scale).any(axis=1))[0]
+    if len(bad):
+        raise ModelError(f"{len(bad)} element(s) are inverted or flat (non-positive Jacobian), the first is cell {bad[0]}",
+                         hint="fix the node order or the mesh in the mesher")
+
+
+def _triple(p, t, i, a, b, c):
+    """(p_a - p_i) · ((p_b - p_i) × (p_c - p_i)) for every element."""
+    o = p[t[:, i]]
+    return np.einsum("ij,ij->i", p[t[:, a]] - o, np.cross(p[t[:, b]] - o, p[t[:, c]] - o))
+
+
+def _check_straight(points, cells):
+    """tet10 cells: each midside node at its edge's midpoint (curved edges would need isoparametric elements)."""
+    a = points[cells[:, [e[0] for e in TET10_EDGES]]]
+    b = points[cells[:, [e[1] for e in TET10_EDGES]]]
+    off = np.linalg.norm(points[cells[:, 4:10]] - 0.5 * (a + b), axis=2) / np.linalg.norm(b - a, axis=2)
+    if off.max() > MIDSIDE_TOL:
+        c, e = np.unravel_index(off.argmax(), off.shape)
+        raise ModelError(f"cell {c}: midside node {cells[c, 4 + e]} lies {off[c, e]:.2g} edge lengths off its edge's "
+                         f"midpoint (curved tet10 edges are not supported)", hint="mesh with straight edges (gmsh: no "
+                         "Mesh.SecondOrderLinear 0), or give the tet4 mesh with element: tet10")
+
+
+def _basis(p, t, element):
+    from skfem import Basis, ElementHex1, ElementTetP1, ElementTetP2, ElementVector, MeshHex1, MeshTet1
+    from skfem.io.meshio import INV_HEX_MAPPING
+    if element == "hex8":
+        mesh, elem = MeshHex1(p.T, t.T[INV_HEX_MAPPING[:8]]), ElementHex1()
+    else:
+        mesh, elem = MeshTet1(p.T, t.T), ElementTetP2() if element == "tet10" else ElementTetP1()
+    return Basis(mesh, ElementVector(elem))
+
+
+def _matrices(basis, E, nu, rho):
+    """Consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v), in scikit-fem's DOF order (exact quadrature of both)."""
+    from skfem import BilinearForm, asm
+    from skfem.helpers import dot
+    from skfem.models.elasticity import lame_parameters, linear_elasticity
+
+    @BilinearForm
+    def mass(u, v, w):
+        return rho * dot(u, v)
+
+    K = asm(linear_elasticity(*lame_parameters(E, nu)), basis)
+    M = asm(mass, basis)
+    return M.tocsr(), K.tocsr()
+
+
+def _node_major(basis, element):
+    """(order, nodes): order[3k + c] is scikit-fem's DOF of component c at node k; nodes are the vertices, then the
+    edge midpoints for tet10 (their coordinates from basis.doflocs)."""
+    dofs = basis.nodal_dofs if element != "tet10" else np.hstack([basis.nodal_dofs, basis.edge_dofs])
+    order = dofs.T.reshape(-1)                       # node-major: (node, component)
+    return order, np.ascontiguousarray(basis.doflocs[:, dofs[0]].T)
+
+
+def _point_nodes(n_points, vertex, basis, tet10_cells):
+    """FE node of each point of the file (-1: carries no DOF); a tet10 file's midside points map to edge nodes."""
+    node = vertex.copy()
+    if tet10_cells is not None:
+        mesh = basis.mesh
+        edge_of = {tuple(e): i for i, e in enumerate(np.sort(mesh.edges, axis=0).T.tolist())}
+        n_vertices = mesh.p.shape[1]
+        for k, (a, b) in enumerate(TET10_EDGES):
+            ends = np.sort(vertex[tet10_cells[:, [a, b]]], axis=1)
+            node[tet10_cells[:, 4 + k]] = n_vertices + np.array([edge_of[tuple(e)] for e in ends.tolist()])
+    return node
+
+
+def _node_sets(mesh, point_node):
+    """name → FE node indices: the file's point sets, the points of its named cell sets and gmsh physical groups."""
+    sets = {}
+    for name, idx in (mesh.point_sets or {}).items():
+        sets[name] = np.asarray(idx, np.int64).ravel()
+    for name, per_block in (mesh.cell_sets or {}).items():
+        points = [np.asarray(block.data)[np.asarray(sel, np.int64).ravel()].ravel()
+                  for block, sel in zip(mesh.cells, per_block) if sel is not None and len(sel)]
+        if points and not name.startswith("gmsh:"):
+            sets.setdefault(name, np.concatenate(points))
+    physical = (mesh.cell_data or {}).get("gmsh:physical")     # gmsh 2.2 files: tags, named in field_data
+    for name, (tag, _dim) in ((k, v[:2]) for k, v in (mesh.field_data or {}).items()) if physical else ():
+        points = [np.asarray(block.data)[np.asarray(tags) == tag].ravel() for block, tags in zip(mesh.cells, physical)]
+        sets.setdefault(name, np.concatenate(points))
+    out = {}
+    for name, idx in sets.items():
+        idx = idx[(idx >= 0) & (idx < len(point_node))]
+        nodes = np.unique(point_node[idx])
+        if len(nodes) and nodes[0] < 0:
+            nodes = nodes[1:]
+        if len(nodes):
+            out[str(name)] = nodes
+    return out
