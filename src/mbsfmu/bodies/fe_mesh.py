@@ -97,9 +97,9 @@ def _parse(data, fmt, path):
         with tempfile.TemporaryDirectory() as tmp:
             copy = Path(tmp) / ("mesh" + path.suffix.lower())
             copy.write_bytes(data)
-            return meshio.read(copy, file_format=fmt)
+            return meshio._helpers.reader_map[fmt](str(copy))  # not meshio.read: it calls sys.exit on a bad file
     except Exception as e:  # a third-party parser on foreign bytes: ReadError, ValueError, IndexError, struct.error, ...
-        text = str(e).splitlines()[0][:200] if str(e) else ""
+        text = str(e).splitlines()[0][:200] if str(e).strip() else f"not a {fmt} file"
         raise ModelError(f"cannot read the {fmt} mesh: {type(e).__name__}: {text}", file=str(path),
                          hint="write the mesh again from the mesher (gmsh, Abaqus, meshio)") from None
 
@@ -249,24 +249,30 @@ def _point_nodes(n_points, vertex, basis, tet10_cells):
 
 def _node_sets(mesh, point_node):
     """name → FE node indices: the file's point sets, the points of its named cell sets and gmsh physical groups."""
-    sets = {}
-    for name, idx in (mesh.point_sets or {}).items():
-        sets[name] = np.asarray(idx, np.int64).ravel()
+    sets = {name: _indices(idx, len(point_node), f"point set '{name}'") for name, idx in (mesh.point_sets or {}).items()}
     for name, per_block in (mesh.cell_sets or {}).items():
-        points = [np.asarray(block.data)[np.asarray(sel, np.int64).ravel()].ravel()
-                  for block, sel in zip(mesh.cells, per_block) if sel is not None and len(sel)]
-        if points and not name.startswith("gmsh:"):
-            sets.setdefault(name, np.concatenate(points))
+        if not name.startswith("gmsh:"):          # gmsh:bounding_entities are entity tags, not cells
+            sets.setdefault(name, np.concatenate([np.zeros(0, np.int64)] + [
+                np.asarray(block.data)[_indices(sel, len(block.data), f"cell set '{name}'")].ravel()
+                for block, sel in zip(mesh.cells, per_block) if sel is not None]))
     physical = (mesh.cell_data or {}).get("gmsh:physical")     # gmsh 2.2 files: tags, named in field_data
-    for name, (tag, _dim) in ((k, v[:2]) for k, v in (mesh.field_data or {}).items()) if physical else ():
-        points = [np.asarray(block.data)[np.asarray(tags) == tag].ravel() for block, tags in zip(mesh.cells, physical)]
-        sets.setdefault(name, np.concatenate(points))
+    for name, value in (mesh.field_data or {}).items() if physical else ():
+        tag = np.asarray(value).ravel()[:1]
+        sets.setdefault(name, np.concatenate([np.zeros(0, np.int64)] + [
+            np.asarray(block.data)[np.asarray(tags).ravel() == tag].ravel()
+            for block, tags in zip(mesh.cells, physical) if len(tags) == len(block.data)]))
     out = {}
     for name, idx in sets.items():
-        idx = idx[(idx >= 0) & (idx < len(point_node))]
         nodes = np.unique(point_node[idx])
-        if len(nodes) and nodes[0] < 0:
-            nodes = nodes[1:]
+        nodes = nodes[nodes >= 0]                 # points no solid cell uses carry no DOF
         if len(nodes):
             out[str(name)] = nodes
     return out
+
+
+def _indices(idx, n, what):
+    """Integer indices in [0, n) of a set, or one ModelError (a forged file may point anywhere)."""
+    idx = np.asarray(idx).ravel()
+    if idx.size and (idx.dtype.kind not in "iu" or idx.min() < 0 or idx.max() >= n):
+        raise ModelError(f"the {what} refers to entries the mesh does not have (of {n})", hint="the file is corrupt")
+    return idx.astype(np.int64)

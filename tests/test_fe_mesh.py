@@ -1,0 +1,277 @@
+"""Solid meshes → consistent M, K (bodies/fe_mesh.py) against closed forms: Euler–Bernoulli frequencies and
+deflection of a slender tet10 cantilever, ρV, rigid-body modes, the energy of uniform strain (which pins the
+node-major DOF map), file points against node coordinates; hostile meshes refused with one ModelError line."""
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+meshio = pytest.importorskip("meshio")
+skfem = pytest.importorskip("skfem")
+
+from scipy.sparse.linalg import eigsh, spsolve  # noqa: E402
+
+from mbsfmu.bodies.fe_mesh import assemble_solid  # noqa: E402
+from mbsfmu.errors import ModelError  # noqa: E402
+
+E, NU, RHO = 2.1e11, 0.3, 7850.0
+BETA_L = (1.875104068711961, 4.694091132974175)   # cantilever roots: (βL)² = 3.5160, 22.0345
+
+
+def box_tets(L, b, h, nx, ny, nz):
+    """Positively oriented tetrahedra of the box [0, L]×[0, b]×[0, h] (scikit-fem's tensor mesh, reoriented)."""
+    m = skfem.MeshTet.init_tensor(np.linspace(0, L, nx + 1), np.linspace(0, b, ny + 1), np.linspace(0, h, nz + 1))
+    p, t = m.p.T.copy(), m.t.T.copy()
+    flip = _volumes(p, t) < 0
+    t[flip] = t[flip][:, [1, 0, 2, 3]]
+    return p, t
+
+
+def box_hexes(L, b, h, nx, ny, nz):
+    """Hexahedra of the box in VTK node order (bottom face counter-clockwise, then the top face)."""
+    x, y, z = np.linspace(0, L, nx + 1), np.linspace(0, b, ny + 1), np.linspace(0, h, nz + 1)
+    idx = np.arange(len(x) * len(y) * len(z)).reshape(len(x), len(y), len(z))
+    p = np.array(np.meshgrid(x, y, z, indexing="ij")).reshape(3, -1).T
+    i, j, k = (a.ravel() for a in np.meshgrid(range(nx), range(ny), range(nz), indexing="ij"))
+    t = np.column_stack([idx[i, j, k], idx[i + 1, j, k], idx[i + 1, j + 1, k], idx[i, j + 1, k],
+                         idx[i, j, k + 1], idx[i + 1, j, k + 1], idx[i + 1, j + 1, k + 1], idx[i, j + 1, k + 1]])
+    return p, t
+
+
+def _volumes(p, t):
+    a = p[t[:, 0]]
+    return np.einsum("ij,ij->i", p[t[:, 1]] - a, np.cross(p[t[:, 2]] - a, p[t[:, 3]] - a)) / 6
+
+
+def tet10_cells(p, t):
+    """A 'tetra10' mesh of the tet4 mesh: one point per edge at its midpoint, in meshio's midside order."""
+    edges, points, cells = {}, list(p), []
+    for tet in t:
+        mid = []
+        for a, b in ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)):
+            key = tuple(sorted((tet[a], tet[b])))
+            if key not in edges:
+                edges[key] = len(points)
+                points.append(0.5 * (p[tet[a]] + p[tet[b]]))
+            mid.append(edges[key])
+        cells.append(list(tet) + mid)
+    return np.array(points), np.array(cells)
+
+
+def clamped(fe, x0=0.0):
+    """DOFs left free when every node at x = x0 is fixed."""
+    fixed = np.nonzero(np.abs(fe.nodes[:, 0] - x0) < 1e-12)[0]
+    keep = np.ones(fe.M.shape[0], bool)
+    keep[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
+    return np.nonzero(keep)[0]
+
+
+@pytest.fixture(scope="module")
+def cantilever():
+    """Slender steel bar 1 m × 20 mm × 20 mm (L/h = 50: shear and rotary inertia < 0.15 % on mode 2), tet10;
+    ν = 0 so that the clamped face does not stiffen the root by blocking the Poisson contraction."""
+    L, h = 1.0, 0.02
+    p, t = box_tets(L, h, h, 40, 2, 2)
+    fe = assemble_solid(meshio.Mesh(p, [("tetra", t)]), E, 0.0, RHO, element="tet10")
+    return L, h, fe
+
+
+def test_tet10_cantilever_bending_frequencies(cantilever):
+    L, h, fe = cantilever
+    free = clamped(fe)
+    K, M = fe.K[free][:, free], fe.M[free][:, free]
+    lam = eigsh(K, k=6, M=M, sigma=0.0, which="LM", return_eigenvectors=False)
+    f = np.sort(np.sqrt(lam))
+    EI, rhoA = E * h**4 / 12, RHO * h * h
+    eb = np.array(BETA_L) ** 2 * np.sqrt(EI / (rhoA * L**4))
+    # square section: each bending frequency twice (y and z), then torsion/axial far above mode 2 ... check pairs
+    assert f[:2] == pytest.approx([eb[0]] * 2, rel=5e-3)
+    assert f[2:4] == pytest.approx([eb[1]] * 2, rel=5e-3)
+
+
+def test_tet10_cantilever_gravity_deflection(cantilever):
+    """Consistent body load f = M·g (exactly ρg integrated over the volume) against w_tip = qL⁴/8EI."""
+    L, h, fe = cantilever
+    free = clamped(fe)
+    g = np.zeros(fe.M.shape[0])
+    g[2::3] = -9.81
+    u = np.zeros_like(g)
+    u[free] = spsolve(fe.K[free][:, free].tocsc(), (fe.M @ g)[free])
+    tip = np.abs(fe.nodes[:, 0] - L) < 1e-12
+    q = RHO * h * h * 9.81
+    assert u[2::3][tip].mean() == pytest.approx(-q * L**4 / (8 * E * h**4 / 12), rel=5e-3)
+
+
+@pytest.mark.parametrize("element", ["tet4", "tet10", "hex8"])
+def test_mass_rigid_modes_and_uniform_strain(element):
+    """Free body: Σ M over each direction = ρV exactly, K has exactly six zero eigenvalues, and a uniform strain
+    field u = εx (set from the node coordinates, node-major) stores ½ V ε:C:ε: a wrong DOF map fails all."""
+    L, b, h = 0.3, 0.1, 0.05
+    p, t = box_hexes(L, b, h, 3, 2, 1) if element == "hex8" else box_tets(L, b, h, 3, 2, 1)
+    fe = assemble_solid(meshio.Mesh(p, [("hexahedron" if element == "hex8" else "tetra", t)]), E, NU, RHO,
+                        element=element)
+    n = fe.M.shape[0]
+    assert fe.M.shape == fe.K.shape == (3 * len(fe.nodes),) * 2
+    for c in range(3):
+        one = np.zeros(n)
+        one[c::3] = 1.0
+        assert one @ fe.M @ one == pytest.approx(RHO * L * b * h, rel=1e-12)
+        assert np.abs((fe.M @ one)[np.arange(n) % 3 != c]).max() < 1e-12 * RHO * L * b * h   # no cross-coupling
+    w = np.linalg.eigvalsh(fe.K.toarray())
+    assert np.sum(np.abs(w) < 1e-9 * w.max()) == 6 and w[6] > 1e-6 * w.max()
+    eps = np.array([[1.0, 0.3, -0.2], [0.3, -0.5, 0.7], [-0.2, 0.7, 0.4]]) * 1e-3
+    lam, mu = E * NU / ((1 + NU) * (1 - 2 * NU)), E / (2 * (1 + NU))
+    sigma = lam * np.trace(eps) * np.eye(3) + 2 * mu * eps
+    u = (fe.nodes @ (eps + np.array([[0, 1, 2], [-1, 0, 3], [-2, -3, 0]]) * 1e-3).T).ravel()  # + a small rotation
+    assert 0.5 * u @ fe.K @ u == pytest.approx(0.5 * L * b * h * np.sum(sigma * eps), rel=1e-9)
+
+
+def test_tet10_file_points_map_to_their_nodes(tmp_path):
+    """A 'tetra10' gmsh file against element: tet10 on its corners: the same matrices, and every point of a node
+    set (midside points included) maps to the FE node at the same coordinates."""
+    p4, t4 = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    p, t = tet10_cells(p4, t4)
+    end = np.nonzero(np.abs(p[:, 0] - 0.2) < 1e-12)[0]
+    meshio.Mesh(p, [("tetra10", t)], point_sets={"end": end}).write(tmp_path / "part.inp")
+    fe = assemble_solid("part.inp", E, NU, RHO, base=tmp_path)
+    ref = assemble_solid(meshio.Mesh(p4, [("tetra", t4)]), E, NU, RHO, element="tet10")
+    assert sorted(map(tuple, fe.node_sets["end"].reshape(-1, 1))) and len(fe.node_sets["end"]) == len(end)
+    assert np.allclose(np.sort(fe.nodes[fe.node_sets["end"]], axis=0), np.sort(p[end], axis=0), atol=1e-15)
+    assert np.array_equal(fe.nodes, ref.nodes)
+    assert abs(fe.K - ref.K).max() < 1e-9 * abs(ref.K).max() and abs(fe.M - ref.M).max() < 1e-12 * abs(ref.M).max()
+
+
+GMSH41 = """$MeshFormat
+4.1 0 8
+$EndMeshFormat
+$PhysicalNames
+2
+2 8 "clamp"
+3 7 "body"
+$EndPhysicalNames
+$Entities
+0 0 1 1
+1 0 0 0 0 1 1 1 8 0
+1 0 0 0 1 1 1 1 7 1 1
+$EndEntities
+$Nodes
+1 4 1 4
+3 1 0 4
+1
+2
+3
+4
+0 0 0
+1 0 0
+0 1 0
+0 0 1
+$EndNodes
+$Elements
+2 2 1 2
+2 1 2 1
+1 1 3 4
+3 1 4 1
+2 1 2 3 4
+$EndElements
+"""
+
+
+@pytest.mark.parametrize("version", ["4.1", "2.2"])
+def test_gmsh_physical_groups_become_node_sets(tmp_path, version):
+    """gmsh physical groups name node sets: a 4.1 file as gmsh writes it (one tet, the face x = 0 as the surface
+    group 'clamp') and a 2.2 file (physical tags named in field_data) written by meshio."""
+    if version == "4.1":
+        (tmp_path / "part.msh").write_text(GMSH41)
+        p, root, n = np.eye(4, 3, -1), [0, 2, 3], 4
+    else:
+        p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+        root, n = np.nonzero(p[:, 0] < 1e-12)[0], len(p)
+        tri = np.array([[root[0], root[1], root[3]], [root[0], root[3], root[2]]])
+        assert set(tri.ravel()) == set(root)
+        tags = [np.full(len(t), 7), np.full(2, 8)]
+        meshio.Mesh(p, [("tetra", t), ("triangle", tri)], cell_data={"gmsh:physical": tags, "gmsh:geometrical": tags},
+                    field_data={"body": np.array([7, 3]), "clamp": np.array([8, 2])}).write(tmp_path / "part.msh",
+                                                                                          file_format="gmsh22")
+    fe = assemble_solid("part.msh", E, NU, RHO, base=tmp_path)
+    assert np.allclose(np.sort(fe.nodes[fe.node_sets["clamp"]], axis=0), np.sort(p[root], axis=0))
+    assert len(fe.node_sets["clamp"]) == len(root) and len(fe.node_sets["body"]) == n
+
+
+# -- hostile meshes: one ModelError line each, quickly -------------------------------------------------------------
+
+def _refused(call, *words):
+    t0 = time.process_time()
+    with pytest.raises(ModelError) as err:
+        call()
+    assert time.process_time() - t0 < 2.0
+    text = str(err.value)
+    assert "\n" not in text and all(w in text for w in words), text
+    return text
+
+
+def _write(path, cells, points=None):
+    p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    meshio.Mesh(p if points is None else points, cells(t)).write(path, file_format="gmsh")  # .msh alone: ANSYS
+
+
+def test_inverted_element_refused(tmp_path):
+    def swap_first(t):
+        t = t.copy()
+        t[3, [0, 1]] = t[3, [1, 0]]
+        return [("tetra", t)]
+    _write(tmp_path / "bad.msh", swap_first)
+    _refused(lambda: assemble_solid("bad.msh", E, NU, RHO, base=tmp_path), "bad.msh", "inverted", "cell 3")
+    p, t = box_hexes(0.2, 0.1, 0.1, 2, 1, 1)
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("hexahedron", t[:, [4, 5, 6, 7, 0, 1, 2, 3]])]), E, NU, RHO),
+             "inverted")
+
+
+def test_empty_and_unknown_cells_refused(tmp_path):
+    p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    _refused(lambda: assemble_solid(meshio.Mesh(p, []), E, NU, RHO), "no cells")
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("triangle", t[:, :3])]), E, NU, RHO), "no solid cells", "triangle")
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("wedge", np.hstack([t, t[:, :2]]))]), E, NU, RHO), "wedge", "tetra")
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("hexahedron27", np.tile(t, 7)[:, :27])]), E, NU, RHO), "hexahedron27")
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t)]), E, NU, RHO, element="hex8"), "element", "tet4")
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t + len(p))]), E, NU, RHO), "point the mesh does not have")
+    (tmp_path / "x.stl").write_text("solid x\nendsolid x\n")
+    _refused(lambda: assemble_solid("x.stl", E, NU, RHO, base=tmp_path), "unknown mesh format", ".msh")
+    (tmp_path / "junk.msh").write_bytes(os.urandom(5000))
+    _refused(lambda: assemble_solid("junk.msh", E, NU, RHO, base=tmp_path), "junk.msh", "cannot read")
+
+
+def test_material_refused():
+    p, t = box_tets(0.2, 0.1, 0.1, 1, 1, 1)
+    m = meshio.Mesh(p, [("tetra", t)])
+    for E_, nu, rho, key in ((0.0, NU, RHO, "material.E"), (E, 0.5, RHO, "material.nu"), (E, NU, float("nan"), "material.rho"),
+                             ("1e9", NU, RHO, "material.E")):
+        _refused(lambda: assemble_solid(m, E_, nu, rho), key)
+
+
+def test_big_outside_and_special_files_refused(tmp_path):
+    big = tmp_path / "big.msh"
+    with open(big, "wb") as f:
+        f.truncate(2 * 2**30)                     # 2 GB, sparse: nothing of it may be read
+    _refused(lambda: assemble_solid("big.msh", E, NU, RHO, base=tmp_path), "larger than")
+    inner = tmp_path / "scene"
+    inner.mkdir()
+    _write(tmp_path / "part.msh", lambda t: [("tetra", t)])
+    _refused(lambda: assemble_solid("../part.msh", E, NU, RHO, base=inner), "outside the scene's folder")
+    (inner / "link.msh").symlink_to(tmp_path / "part.msh")
+    _refused(lambda: assemble_solid("link.msh", E, NU, RHO, base=inner), "outside the scene's folder")
+    os.mkfifo(inner / "fifo.msh")
+    _refused(lambda: assemble_solid("fifo.msh", E, NU, RHO, base=inner), "not a regular file")
+    (inner / "inc.inp").write_text(f"*Heading\n*INCLUDE, INPUT={tmp_path / 'part.inp'}\n")
+    _refused(lambda: assemble_solid("inc.inp", E, NU, RHO, base=inner), "*INCLUDE")
+
+
+def test_curved_tet10_and_too_many_dofs_refused(monkeypatch):
+    p4, t4 = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    p, t = tet10_cells(p4, t4)
+    p[t[0, 4]] += [0.0, 0.0, 0.01]
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra10", t)]), E, NU, RHO), "curved")
+    from mbsfmu.scene import limits
+    monkeypatch.setattr(limits, "FE_DOFS", 100)
+    _refused(lambda: assemble_solid(meshio.Mesh(p4, [("tetra", t4)]), E, NU, RHO, element="tet10"), "DOFs", "100")
