@@ -299,6 +299,47 @@ def test_big_outside_and_special_files_refused(tmp_path):
     _refused(lambda: assemble_solid("inc.inp", E, NU, RHO, base=inner), "*INCLUDE")
 
 
+def _vtu_bomb(blocks):
+    """A .vtu whose points are zlib blocks of 64 MiB of zeros each (about 64 kB compressed, one block reused)."""
+    import base64
+    import zlib
+    size = 64 * 2**20
+    block = zlib.compress(bytes(size), 9)
+    header = np.array([blocks, size, size] + [len(block)] * blocks, np.uint64).tobytes()
+    data = base64.b64encode(header).decode() + base64.b64encode(block * blocks).decode()
+    return f"""<?xml version="1.0"?>
+<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64"
+compressor="vtkZLibDataCompressor"><UnstructuredGrid><Piece NumberOfPoints="{blocks * size // 24}" NumberOfCells="1">
+<Points><DataArray type="Float64" NumberOfComponents="3" format="binary">{data}</DataArray></Points>
+<Cells><DataArray type="Int64" Name="connectivity" format="ascii">0 1 2 3</DataArray>
+<DataArray type="Int64" Name="offsets" format="ascii">4</DataArray>
+<DataArray type="UInt8" Name="types" format="ascii">10</DataArray></Cells></Piece></UnstructuredGrid></VTKFile>"""
+
+
+FORGED = {   # file: a few hundred bytes whose headers declare 10⁹..10¹² entries (meshio allocates what they declare)
+    "nodes41.msh": "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 1000000000000 1 1000000000000\n3 1 0 1000000000000\n"
+                   "1\n$EndNodes\n",
+    "nodes22.msh": "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n1000000000000\n1 0 0 0\n$EndNodes\n",
+    "points.vtk": "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 1000000000000 double\n0 0 0\n",
+    "cells.vtk": "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n"
+                 "0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1000000000 5000000000\n4 0 1 2 3\nCELL_TYPES 1000000000\n10\n",
+}
+
+
+@pytest.mark.parametrize("name", [*FORGED, "bomb.vtu"])
+def test_forged_counts_and_bombs_bounded(tmp_path, monkeypatch, name):
+    """The foreign parser runs in a child under limits.FE_PARSE_BYTES (here lowered to 512 MiB, so that the 1 GiB
+    zlib bomb fails fast): a declared 10¹² nodes or a decompression bomb is one ModelError line, within seconds."""
+    from mbsfmu.scene import limits
+    monkeypatch.setattr(limits, "FE_PARSE_BYTES", 512 * 2**20)
+    (tmp_path / name).write_text(_vtu_bomb(16) if name == "bomb.vtu" else FORGED[name])
+    t0 = time.perf_counter()
+    with pytest.raises(ModelError) as err:
+        assemble_solid(name, E, NU, RHO, base=tmp_path)
+    assert time.perf_counter() - t0 < 10.0
+    assert "\n" not in str(err.value) and "cannot read" in str(err.value) and name in str(err.value)
+
+
 def test_curved_tet10_and_too_many_dofs_refused(monkeypatch):
     p4, t4 = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
     p, t = tet10_cells(p4, t4)

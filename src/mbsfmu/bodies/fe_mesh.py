@@ -89,18 +89,75 @@ def read_mesh(path):
     return _parse(data, fmt, path)
 
 
+# meshio's readers allocate what a file's header declares (10¹² nodes in a 200-byte file): they run in a child
+# process under an address-space and CPU limit, and hand back plain arrays only (npz read without pickle).
+_PARSER = r"""
+import json, os, resource, sys
+import numpy as np
+resource.setrlimit(resource.RLIMIT_AS, ({memory}, {memory}))
+resource.setrlimit(resource.RLIMIT_CPU, ({seconds}, {seconds}))
+try:
+    import meshio
+    m = meshio._helpers.reader_map[sys.argv[2]](sys.argv[1])  # not meshio.read: it exits on a bad file
+    arrays, meta = [np.asarray(m.points, float)], {{"cells": [], "point_sets": [], "cell_sets": [], "physical": [],
+                                                   "field_data": []}}
+    def put(a):
+        arrays.append(np.asarray(a))
+        return len(arrays) - 1
+    meta["cells"] = [(c.type, put(c.data)) for c in m.cells]
+    meta["point_sets"] = [(str(k), put(v)) for k, v in m.point_sets.items()]
+    meta["cell_sets"] = [(str(k), [None if v is None else put(v) for v in vs]) for k, vs in m.cell_sets.items()]
+    meta["physical"] = [put(v) for v in m.cell_data.get("gmsh:physical", [])]
+    meta["field_data"] = [(str(k), put(v)) for k, v in m.field_data.items()]
+    np.savez(sys.argv[3], *arrays)
+    print(json.dumps(meta))
+except BaseException as e:
+    text = str(e).strip().splitlines()[0][:200] if str(e).strip() else ""
+    print(json.dumps({{"error": type(e).__name__, "message": text}}))
+"""
+
+
 def _parse(data, fmt, path):
     """meshio's reader for `fmt` on the bytes, from a private temporary copy (the readers want a file name; the
-    copy cannot change or grow); any failure of the foreign parser becomes one ModelError."""
+    copy cannot change or grow), in a bounded child process; any failure of it becomes one ModelError."""
+    import json
+    import subprocess
+    import sys
+    with tempfile.TemporaryDirectory() as tmp:
+        copy, out = Path(tmp) / ("mesh" + path.suffix.lower()), Path(tmp) / "arrays.npz"
+        copy.write_bytes(data)
+        code = _PARSER.format(memory=limits.FE_PARSE_BYTES, seconds=limits.FE_PARSE_SECONDS)
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+        try:
+            r = subprocess.run([sys.executable, "-c", code, str(copy), fmt, str(out)], cwd=tmp, env=env,
+                               capture_output=True, text=True, timeout=2 * limits.FE_PARSE_SECONDS)
+            meta = json.loads(r.stdout.strip().splitlines()[-1]) if r.stdout.strip() else {
+                "error": "crash", "message": f"the reader ended with status {r.returncode}"}
+        except subprocess.TimeoutExpired:
+            meta = {"error": "timeout", "message": f"reading took longer than {2 * limits.FE_PARSE_SECONDS} s"}
+        if "error" in meta:
+            what = meta["message"] or f"not a {fmt} file"
+            raise ModelError(f"cannot read the {fmt} mesh: {meta['error']}: {what}", file=str(path),
+                             hint="write the mesh again from the mesher (gmsh, Abaqus, meshio)")
+        if out.stat().st_size > limits.FE_PARSE_BYTES // 2:   # what the child may hold, the parent holds twice
+            raise ModelError(f"the mesh unpacks to {out.stat().st_size:,} bytes of arrays", file=str(path),
+                             hint=f"a compressed file expands to more than {limits.FE_PARSE_BYTES // 2**21} MiB")
+        return _mesh(meta, out, fmt, path)
+
+
+def _mesh(meta, npz, fmt, path):
+    """The meshio.Mesh the child described: arrays from its npz (numbers only, never unpickled)."""
     import meshio
     try:
-        with tempfile.TemporaryDirectory() as tmp:
-            copy = Path(tmp) / ("mesh" + path.suffix.lower())
-            copy.write_bytes(data)
-            return meshio._helpers.reader_map[fmt](str(copy))  # not meshio.read: it calls sys.exit on a bad file
-    except Exception as e:  # a third-party parser on foreign bytes: ReadError, ValueError, IndexError, struct.error, ...
-        text = str(e).splitlines()[0][:200] if str(e).strip() else f"not a {fmt} file"
-        raise ModelError(f"cannot read the {fmt} mesh: {type(e).__name__}: {text}", file=str(path),
+        with np.load(npz, allow_pickle=False) as z:
+            a = [z[f"arr_{i}"] for i in range(len(z.files))]
+        return meshio.Mesh(a[0], [(t, a[i]) for t, i in meta["cells"]],
+                           point_sets={k: a[i] for k, i in meta["point_sets"]},
+                           cell_sets={k: [None if i is None else a[i] for i in v] for k, v in meta["cell_sets"]},
+                           cell_data={"gmsh:physical": [a[i] for i in meta["physical"]]} if meta["physical"] else None,
+                           field_data={k: a[i] for k, i in meta["field_data"]})
+    except (ValueError, KeyError, IndexError, TypeError, OSError) as e:
+        raise ModelError(f"cannot read the {fmt} mesh: {type(e).__name__}: {str(e)[:200]}", file=str(path),
                          hint="write the mesh again from the mesher (gmsh, Abaqus, meshio)") from None
 
 
