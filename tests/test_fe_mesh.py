@@ -160,6 +160,17 @@ def test_mass_rigid_modes_and_uniform_strain(element):
     assert 0.5 * u @ fe.K @ u == pytest.approx(0.5 * L * b * h * np.sum(sigma * eps), rel=1e-9)
 
 
+def test_stiffness_form_is_scikit_fems_linear_elasticity():
+    """fe_mesh writes σ:ε out (for speed); scikit-fem's own linear_elasticity model assembles the same K."""
+    from skfem.models.elasticity import lame_parameters, linear_elasticity
+    p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    fe = assemble_solid(meshio.Mesh(p, [("tetra", t)]), E, NU, RHO, element="tet10")
+    basis = skfem.Basis(skfem.MeshTet1(p.T, t.T), skfem.ElementVector(skfem.ElementTetP2()))
+    K = skfem.asm(linear_elasticity(*lame_parameters(E, NU)), basis)
+    order = np.hstack([basis.nodal_dofs, basis.edge_dofs]).T.ravel()
+    assert abs(fe.K - K[order][:, order]).max() < 1e-9 * abs(K).max()
+
+
 def test_tet10_file_points_map_to_their_nodes(tmp_path):
     """A 'tetra10' gmsh file against element: tet10 on its corners: the same matrices, and every point of a node
     set (midside points included) maps to the FE node at the same coordinates."""

