@@ -359,3 +359,14 @@ def test_curved_tet10_and_too_many_dofs_refused(monkeypatch):
     from mbsfmu.scene import limits
     monkeypatch.setattr(limits, "FE_DOFS", 100)
     _refused(lambda: assemble_solid(meshio.Mesh(p4, [("tetra", t4)]), E, NU, RHO, element="tet10"), "DOFs", "100")
+
+
+def test_docs_quote_the_limits():
+    """docs/scene-format.md states the mesh limits of scene/limits.py (the one source)."""
+    from pathlib import Path
+
+    from mbsfmu.scene import limits
+    text = (Path(__file__).resolve().parents[1] / "docs" / "scene-format.md").read_text(encoding="utf-8")
+    for quoted in (f"`FE_MESH_BYTES` ({limits.FE_MESH_BYTES // 2**20} MiB)", f"`FE_PARSE_BYTES` ({limits.FE_PARSE_BYTES // 2**30} GiB)",
+                   f"`FE_PARSE_SECONDS` ({limits.FE_PARSE_SECONDS} s", "`FE_DOFS`"):
+        assert quoted in text, quoted

@@ -165,11 +165,10 @@ def _assemble(mesh, E, nu, rho, element, source):
     kind, cells = _solid_cells(mesh)
     element = _element(kind, element)
     points = np.asarray(mesh.points, float)
-    if points.ndim != 2 or points.shape[1] not in (2, 3) or not np.all(np.isfinite(points)):
+    if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
         raise ModelError(f"the mesh's points are not finite 3-D coordinates (shape {points.shape})")
     if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
         raise ModelError("a cell refers to a point the mesh does not have", hint="the file is corrupt")
-    points = np.column_stack([points, np.zeros(len(points))]) if points.shape[1] == 2 else points
     corners = cells[:, :8 if kind == "hexahedron" else 4]
     used = np.unique(corners)
     _check_size(element, len(used), len(cells))
@@ -177,12 +176,13 @@ def _assemble(mesh, E, nu, rho, element, source):
     vertex[used] = np.arange(len(used))
     p, t = points[used], vertex[corners]
     _check_orientation(p, t, kind)
-    if kind == "tetra10":
+    quadratic_file = kind == "tetra10" and element == "tet10"     # with tet4 its midside points are dropped
+    if quadratic_file:
         _check_straight(points, cells)
     basis = _basis(p, t, element)
     M, K = _matrices(basis, E, nu, rho)
     order, nodes = _node_major(basis, element)
-    point_node = _point_nodes(len(points), vertex, basis, cells if kind == "tetra10" and element == "tet10" else None)
+    point_node = _point_nodes(len(points), vertex, basis, cells if quadratic_file else None)
     return FEModel(nodes=nodes, M=M[order][:, order].tocsr(), K=K[order][:, order].tocsr(),
                    node_sets=_node_sets(mesh, point_node), source=source)
 
