@@ -261,10 +261,11 @@ def _check_straight(points, cells):
 def _basis(p, t, element):
     from skfem import Basis, ElementHex1, ElementTetP1, ElementTetP2, ElementVector, MeshHex1, MeshTet1
     from skfem.io.meshio import INV_HEX_MAPPING
+    p, t = np.ascontiguousarray(p.T), np.ascontiguousarray(t.T)   # scikit-fem's layout (it says so, copying)
     if element == "hex8":
-        mesh, elem = MeshHex1(p.T, t.T[INV_HEX_MAPPING[:8]]), ElementHex1()
+        mesh, elem = MeshHex1(p, np.ascontiguousarray(t[INV_HEX_MAPPING[:8]])), ElementHex1()
     else:
-        mesh, elem = MeshTet1(p.T, t.T), ElementTetP2() if element == "tet10" else ElementTetP1()
+        mesh, elem = MeshTet1(p, t), ElementTetP2() if element == "tet10" else ElementTetP1()
     return Basis(mesh, ElementVector(elem))
 
 
