@@ -281,6 +281,11 @@ def test_empty_and_unknown_cells_refused(tmp_path):
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t + len(p))]), E, NU, RHO), "point the mesh does not have")
     (tmp_path / "x.stl").write_text("solid x\nendsolid x\n")
     _refused(lambda: assemble_solid("x.stl", E, NU, RHO, base=tmp_path), "unknown mesh format", ".msh")
+    for name in ("empty.msh", "empty.inp", "empty.vtk", "empty.vtu"):
+        (tmp_path / name).write_bytes(b"")
+        _refused(lambda: assemble_solid(name, E, NU, RHO, base=tmp_path), name)
+    (tmp_path / "nodes_only.inp").write_text("*NODE\n1, 0, 0, 0\n2, 1, 0, 0\n")
+    _refused(lambda: assemble_solid("nodes_only.inp", E, NU, RHO, base=tmp_path), "no cells")
     (tmp_path / "junk.msh").write_bytes(os.urandom(5000))
     _refused(lambda: assemble_solid("junk.msh", E, NU, RHO, base=tmp_path), "junk.msh", "cannot read")
 
