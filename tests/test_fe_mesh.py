@@ -160,15 +160,22 @@ def test_mass_rigid_modes_and_uniform_strain(element):
     assert 0.5 * u @ fe.K @ u == pytest.approx(0.5 * L * b * h * np.sum(sigma * eps), rel=1e-9)
 
 
-def test_stiffness_form_is_scikit_fems_linear_elasticity():
-    """fe_mesh writes σ:ε out (for speed); scikit-fem's own linear_elasticity model assembles the same K."""
+def test_chunked_assembly_is_scikit_fems_whole_mesh_assembly(monkeypatch):
+    """fe_mesh writes σ:ε out (for speed) and assembles a few elements at a time (for memory): scikit-fem's own
+    linear_elasticity model and a ρ u·v form on the whole mesh at once give the same K and M."""
+    from skfem.helpers import dot
     from skfem.models.elasticity import lame_parameters, linear_elasticity
+
+    from mbsfmu.bodies import fe_mesh
+    monkeypatch.setattr(fe_mesh, "CHUNK_CELLS", 5)
     p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
     fe = assemble_solid(meshio.Mesh(p, [("tetra", t)]), E, NU, RHO, element="tet10")
     basis = skfem.Basis(skfem.MeshTet1(p.T, t.T), skfem.ElementVector(skfem.ElementTetP2()))
     K = skfem.asm(linear_elasticity(*lame_parameters(E, NU)), basis)
+    M = skfem.asm(skfem.BilinearForm(lambda u, v, w: RHO * dot(u, v)), basis)
     order = np.hstack([basis.nodal_dofs, basis.edge_dofs]).T.ravel()
     assert abs(fe.K - K[order][:, order]).max() < 1e-9 * abs(K).max()
+    assert abs(fe.M - M[order][:, order]).max() < 1e-12 * abs(M).max()
 
 
 def test_tet10_file_points_map_to_their_nodes(tmp_path):

@@ -15,9 +15,10 @@ scikit-fem's edge order. DOFs are node-major, x y z per node; scikit-fem numbers
 `_node_major` maps them explicitly. Node sets: the file's point sets, and the points of its named cell sets
 (Abaqus *ELSET, gmsh physical groups), mapped to these nodes; a file's midside point maps to its edge's node.
 
-Bounded: the file is read whole (at most limits.FE_MESH_BYTES) and parsed from memory, the assembled size is
-checked against limits.FE_DOFS before any assembly, and nothing outside the one file is read (Abaqus *INCLUDE
-is refused).
+Bounded: the file is read whole (at most limits.FE_MESH_BYTES), meshio parses a private copy of it in a child
+process under limits.FE_PARSE_BYTES and FE_PARSE_SECONDS, the assembled size is checked against limits.FE_DOFS
+before any assembly, which goes CHUNK_CELLS elements at a time, and nothing outside the one file is read
+(Abaqus *INCLUDE is refused).
 """
 
 import os
@@ -34,9 +35,10 @@ ELEMENTS = ("tet4", "tet10", "hex8")
 CELL_ELEMENT = {"tetra": "tet4", "tetra10": "tet10", "hexahedron": "hex8"}
 SOLID_CELLS = ("tetra", "tetra10", "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
                "wedge12", "wedge15", "pyramid", "pyramid13", "pyramid14")
-FORMATS = {".msh": "gmsh", ".inp": "abaqus", ".vtk": "vtk", ".vtu": "vtu"}   # parsed from memory, self-contained
+FORMATS = {".msh": "gmsh", ".inp": "abaqus", ".vtk": "vtk", ".vtu": "vtu"}   # self-contained: read no other file
 TET10_EDGES = ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3))                 # meshio/VTK midside node order
 MIDSIDE_TOL = 1e-6                                                             # of the edge's length
+CHUNK_CELLS = 2048    # elements assembled at once: scikit-fem keeps ~30 kB of basis values per tet10 element
 
 
 def assemble_solid(mesh, E, nu, rho, element=None, *, base=".", allow_outside=False):
@@ -179,8 +181,7 @@ def _assemble(mesh, E, nu, rho, element, source):
     quadratic_file = kind == "tetra10" and element == "tet10"     # with tet4 its midside points are dropped
     if quadratic_file:
         _check_straight(points, cells)
-    basis = _basis(p, t, element)
-    M, K = _matrices(basis, E, nu, rho)
+    basis, M, K = _matrices(*_mesh_element(p, t, element), E, nu, rho)
     order, nodes = _node_major(basis, element)
     point_node = _point_nodes(len(points), vertex, basis, cells if quadratic_file else None)
     return FEModel(nodes=nodes, M=M[order][:, order].tocsr(), K=K[order][:, order].tocsr(),
@@ -218,7 +219,8 @@ def _element(kind, element):
 
 
 def _check_size(element, vertices, cells):
-    """Refuse before assembling: DOFs counted from vertices and edges (a tet mesh has about 1.2 edges per cell)."""
+    """Refuse before assembling: DOFs counted from vertices and edges (Euler: edges ≈ vertices + cells, a little
+    more with the boundary; 1.2 cells measured on box meshes)."""
     nodes = vertices + (int(1.2 * cells) + vertices if element == "tet10" else 0)
     if 3 * nodes > limits.FE_DOFS:
         raise ModelError(f"the mesh has about {3 * nodes:,} DOFs as {element}, more than {limits.FE_DOFS:,}",
@@ -258,34 +260,42 @@ def _check_straight(points, cells):
                          "Mesh.SecondOrderLinear 0), or give the tet4 mesh with element: tet10")
 
 
-def _basis(p, t, element):
-    from skfem import Basis, ElementHex1, ElementTetP1, ElementTetP2, ElementVector, MeshHex1, MeshTet1
+def _mesh_element(p, t, element):
+    """scikit-fem's mesh (its own hexahedron corner order) and vector element."""
+    from skfem import ElementHex1, ElementTetP1, ElementTetP2, ElementVector, MeshHex1, MeshTet1
     from skfem.io.meshio import INV_HEX_MAPPING
     p, t = np.ascontiguousarray(p.T), np.ascontiguousarray(t.T)   # scikit-fem's layout (it says so, copying)
     if element == "hex8":
-        mesh, elem = MeshHex1(p, np.ascontiguousarray(t[INV_HEX_MAPPING[:8]])), ElementHex1()
-    else:
-        mesh, elem = MeshTet1(p, t), ElementTetP2() if element == "tet10" else ElementTetP1()
-    return Basis(mesh, ElementVector(elem))
+        return MeshHex1(p, np.ascontiguousarray(t[INV_HEX_MAPPING[:8]])), ElementVector(ElementHex1())
+    return MeshTet1(p, t), ElementVector(ElementTetP2() if element == "tet10" else ElementTetP1())
 
 
-def _matrices(basis, E, nu, rho):
-    """Consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v), in scikit-fem's DOF order (exact quadrature of both)."""
-    from skfem import BilinearForm, asm
+def _matrices(mesh, elem, E, nu, rho):
+    """(basis, M, K): consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v) in scikit-fem's DOF order (exact quadrature
+    of both), assembled CHUNK_CELLS elements at a time; `basis` (of the first chunk) numbers and locates the DOFs
+    of the whole mesh."""
+    from skfem import Basis, BilinearForm, asm
     from skfem.helpers import ddot, div, dot, sym_grad
     from skfem.models.elasticity import lame_parameters
     lam, mu = lame_parameters(E, nu)
 
     @BilinearForm
     def stiffness(u, v, w):
-        # σ:ε(v) of skfem.models.elasticity.linear_elasticity, written out: 5× faster (no identity tensor per pair)
+        # σ:ε(v) of skfem.models.elasticity.linear_elasticity, written out: 3× faster (no identity tensor per pair)
         return lam * div(u) * div(v) + 2.0 * mu * ddot(sym_grad(u), sym_grad(v))
 
     @BilinearForm
     def mass(u, v, w):
         return rho * dot(u, v)
 
-    return asm(mass, basis).tocsr(), asm(stiffness, basis).tocsr()
+    cells = mesh.t.shape[1]
+    basis = Basis(mesh, elem, elements=np.arange(min(CHUNK_CELLS, cells)))
+    M, K = asm(mass, basis).tocsr(), asm(stiffness, basis).tocsr()
+    for start in range(CHUNK_CELLS, cells, CHUNK_CELLS):
+        chunk = Basis(mesh, elem, elements=np.arange(start, min(start + CHUNK_CELLS, cells)), dofs=basis.dofs,
+                      disable_doflocs=True)
+        M, K = M + asm(mass, chunk).tocsr(), K + asm(stiffness, chunk).tocsr()
+    return basis, M, K
 
 
 def _node_major(basis, element):
