@@ -286,6 +286,13 @@ def test_inverted_element_refused(tmp_path):
     p, t = box_hexes(0.2, 0.1, 0.1, 2, 1, 1)
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("hexahedron", t[:, [4, 5, 6, 7, 0, 1, 2, 3]])]), E, NU, RHO),
              "inverted")
+    flat = p.copy()
+    flat[t[1, 6], 2] = 0.0                           # a top corner of cell 1 (its last) on the bottom plane
+    _refused(lambda: assemble_solid(meshio.Mesh(flat, [("hexahedron", t)]), E, NU, RHO), "flat", "1 element", "cell 1")
+    tiny, tt = box_tets(1e-5, 1e-5, 1e-5, 1, 1, 1)   # a 10 µm cube beside a 1 m one: small, not flat
+    big, bt = box_tets(1.0, 1.0, 1.0, 1, 1, 1)
+    fe = assemble_solid(meshio.Mesh(np.vstack([big, tiny + 2]), [("tetra", np.vstack([bt, tt + len(big)]))]), E, NU, RHO)
+    assert np.ones(fe.M.shape[0])[0::3] @ fe.M[0::3, 0::3] @ np.ones(len(fe.nodes)) == pytest.approx(RHO * (1 + 1e-15))
 
 
 def test_empty_and_unknown_cells_refused(tmp_path):

@@ -228,24 +228,27 @@ def _check_size(element, vertices, cells):
 
 
 def _check_orientation(p, t, kind):
-    """Every element's corner Jacobians positive (VTK/meshio node order): an inverted or flat element is refused."""
+    """Every element's corner Jacobians positive (VTK/meshio node order): an inverted or flat element is refused.
+    Measured as the sine-like ratio det / (product of the three edge lengths), so that small elements pass."""
     if kind == "hexahedron":
         # at corner i, the three edges to its neighbours in the VTK hexahedron (bottom 0-3, top 4-7)
         nb = [(1, 3, 4), (2, 0, 5), (3, 1, 6), (0, 2, 7), (7, 5, 0), (4, 6, 1), (5, 7, 2), (6, 4, 3)]
-        dets = np.column_stack([_triple(p, t, i, *n) for i, n in enumerate(nb)])
+        shape = np.column_stack([_corner_shape(p, t, i, *n) for i, n in enumerate(nb)])
     else:
-        dets = _triple(p, t, 0, 1, 2, 3)[:, None]
-    scale = np.ptp(p, axis=0).max() ** 3 if len(p) else 1.0
-    bad = np.nonzero((dets <= 1e-12 * scale).any(axis=1))[0]
+        shape = _corner_shape(p, t, 0, 1, 2, 3)[:, None]
+    bad = np.nonzero(~(shape > 1e-9).all(axis=1))[0]     # NaN (coincident corners) counts as flat
     if len(bad):
         raise ModelError(f"{len(bad)} element(s) are inverted or flat (non-positive Jacobian), the first is cell {bad[0]}",
                          hint="fix the node order or the mesh in the mesher")
 
 
-def _triple(p, t, i, a, b, c):
-    """(p_a - p_i) · ((p_b - p_i) × (p_c - p_i)) for every element."""
+def _corner_shape(p, t, i, a, b, c):
+    """(e_a · (e_b × e_c)) / (|e_a| |e_b| |e_c|) with e_k = p_k - p_i, for every element: 1 for a right corner."""
     o = p[t[:, i]]
-    return np.einsum("ij,ij->i", p[t[:, a]] - o, np.cross(p[t[:, b]] - o, p[t[:, c]] - o))
+    ea, eb, ec = p[t[:, a]] - o, p[t[:, b]] - o, p[t[:, c]] - o
+    norms = np.linalg.norm(ea, axis=1) * np.linalg.norm(eb, axis=1) * np.linalg.norm(ec, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.einsum("ij,ij->i", ea, np.cross(eb, ec)) / norms
 
 
 def _check_straight(points, cells):
