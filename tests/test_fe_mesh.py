@@ -314,6 +314,12 @@ def test_empty_and_unknown_cells_refused(tmp_path):
     _refused(lambda: assemble_solid("junk.msh", E, NU, RHO, base=tmp_path), "junk.msh", "cannot read")
 
 
+def test_missing_extra_named(monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "skfem", None)     # as if scikit-fem were not installed
+    _refused(lambda: assemble_solid("part.msh", E, NU, RHO), "skfem is missing", "mbsfmu[fe]")
+
+
 def test_material_refused():
     p, t = box_tets(0.2, 0.1, 0.1, 1, 1, 1)
     m = meshio.Mesh(p, [("tetra", t)])

@@ -44,6 +44,7 @@ CHUNK_CELLS = 2048    # elements assembled at once: scikit-fem keeps ~30 kB of b
 def assemble_solid(mesh, E, nu, rho, element=None, *, base=".", allow_outside=False):
     """FEModel of the solid `mesh` (a file name relative to `base`, confined to it unless `allow_outside`, or a
     meshio.Mesh) with Young's modulus E, Poisson's ratio nu and density rho; `element` one of ELEMENTS or None."""
+    _require_extra()
     E, nu, rho = _material(E, nu, rho)
     if isinstance(mesh, (str, os.PathLike)):
         source = str(mesh)
@@ -54,6 +55,16 @@ def assemble_solid(mesh, E, nu, rho, element=None, *, base=".", allow_outside=Fa
         return _assemble(mesh, E, nu, rho, element, source)
     except ModelError as err:
         raise ModelError(err.message, file=source, key=err.key, hint=err.hint) from None
+
+
+def _require_extra():
+    """scikit-fem and meshio (the `fe` extra) are there, or one ModelError that says how to get them."""
+    try:
+        import meshio  # noqa: F401
+        import skfem  # noqa: F401
+    except ImportError as e:
+        raise ModelError(f"elastic bodies from solid meshes need scikit-fem and meshio ({e.name} is missing)",
+                         hint="pip install 'mbsfmu[fe]'") from None
 
 
 def _material(E, nu, rho):
