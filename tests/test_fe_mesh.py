@@ -303,6 +303,11 @@ def test_empty_and_unknown_cells_refused(tmp_path):
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("hexahedron27", np.tile(t, 7)[:, :27])]), E, NU, RHO), "hexahedron27")
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t)]), E, NU, RHO, element="hex8"), "element", "tet4")
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t + len(p))]), E, NU, RHO), "point the mesh does not have")
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t + 0.5)]), E, NU, RHO), "rows of 4 point indices")
+    _refused(lambda: assemble_solid(meshio.Mesh(p[:, :2], [("tetra", t)]), E, NU, RHO), "finite 3-D coordinates")
+    nan = p.copy()
+    nan[3, 1] = np.nan
+    _refused(lambda: assemble_solid(meshio.Mesh(nan, [("tetra", t)]), E, NU, RHO), "finite 3-D coordinates")
     (tmp_path / "x.stl").write_text("solid x\nendsolid x\n")
     _refused(lambda: assemble_solid("x.stl", E, NU, RHO, base=tmp_path), "unknown mesh format", ".msh")
     for name in ("empty.msh", "empty.inp", "empty.vtk", "empty.vtu"):

@@ -33,6 +33,7 @@ from ._fe_stub import FEModel
 
 ELEMENTS = ("tet4", "tet10", "hex8")
 CELL_ELEMENT = {"tetra": "tet4", "tetra10": "tet10", "hexahedron": "hex8"}
+CELL_NODES = {"tetra": 4, "tetra10": 10, "hexahedron": 8}
 SOLID_CELLS = ("tetra", "tetra10", "hexahedron", "hexahedron20", "hexahedron24", "hexahedron27", "wedge",
                "wedge12", "wedge15", "pyramid", "pyramid13", "pyramid14")
 FORMATS = {".msh": "gmsh", ".inp": "abaqus", ".vtk": "vtk", ".vtu": "vtu"}   # self-contained: read no other file
@@ -177,7 +178,10 @@ def _mesh(meta, npz, fmt, path):
 def _assemble(mesh, E, nu, rho, element, source):
     kind, cells = _solid_cells(mesh)
     element = _element(kind, element)
-    points = np.asarray(mesh.points, float)
+    try:
+        points = np.asarray(mesh.points, float)
+    except (TypeError, ValueError):
+        points = np.zeros((0, 0))
     if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
         raise ModelError(f"the mesh's points are not finite 3-D coordinates (shape {points.shape})")
     if cells.size and (cells.min() < 0 or cells.max() >= len(points)):
@@ -213,6 +217,9 @@ def _solid_cells(mesh):
     if solid[0] not in CELL_ELEMENT:
         raise ModelError(f"solid cells of type '{solid[0]}' are not supported", hint=f"use {supported}")
     data = [np.asarray(c.data) for c in mesh.cells if c.type == solid[0]]
+    per_cell = CELL_NODES[solid[0]]
+    if any(d.dtype.kind not in "iu" or d.ndim != 2 or d.shape[1] != per_cell for d in data):
+        raise ModelError(f"the '{solid[0]}' cells are not rows of {per_cell} point indices", hint="the file is corrupt")
     return solid[0], np.concatenate(data).astype(np.int64)
 
 
