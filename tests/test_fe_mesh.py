@@ -189,8 +189,8 @@ def test_chunked_assembly_is_scikit_fems_whole_mesh_assembly(monkeypatch):
 
 
 def test_tet10_file_points_map_to_their_nodes(tmp_path):
-    """A 'tetra10' Abaqus file (C3D10) against element: tet10 on its corners: the same matrices, and every point of a node
-    set (midside points included) maps to the FE node at the same coordinates."""
+    """A 'tetra10' Abaqus file (C3D10) against element: tet10 on its corners: the same matrices, and every point
+    of a node set (midside points included) maps to the FE node at the same coordinates."""
     p4, t4 = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
     p, t = tet10_cells(p4, t4)
     end = np.nonzero(np.abs(p[:, 0] - 0.2) < 1e-12)[0]
@@ -291,7 +291,8 @@ def test_inverted_element_refused(tmp_path):
     _refused(lambda: assemble_solid(meshio.Mesh(flat, [("hexahedron", t)]), E, NU, RHO), "flat", "1 element", "cell 1")
     tiny, tt = box_tets(1e-5, 1e-5, 1e-5, 1, 1, 1)   # a 10 µm cube beside a 1 m one: small, not flat
     big, bt = box_tets(1.0, 1.0, 1.0, 1, 1, 1)
-    fe = assemble_solid(meshio.Mesh(np.vstack([big, tiny + 2]), [("tetra", np.vstack([bt, tt + len(big)]))]), E, NU, RHO)
+    both = meshio.Mesh(np.vstack([big, tiny + 2]), [("tetra", np.vstack([bt, tt + len(big)]))])
+    fe = assemble_solid(both, E, NU, RHO)
     assert np.ones(fe.M.shape[0])[0::3] @ fe.M[0::3, 0::3] @ np.ones(len(fe.nodes)) == pytest.approx(RHO * (1 + 1e-15))
 
 
@@ -299,10 +300,12 @@ def test_empty_and_unknown_cells_refused(tmp_path):
     p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
     _refused(lambda: assemble_solid(meshio.Mesh(p, []), E, NU, RHO), "no cells")
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("triangle", t[:, :3])]), E, NU, RHO), "no solid cells", "triangle")
-    _refused(lambda: assemble_solid(meshio.Mesh(p, [("wedge", np.hstack([t, t[:, :2]]))]), E, NU, RHO), "wedge", "tetra")
-    _refused(lambda: assemble_solid(meshio.Mesh(p, [("hexahedron27", np.tile(t, 7)[:, :27])]), E, NU, RHO), "hexahedron27")
+    wedges = meshio.Mesh(p, [("wedge", np.hstack([t, t[:, :2]]))])
+    hex27 = meshio.Mesh(p, [("hexahedron27", np.tile(t, 7)[:, :27])])
+    _refused(lambda: assemble_solid(wedges, E, NU, RHO), "wedge", "tetra")
+    _refused(lambda: assemble_solid(hex27, E, NU, RHO), "hexahedron27")
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t)]), E, NU, RHO, element="hex8"), "element", "tet4")
-    _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t + len(p))]), E, NU, RHO), "point the mesh does not have")
+    _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t + len(p))]), E, NU, RHO), "point the mesh does not")
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t + 0.5)]), E, NU, RHO), "rows of 4 point indices")
     _refused(lambda: assemble_solid(meshio.Mesh(p[:, :2], [("tetra", t)]), E, NU, RHO), "finite 3-D coordinates")
     nan = p.copy()
@@ -328,8 +331,8 @@ def test_missing_extra_named(monkeypatch):
 def test_material_refused():
     p, t = box_tets(0.2, 0.1, 0.1, 1, 1, 1)
     m = meshio.Mesh(p, [("tetra", t)])
-    for E_, nu, rho, key in ((0.0, NU, RHO, "material.E"), (E, 0.5, RHO, "material.nu"), (E, NU, float("nan"), "material.rho"),
-                             ("1e9", NU, RHO, "material.E")):
+    for E_, nu, rho, key in ((0.0, NU, RHO, "material.E"), (E, 0.5, RHO, "material.nu"),
+                             (E, NU, float("nan"), "material.rho"), ("1e9", NU, RHO, "material.E")):
         _refused(lambda: assemble_solid(m, E_, nu, rho), key)
 
 
@@ -367,11 +370,12 @@ compressor="vtkZLibDataCompressor"><UnstructuredGrid><Piece NumberOfPoints="{blo
 <DataArray type="UInt8" Name="types" format="ascii">10</DataArray></Cells></Piece></UnstructuredGrid></VTKFile>"""
 
 
-FORGED = {   # file: a few hundred bytes whose headers declare 10⁹..10¹² entries (meshio allocates what they declare)
-    "nodes41.msh": "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 1000000000000 1 1000000000000\n3 1 0 1000000000000\n"
-                   "1\n$EndNodes\n",
+FORGED = {   # file: a few hundred bytes whose headers declare 10⁹..10¹² entries (meshio allocates them)
+    "nodes41.msh": "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n$Nodes\n1 1000000000000 1 1000000000000\n"
+                   "3 1 0 1000000000000\n1\n$EndNodes\n",
     "nodes22.msh": "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n1000000000000\n1 0 0 0\n$EndNodes\n",
-    "points.vtk": "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 1000000000000 double\n0 0 0\n",
+    "points.vtk": "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\n"
+                  "POINTS 1000000000000 double\n0 0 0\n",
     "cells.vtk": "# vtk DataFile Version 4.2\nx\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 4 double\n"
                  "0 0 0 1 0 0 0 1 0 0 0 1\nCELLS 1000000000 5000000000\n4 0 1 2 3\nCELL_TYPES 1000000000\n10\n",
 }
@@ -407,6 +411,7 @@ def test_docs_quote_the_limits():
 
     from mbsfmu.scene import limits
     text = (Path(__file__).resolve().parents[1] / "docs" / "scene-format.md").read_text(encoding="utf-8")
-    for quoted in (f"`FE_MESH_BYTES` ({limits.FE_MESH_BYTES // 2**20} MiB)", f"`FE_PARSE_BYTES` ({limits.FE_PARSE_BYTES // 2**30} GiB)",
+    for quoted in (f"`FE_MESH_BYTES` ({limits.FE_MESH_BYTES // 2**20} MiB)",
+                   f"`FE_PARSE_BYTES` ({limits.FE_PARSE_BYTES // 2**30} GiB)",
                    f"`FE_PARSE_SECONDS` ({limits.FE_PARSE_SECONDS} s", "`FE_DOFS`"):
         assert quoted in text, quoted

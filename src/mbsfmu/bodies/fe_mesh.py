@@ -1,4 +1,4 @@
-"""A solid mesh plus material (E, ν, ρ) → FEModel: consistent mass and stiffness assembled with scikit-fem (issue 24).
+"""A solid mesh plus material (E, ν, ρ) → FEModel: consistent mass and stiffness from scikit-fem (issue 24).
 
 Build time only (the `fe` extra: meshio reads the file, scikit-fem assembles); nothing of this reaches an FMU.
 
@@ -256,7 +256,8 @@ def _check_orientation(p, t, kind):
         shape = _corner_shape(p, t, 0, 1, 2, 3)[:, None]
     bad = np.nonzero(~(shape > 1e-9).all(axis=1))[0]     # NaN (coincident corners) counts as flat
     if len(bad):
-        raise ModelError(f"{len(bad)} element(s) are inverted or flat (non-positive Jacobian), the first is cell {bad[0]}",
+        raise ModelError(f"{len(bad)} element(s) are inverted or flat (non-positive Jacobian), "
+                         f"the first is cell {bad[0]}",
                          hint="fix the node order or the mesh in the mesher")
 
 
@@ -292,9 +293,9 @@ def _mesh_element(p, t, element):
 
 
 def _matrices(mesh, elem, E, nu, rho):
-    """(basis, M, K): consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v) in scikit-fem's DOF order (exact quadrature
-    of both), assembled CHUNK_CELLS elements at a time; `basis` (of the first chunk) numbers and locates the DOFs
-    of the whole mesh."""
+    """(basis, M, K): consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v) in scikit-fem's DOF order (exact
+    quadrature of both), assembled CHUNK_CELLS elements at a time; `basis` (of the first chunk) numbers and
+    locates the DOFs of the whole mesh."""
     from skfem import Basis, BilinearForm, asm
     from skfem.helpers import ddot, div, dot, sym_grad
     from skfem.models.elasticity import lame_parameters
@@ -342,7 +343,8 @@ def _point_nodes(n_points, vertex, basis, tet10_cells):
 
 def _node_sets(mesh, point_node):
     """name → FE node indices: the file's point sets, the points of its named cell sets and gmsh physical groups."""
-    sets = {name: _indices(idx, len(point_node), f"point set '{name}'") for name, idx in (mesh.point_sets or {}).items()}
+    sets = {name: _indices(idx, len(point_node), f"point set '{name}'")
+            for name, idx in (mesh.point_sets or {}).items()}
     for name, per_block in (mesh.cell_sets or {}).items():
         if not name.startswith("gmsh:"):          # gmsh:bounding_entities are entity tags, not cells
             sets.setdefault(name, np.concatenate([np.zeros(0, np.int64)] + [
