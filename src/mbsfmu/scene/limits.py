@@ -20,13 +20,13 @@ NPZ_BYTES = 64 * 2**20          # an .npz file, and the arrays read from it (dec
 MESH_BYTES = 64 * 2**20         # a mesh file (STL, OBJ) of a shape: checked at load, bounded again when read
 MESH_TRIANGLES = 2_000_000      # triangles of one mesh (STL; OBJ polygons counted as their fans), counted as read
 MESH_VERTICES = 2_000_000       # vertices of one OBJ mesh ('v' lines), counted as read
-FE_MESH_BYTES = 64 * 2**20      # a solid mesh (elastic: fe: mesh:) read into memory whole before it is parsed
-FE_PARSE_BYTES = 2 * 2**30      # address space of the child process that parses a solid mesh (meshio, numpy)
-FE_PARSE_SECONDS = 30           # its CPU time
-FE_DOFS = 300_000               # degrees of freedom of an assembled solid mesh (3 per node, midside nodes too)
 NPZ_ENTRIES = 64                # members of an .npz (zip) file
 DRAWING_BYTES = 16 * 2**20      # an FMU's drawing description (the normalized scene as JSON, nodal data inline)
 BEAM_ELEMENTS = 200             # the beam generator's dense FE matrices grow as elements²
+FE_DOFS = 300_000               # degrees of freedom of an FE model (3 per node)
+FE_MESH_BYTES = 64 * 2**20      # a solid mesh (elastic: fe: mesh:) read into memory whole before it is parsed
+FE_PARSE_BYTES = 2 * 2**30      # address space of the child process that parses a solid mesh (meshio, numpy)
+FE_PARSE_SECONDS = 30           # its CPU time
 
 RTOL = (1e-14, 1.0)             # integrator.rtol: below 1e-14 no double-precision step can meet it
 MAGNITUDE = (1e-100, 1e100)     # a nonzero constant (a mass, a length, a tolerance): its products stay finite and normal
