@@ -415,3 +415,44 @@ def test_docs_quote_the_limits():
                    f"`FE_PARSE_BYTES` ({limits.FE_PARSE_BYTES // 2**30} GiB)",
                    f"`FE_PARSE_SECONDS` ({limits.FE_PARSE_SECONDS} s", "`FE_DOFS`"):
         assert quoted in text, quoted
+
+
+def _mutant(rng, data):
+    """`data` with a few random byte edits, deletions, duplications, big numbers or a truncation."""
+    d = bytearray(data)
+    for _ in range(rng.randint(1, 4)):
+        i, k = rng.randrange(len(d)), rng.random()
+        if k < 0.3:
+            d[i] = rng.randrange(256)
+        elif k < 0.5:
+            del d[i:i + rng.randint(1, 50)]
+        elif k < 0.7:
+            j = rng.randrange(len(d))
+            d[i:i] = d[j:j + rng.randint(1, 80)]
+        elif k < 0.85:
+            d[i:i] = str(rng.choice([0, -1, 10**12, 2**31, 2**63])).encode()
+        else:
+            del d[i:]
+    return bytes(d)
+
+
+def test_fuzzed_mesh_files_raise_model_error_only(tmp_path):
+    """Mutants of valid gmsh 2.2, Abaqus, VTK and VTU files: each assembles or is one ModelError line, within
+    seconds (400 mutants of this kind passed when written; 16 here, for the suite's time)."""
+    import random
+    p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    m = meshio.Mesh(p, [("tetra", t)], point_sets={"a": np.arange(3)})
+    seeds = {}
+    for suffix, fmt in ((".msh", "gmsh22"), (".inp", "abaqus"), (".vtk", "vtk"), (".vtu", "vtu")):
+        m.write(tmp_path / f"seed{suffix}", file_format=fmt, **({"binary": False} if fmt in ("gmsh22", "vtk") else {}))
+        seeds[suffix] = (tmp_path / f"seed{suffix}").read_bytes()
+    rng = random.Random(24)
+    for n in range(16):
+        suffix = list(seeds)[n % 4]
+        (tmp_path / f"m{n}{suffix}").write_bytes(_mutant(rng, seeds[suffix]))
+        t0 = time.perf_counter()
+        try:
+            assemble_solid(f"m{n}{suffix}", E, NU, RHO, base=tmp_path, element=rng.choice([None, "tet10"]))
+        except ModelError as err:
+            assert "\n" not in str(err)
+        assert time.perf_counter() - t0 < 10.0
