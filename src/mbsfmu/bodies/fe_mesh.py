@@ -4,8 +4,8 @@ Build time only (the `fe` extra: meshio reads the file, scikit-fem assembles); n
 
 Elements, from the mesh's solid cell type unless `element=` says otherwise:
 - tet4 (meshio 'tetra'): linear tetrahedra; `element="tet10"` on such a mesh adds a node at every edge midpoint;
-- tet10 ('tetra10'): quadratic tetrahedra with straight edges (midside nodes at the edge midpoints; curved
-  edges are refused rather than silently straightened); `element="tet4"` drops the midside nodes;
+- tet10 ('tetra10'): quadratic tetrahedra; with midside nodes off their edges' midpoints (curved edges) the
+  elements are isoparametric (scikit-fem's MeshTet2), else straight; `element="tet4"` drops the midside nodes;
 - hex8 ('hexahedron'): trilinear hexahedra.
 hex20/hex27, wedges, pyramids and mixed solid cell types are refused with the supported list.
 
@@ -193,12 +193,15 @@ def _assemble(mesh, E, nu, rho, element, source):
     vertex[used] = np.arange(len(used))
     p, t = points[used], vertex[corners]
     _check_orientation(p, t, kind)
-    quadratic_file = kind == "tetra10" and element == "tet10"     # with tet4 its midside points are dropped
-    if quadratic_file:
-        _check_straight(points, cells)
-    basis, M, K = _matrices(*_mesh_element(p, t, element), E, nu, rho)
+    grid, elem = _mesh_element(p, t, element)
+    edges = None
+    if kind == "tetra10" and element == "tet10":                # with tet4 its midside points are dropped
+        edges = _cell_edges(grid.edges, vertex, cells)
+        if _curved(points, cells):
+            grid = _curved_mesh(grid, points, cells, edges)
+    basis, M, K = _matrices(grid, elem, E, nu, rho)
     order, nodes = _node_major(basis, element)
-    point_node = _point_nodes(len(points), vertex, basis, cells if quadratic_file else None)
+    point_node = _point_nodes(vertex, basis, cells, edges)
     return FEModel(nodes=nodes, M=M[order][:, order].tocsr(), K=K[order][:, order].tocsr(),
                    node_sets=_node_sets(mesh, point_node), source=source)
 
@@ -270,16 +273,29 @@ def _corner_shape(p, t, i, a, b, c):
         return np.einsum("ij,ij->i", ea, np.cross(eb, ec)) / norms
 
 
-def _check_straight(points, cells):
-    """tet10 cells: each midside node at its edge's midpoint (curved edges would need isoparametric elements)."""
+def _curved(points, cells):
+    """Whether a midside node of the tet10 cells lies off its edge's midpoint (by MIDSIDE_TOL edge lengths)."""
     a = points[cells[:, [e[0] for e in TET10_EDGES]]]
     b = points[cells[:, [e[1] for e in TET10_EDGES]]]
     off = np.linalg.norm(points[cells[:, 4:10]] - 0.5 * (a + b), axis=2) / np.linalg.norm(b - a, axis=2)
-    if off.max() > MIDSIDE_TOL:
-        c, e = np.unravel_index(off.argmax(), off.shape)
-        raise ModelError(f"cell {c}: midside node {cells[c, 4 + e]} lies {off[c, e]:.2g} edge lengths off its edge's "
-                         f"midpoint (curved tet10 edges are not supported)", hint="mesh with straight edges (gmsh: no "
-                         "Mesh.SecondOrderLinear 0), or give the tet4 mesh with element: tet10")
+    return bool(off.max() > MIDSIDE_TOL)
+
+
+def _curved_mesh(mesh, points, cells, edges):
+    """The isoparametric (MeshTet2) mesh with the file's midside nodes; its Jacobian must stay positive at the
+    corners and the quadrature points of every element (a midside node pushed too far inverts a corner)."""
+    from skfem import MeshTet2
+    from skfem.quadrature import get_quadrature
+    from skfem.refdom import RefTet
+    xyz = np.empty((3, mesh.edges.shape[1]))
+    xyz[:, edges.ravel()] = points[cells[:, 4:10]].reshape(-1, 3).T
+    curved = MeshTet2(np.ascontiguousarray(np.hstack([mesh.p, xyz])), mesh.t)
+    X = np.hstack([np.eye(3, 4, 1), get_quadrature(RefTet, 4)[0]])     # corners (0, e1, e2, e3), then Gauss
+    bad = np.nonzero(~(curved.mapping().detDF(X) > 0).all(axis=1))[0]
+    if len(bad):
+        raise ModelError(f"{len(bad)} curved element(s) are inverted somewhere (non-positive Jacobian), the first "
+                         f"is cell {bad[0]}", hint="move the midside nodes back towards their edges' midpoints")
+    return curved
 
 
 def _mesh_element(p, t, element):
@@ -293,8 +309,8 @@ def _mesh_element(p, t, element):
 
 
 def _matrices(mesh, elem, E, nu, rho):
-    """(basis, M, K): consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v) in scikit-fem's DOF order (exact
-    quadrature of both), assembled CHUNK_CELLS elements at a time; `basis` (of the first chunk) numbers and
+    """(basis, M, K): consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v) in scikit-fem's DOF order (quadrature
+    exact for both on straight elements), assembled CHUNK_CELLS elements at a time; `basis` (of the first chunk) numbers and
     locates the DOFs of the whole mesh."""
     from skfem import Basis, BilinearForm, asm
     from skfem.helpers import ddot, div, dot, sym_grad
@@ -328,16 +344,23 @@ def _node_major(basis, element):
     return order, np.ascontiguousarray(basis.doflocs[:, dofs[0]].T)
 
 
-def _point_nodes(n_points, vertex, basis, tet10_cells):
-    """FE node of each point of the file (-1: carries no DOF); a tet10 file's midside points map to edge nodes."""
+def _cell_edges(edges, vertex, cells):
+    """(cells, 6): scikit-fem's edge index (of `edges`, 2 × E vertex pairs) of each midside point of the file's
+    tet10 cells, in meshio's midside order."""
+    n = int(vertex.max()) + 1
+    pairs = np.sort(edges, axis=0)
+    keys = pairs[0].astype(np.int64) * n + pairs[1]
+    order = np.argsort(keys)
+    ends = np.sort(vertex[cells[:, np.array(TET10_EDGES)]], axis=2)        # (cells, 6, 2) vertex pairs
+    return order[np.searchsorted(keys, ends[..., 0] * n + ends[..., 1], sorter=order)]
+
+
+def _point_nodes(vertex, basis, cells, edges):
+    """FE node of each point of the file (-1: carries no DOF); a tet10 file's midside points map to the nodes of
+    their edges (`edges` from _cell_edges, None when the midside points are dropped)."""
     node = vertex.copy()
-    if tet10_cells is not None:
-        mesh = basis.mesh
-        edge_of = {tuple(e): i for i, e in enumerate(np.sort(mesh.edges, axis=0).T.tolist())}
-        n_vertices = mesh.p.shape[1]
-        for k, (a, b) in enumerate(TET10_EDGES):
-            ends = np.sort(vertex[tet10_cells[:, [a, b]]], axis=1)
-            node[tet10_cells[:, 4 + k]] = n_vertices + np.array([edge_of[tuple(e)] for e in ends.tolist()])
+    if edges is not None:
+        node[cells[:, 4:10]] = basis.nodal_dofs.shape[1] + edges
     return node
 
 
