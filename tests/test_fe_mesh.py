@@ -403,8 +403,8 @@ def test_too_many_dofs_refused(monkeypatch):
 
 
 def quarter_tube(curved, R1=0.5, R2=1.0, L=0.3, n=(1, 3, 1)):
-    """tet10 mesh of the quarter tube R1 ≤ r ≤ R2, 0 ≤ θ ≤ π/2, 0 ≤ z ≤ L: a box in (r, θ, z) mapped to x, y, z
-    (orientation kept: the map's Jacobian is r > 0); midside nodes mapped too (`curved`: on the arcs) or at the
+    """tet10 mesh of the quarter tube R1 ≤ r ≤ R2, 0 ≤ θ ≤ π/2, 0 ≤ z ≤ L: a box in (r, θ, z) mapped to
+    x, y, z (orientation kept: the map's Jacobian is r > 0); midside nodes mapped too (`curved`: on the arcs) or at the
     mapped edges' midpoints (straight)."""
     def to_xyz(q):
         return np.column_stack([q[:, 0] * np.cos(q[:, 1]), q[:, 0] * np.sin(q[:, 1]), q[:, 2]])

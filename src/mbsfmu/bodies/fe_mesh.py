@@ -310,8 +310,8 @@ def _mesh_element(p, t, element):
 
 def _matrices(mesh, elem, E, nu, rho):
     """(basis, M, K): consistent mass ∫ρ u·v and stiffness ∫σ(u):ε(v) in scikit-fem's DOF order (quadrature
-    exact for both on straight elements), assembled CHUNK_CELLS elements at a time; `basis` (of the first chunk) numbers and
-    locates the DOFs of the whole mesh."""
+    exact for both on straight elements), assembled CHUNK_CELLS elements at a time; `basis` (of the first
+    chunk) numbers and locates the DOFs of the whole mesh."""
     from skfem import Basis, BilinearForm, asm
     from skfem.helpers import ddot, div, dot, sym_grad
     from skfem.models.elasticity import lame_parameters
