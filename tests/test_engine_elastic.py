@@ -14,7 +14,7 @@ import pytest
 import mbsfmu
 from mbsfmu.bodies.tree import node_point
 from mbsfmu.engine import EngineError, Instance
-from mbsfmu.engine.compile import S_ELASTIC_D, S_ELASTIC_I
+from mbsfmu.engine.layout import S_ELASTIC_D, S_ELASTIC_I
 from mbsfmu.simulation import Simulation, compiled
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -219,7 +219,7 @@ def test_corrupt_elastic_section_refused(index, value):
 
 
 def test_truncated_elastic_data_and_bad_node_refused():
-    from mbsfmu.engine.compile import IB, IB_NODE, S_BODY_I, S_OUT_I
+    from mbsfmu.engine.layout import IB, IB_NODE, S_BODY_I, S_OUT_I
     blob, _, model = compiled(mbsfmu.load(MODELS / "robot_arm_elastic.yaml").spec)
     kind, off, cnt = _sections(blob)[S_ELASTIC_D]
     short = bytearray(blob)

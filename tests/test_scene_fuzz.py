@@ -107,7 +107,7 @@ def fuzz(harness: Path, scenes: list[Path], work: Path) -> dict:
 
 
 # ---- the classes of defect one by one, in-process (the engine library): tables that disagree, counts that
-# nothing in the file bounds. Each rule is the compiled-scene layout's (mbs_model.h, elastic_tables.py).
+# nothing in the file bounds. Each rule is the compiled-scene layout's (mbs_layout.h, elastic_tables.py).
 
 def _compiled(name):
     sys.path.insert(0, str(REPO / "src"))
@@ -144,18 +144,18 @@ def _refused(blob, *words):
 
 
 def _c():
-    from mbsfmu.engine import compile as c
+    from mbsfmu.engine import layout as c
     return c
 
 
 def _header(blob, field, value):
     c = _c()
-    return _patch(blob, c.S_HEADER, c.H_FIELDS.index(field), value)
+    return _patch(blob, c.S_HEADER, getattr(c, "H_" + field), value)
 
 
 def _features(blob):
     c = _c()
-    return struct.unpack_from("<i", blob, _sections(blob)[c.S_HEADER][2] + 4 * c.H_FIELDS.index("FEATURES"))[0]
+    return struct.unpack_from("<i", blob, _sections(blob)[c.S_HEADER][2] + 4 * c.H_FEATURES)[0]
 
 
 def test_elastic_references_pair_with_the_elastic_rows():
@@ -257,7 +257,7 @@ def test_workspace_limit_of_compile_py_holds_at_load():
     sec = _sections(blob)
     fmt = {0: "i", 1: "d", 2: "B"}
     arrays = {sid: list(struct.unpack_from(f"<{n}{fmt[kind]}", blob, off)) for sid, (_, kind, off, n) in sec.items()}
-    H, h = arrays[c.S_HEADER], {k: i for i, k in enumerate(c.H_FIELDS)}
+    H, h = arrays[c.S_HEADER], {e[0][2:]: c.CONSTANTS[e[0]] for e in c.LISTS["MBS_HEADER"]}
     np_, nv, extra = H[h["NPOS"]], H[h["NVEL"]], 20000
     D, x0 = arrays[c.S_D], H[h["D_X0"]]
     arrays[c.S_D] = D[:x0 + np_] + [0.0] * extra + D[x0 + np_:x0 + np_ + nv] + [0.0] * extra + D[x0 + np_ + nv:]

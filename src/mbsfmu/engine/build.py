@@ -20,7 +20,7 @@ from ..errors import EngineUnavailable
 HERE = Path(__file__).parent
 CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "integ_base.c", "integ_erk.c", "integ_radau5.c",
         "integ_gen_alpha.c", "integ_auto.c", "fmu_files.c")
-HEADERS = ("mbs_engine.h", "fmu_files.h", "mbs_integrator.h", "mbs_model.h", "mbs_vec3.h", "integ_internal.h", "linalg.h")
+HEADERS = ("mbs_engine.h", "fmu_files.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h", "integ_internal.h", "linalg.h")
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
 LTO = ("-flto=auto",)  # the engine's small accessors inline across files into the per-step path (issue 10)
@@ -28,14 +28,14 @@ LTO = ("-flto=auto",)  # the engine's small accessors inline across files into t
 
 def features(blob):
     """Optional parts a compiled scene needs (from its header's feature bits)."""
-    from .compile import F_ELASTIC, F_EXPR, H_FIELDS
+    from . import layout as L
     import struct
     nsec = struct.unpack_from("<i", blob, 72)[0]
     for s in range(nsec):
         sid, _, off, _ = struct.unpack_from("<iiqq", blob, 76 + 24 * s)
-        if sid == 0:
-            bits = struct.unpack_from("<i", blob, off + 4 * H_FIELDS.index("FEATURES"))[0]
-            return {name for name, bit in (("expr", F_EXPR), ("elastic", F_ELASTIC)) if bits & bit}
+        if sid == L.S_HEADER:
+            bits = struct.unpack_from("<i", blob, off + 4 * L.H_FEATURES)[0]
+            return {name for name, bit in L.names("MBS_FEATURES", 2).items() if bits & bit}
     raise ValueError("compiled scene without header")
 
 

@@ -16,9 +16,6 @@
 #include "mbs_model.h"
 #include "mbs_vec3.h"
 
-/* S_ELASTIC_I layout (elastic_tables.py) */
-enum { EH_NE, EH_NFIX, EH };
-enum { EI_BODY, EI_N, EI_NODES, EI_Q, EI_QD, EI_STIFF, EI_D, EI };
 #define MAX_MODES 4096
 
 /* one body's invariants and node data inside S_ELASTIC_D */

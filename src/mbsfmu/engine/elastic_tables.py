@@ -1,7 +1,8 @@
 """The compiled scene's elastic sections (seed 004): the mass invariants of every elastic body, computed once
 here (bodies/ffrf.invariants), and its node data, laid out for engine/elastic.c.
 
-S_ELASTIC_I (int32):  NE, NFIX, then NE rows of EI fields, then NFIX parameter indices.
+S_ELASTIC_I (int32):  the EH header (NE, NFIX), then NE rows of EI fields, then NFIX parameter indices
+                      (mbs_layout.h declares both).
 S_ELASTIC_D (double): per elastic body, at its EI_D offset, in this order (row-major, R components):
                       m, S0 3, S_RR 3×3, J_sum 3×3, C_t 3×n, A 3×3×n, C_r0 3×n, JPsi 3×n,
                       G 3×n×n as [i][l][k] = G_ikl, B 3×3×n×n as [i][j][l][k] = B_ijkl, M_ee, K, D n×n,
@@ -17,9 +18,7 @@ declares them fixed (`structural_parameters`).
 import numpy as np
 
 from ..expr import parse
-
-EH_NE, EH_NFIX, EH = 0, 1, 2
-EI_BODY, EI_N, EI_NODES, EI_Q, EI_QD, EI_STIFF, EI_D, EI = range(8)
+from . import layout as L
 
 
 def structural_parameters(spec):
@@ -59,11 +58,16 @@ def elastic_sections(model, spec):
             continue
         block = body_block(b.inv, b.nodal)
         index[i] = len(rows)
-        rows.append([i, b.inv.n, b.nodal.nodes, b.q_idx[0], b.qd_idx[0], int(b.inv.K_a is not None), off])
+        row = np.zeros(L.EI, np.int64)
+        row[[L.EI_BODY, L.EI_N, L.EI_NODES, L.EI_Q, L.EI_QD, L.EI_STIFF, L.EI_D]] = \
+            i, b.inv.n, b.nodal.nodes, b.q_idx[0], b.qd_idx[0], int(b.inv.K_a is not None), off
+        rows.append(row)
         blocks.append(block)
         off += block.size
     params = [p["name"] for p in spec["parameters"]]
     fixed = structural_parameters(spec)
-    I = np.concatenate([[len(rows), len(fixed)], np.ravel(rows), [params.index(p) for p in fixed]])
+    head = np.zeros(L.EH, np.int64)
+    head[[L.EH_NE, L.EH_NFIX]] = len(rows), len(fixed)
+    I = np.concatenate([head, np.ravel(rows), [params.index(p) for p in fixed]])
     D = np.concatenate(blocks + [[float(model.parameters[p]) for p in fixed]])
     return I.astype(np.int32), D.astype(float), index

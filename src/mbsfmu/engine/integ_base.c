@@ -9,7 +9,9 @@
 
 #include "integ_internal.h"
 
-const char *const mbs_method_names[MBS_NMETHODS] = {"rk4", "dopri5", "dop853", "radau5", "gen_alpha", "auto"};
+#define METHOD_NAME(code, name) name,
+const char *const mbs_method_names[MBS_NMETHODS] = {MBS_METHODS(METHOD_NAME)};
+#undef METHOD_NAME
 
 #ifdef MBS_NO_RADAU5
 #define RADAU5_CLASS NULL

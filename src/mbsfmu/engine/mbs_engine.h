@@ -15,6 +15,8 @@
 
 #include <stddef.h>
 
+#include "mbs_layout.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -25,14 +27,11 @@ extern "C" {
 #define MBS_API
 #endif
 
-#define MBS_FORMAT_VERSION 1 /* version of the compiled-scene layout this engine reads */
-
 /* Status codes, ordered like fmi2Status (OK, Warning, Discard, Error). */
 enum { MBS_OK = 0, MBS_WARNING = 1, MBS_DISCARD = 2, MBS_ERROR = 3 };
 
-/* Kinds of variables (the compiled scene's variable table; value reference = row index). */
-enum { MBS_V_PARAM, MBS_V_METHOD, MBS_V_RTOL, MBS_V_ATOL, MBS_V_MAX_STEP, MBS_V_STEP, MBS_V_QIN, MBS_V_FIN,
-       MBS_V_Y, MBS_V_YD, MBS_V_OUT };
+/* Kinds of variables MBS_V_* (the compiled scene's variable table), the format version and the integrator
+ * codes: mbs_layout.h. */
 
 typedef void (*mbs_logger)(void *env, int status, const char *message);
 

@@ -15,6 +15,8 @@
 
 #include <stddef.h>
 
+#include "mbs_layout.h"
+
 /* keeps a cold path out of its hot caller (which link-time optimization then inlines where it is called) */
 #if defined(__GNUC__)
 #define MBS_NOINLINE __attribute__((noinline))
@@ -22,7 +24,7 @@
 #define MBS_NOINLINE
 #endif
 
-enum { MBS_RK4, MBS_DOPRI5, MBS_DOP853, MBS_RADAU5, MBS_GEN_ALPHA, MBS_AUTO, MBS_NMETHODS };
+/* MBS_RK4 ... MBS_AUTO, MBS_NMETHODS and the names: mbs_layout.h's MBS_METHODS */
 /* bytes one integrator may hold (history, its copy for rejected steps, scratch): an implicit method's
  * n x n matrices grow with the square of the states, so a scene that the model's workspace admits may still
  * be too large for radau5; mbs_integ_new refuses it with the size instead of allocating tens of GB */

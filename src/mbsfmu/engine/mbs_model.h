@@ -10,83 +10,11 @@
 
 #include <stdint.h>
 #include "mbs_engine.h"
+#include "mbs_layout.h"
 
-/* ---- the compiled scene: "MBSC", int32 format version, char guid[64], int32 nsec, then nsec rows
- * {int32 id, int32 kind (0 int32, 1 double), int64 byte offset, int64 count}, then the data (8-aligned) ----
- * section ids (compile.py: SECTIONS mirrors this list) */
-enum {
-    S_HEADER = 0,   /* H_SIZE        int   counts and D offsets (below) */
-    S_BODY_I = 1,   /* nb × IB        int   */
-    S_FORCE_I,      /* nforce × IF    int   */
-    S_QUAT,         /* nquat × 7      int   4 position, 3 velocity indices of each quaternion */
-    S_PLAIN,        /* 2 × nplain     int   position indices, then their velocity indices */
-    S_VARS,         /* nvars × 2      int   kind (MBS_V_*), index */
-    S_OUT_I,        /* nout × 3       int   body, node (-1: point), quantities (1 position, 2 velocity) */
-    S_PROG,         /* nprog × 4      int   stage (0 bind, 1 time), target, code offset, code length */
-    S_CODE,         /* ncode          int   bytecode: (op, arg) pairs */
-    S_ELASTIC_I,    /* elastic.c */
-    S_D,            /* all numbers    double (layout below) */
-    S_ELASTIC_D,    /* elastic.c (double) */
-    S_NAMES,        /* bytes: npos coordinate, nb body, nvars variable names, each NUL-terminated (messages) */
-    S_VDOM,         /* 6 × 3          double  domain of each settable kind MBS_V_PARAM .. MBS_V_STEP: lo, hi, flags (VD_*) */
-    S_RULES,        /* nrules × 3     int   rule (R_*), D offset of its first number (R_CARRIES: body), path */
-    S_RULE_NAMES,   /* bytes: the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */
-    S_LIMITS,       /* LIM_N          double  the limits the rules use (below) */
-    S_NSECTIONS
-};
-
-/* header scalars (I[0..H_SIZE-1]) */
-enum { H_NB, H_NPOS, H_NVEL, H_NFORCE, H_NQUAT, H_NPLAIN, H_NDRV, H_NVEC, H_NINPUT, H_NPARAM, H_NVARS, H_NOUT,
-       H_NPROG, H_NCODE, H_HAS_GRAVITY, H_METHOD, H_NCARDAN, H_FEATURES, H_MAXSTACK,
-       /* offsets into D */
-       H_D_PARAM, H_D_CONST, H_D_BODY, H_D_FORCE, H_D_G, H_D_X0, H_D_OUT, H_D_INTEG, H_ND,
-       H_SIZE };
-
-/* feature bits (H_FEATURES): which optional parts of the engine the scene needs */
-enum { F_EXPR = 1, F_ELASTIC = 2 };
-
-enum { J_FIXED, J_REVOLUTE, J_PRISMATIC, J_CYLINDRICAL, J_UNIVERSAL, J_PLANAR,
-       J_SPH_QUAT, J_SPH_CARDAN, J_FREE_QUAT, J_FREE_CARDAN };
-enum { FE_JOINT_SPRING, FE_SPRING, FE_FORCE, FE_TORQUE };
-
-/* int table per body */
-enum { IB_PARENT, IB_JTYPE, IB_NPOS, IB_NVEL, IB_MASSIVE, IB_POS, IB_VEL = IB_POS + 7, IB_DRV = IB_VEL + 6,
-       IB_ROT = IB_DRV + 7,  /* joint-frame rotation: 0 none, 1 axis-angle (raw: axis 3, angle), 2 matrix (raw 9) */
-       IB_IROT,              /* initial rotation of spherical/free joints: same codes */
-       IB_IROT_MASK,         /* Cardan: bit k set = angle k comes from the initial rotation */
-       IB_ELASTIC,           /* index of the body's elastic data, -1 rigid */
-       IB_NODE,              /* node of the elastic parent the joint sits at, -1 none */
-       IB };
-/* double table per body: derived (used per step), then raw (written by bind programs) */
-enum { DB_A1, DB_A2 = 3, DB_AT = 6, DB_R0 = 9, DB_M = 18, DB_C = 19, DB_I = 22,
-       DB_A1_RAW = 31, DB_A2_RAW = 34, DB_ROT_RAW = 37, DB_IROT_RAW = 46, DB = 55 };
-/* force tables */
-enum { IF_TYPE, IF_A, IF_B, IF_FRAME, IF_SRC, IF_NODE_A, IF_NODE_B, IF };  /* IF_SRC: -1 constant, else td slot (3) */
-enum { DF_K, DF_D, DF_L, DF_AT_A = 3, DF_AT_B = 6, DF_VEC = 9, DF = 12 };
-/* integrator defaults in D (H_D_INTEG) */
-enum { DI_RTOL, DI_ATOL, DI_MAX_STEP, DI_STEP, DI_RHO_INF, DI };
-
-/* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, sim.c to a host's):
- * a variable's domain is lo..hi, 0 besides with VD_ZERO, always finite; a rule holds for the numbers a
- * parameter derives (R_* = domains.NONNEG ...; numbers per rule: domains.RULE_SIZE). */
-enum { VD_LO_OPEN = 1, VD_HI_OPEN = 2, VD_ZERO = 4 };
-enum { R_NONNEG, R_MAGNITUDE, R_INERTIA, R_AXIS, R_ROTATION, R_CARRIES, R_TIMED, R_PERPENDICULAR, R_NOT_PARALLEL,
-       R_N };  /* R_TIMED: a td slot */
-/* S_LIMITS: the scene's experiment and the sample count of R_TIMED (limits.DOMAIN_SAMPLES), limits.MAGNITUDE,
- * limits.AXIS_LENGTH */
-enum { LIM_START, LIM_STOP, LIM_SAMPLES, LIM_MAGNITUDE_LO, LIM_MAGNITUDE_HI, LIM_AXIS_LO, LIM_AXIS_HI, LIM_N };
+/* ---- the compiled scene: two flat arrays reached through a table of sections, laid out as mbs_layout.h
+ * declares (compile.py writes it from the same declaration) ---- */
 int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen);  /* sim.c: at load, every row in range */
-
-/* bytecode */
-enum { OP_CONST, OP_PARAM, OP_TIME, OP_NEG, OP_ADD, OP_SUB, OP_MUL, OP_DIV, OP_POW, OP_CALL1, OP_CALL2,
-       OP_SEL_MIN, OP_SEL_MAX, OP_N };
-enum { FN_SIN, FN_COS, FN_TAN, FN_ASIN, FN_ACOS, FN_ATAN, FN_SINH, FN_COSH, FN_TANH, FN_EXP, FN_LOG, FN_SQRT,
-       FN_ABS, FN_N1 };
-enum { FN_ATAN2, FN_MIN, FN_MAX, FN_N2 };
-#define MBS_MAXSTACK 64
-/* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py: MAX_WORKSPACE
- * refuses a larger scene first, with its size) */
-#define MBS_MAX_WORKSPACE (1 << 30)
 
 struct MbsModel {
     char guid[64];

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from ..engine import layout as _layout
 from ..expr import Expr, parse
 from . import limits
 
@@ -151,7 +152,9 @@ def _minimize(f, a, b, iterations=60):
 # that depends on a parameter), and the engine applies them when a host sets a value (sim.c: check_rules and
 # in_domain mirror check() and Domain.contains, kind by kind; tests/test_domains.py holds the two equal).
 
-NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES, TIMED, PERPENDICULAR, NOT_PARALLEL = range(9)  # mbs_model.h: R_*
+NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES, TIMED, PERPENDICULAR, NOT_PARALLEL = (  # codes: mbs_layout.h
+    _layout.R_NONNEG, _layout.R_MAGNITUDE, _layout.R_INERTIA, _layout.R_AXIS, _layout.R_ROTATION, _layout.R_CARRIES,
+    _layout.R_TIMED, _layout.R_PERPENDICULAR, _layout.R_NOT_PARALLEL)
 RULE_SIZE = {NONNEG: 1, MAGNITUDE: 1, INERTIA: 9, AXIS: 3, ROTATION: 9, CARRIES: 0, TIMED: 0, PERPENDICULAR: 6,
              NOT_PARALLEL: 6}
 # CARRIES: the loader's `massless` check of a body; TIMED: a drive (or its derivatives) or force value of t that
@@ -224,8 +227,8 @@ class Domain:
         return ("0 or " if self.zero else "") + f"{lo}{self.lo:g}, {self.hi:g}{hi}"
 
     def flags(self):
-        """The flags the compiled scene stores (mbs_model.h: VD_*)."""
-        return self.lo_open | self.hi_open << 1 | self.zero << 2
+        """The flags the compiled scene stores (mbs_layout.h: VD_*)."""
+        return _layout.VD_LO_OPEN * self.lo_open | _layout.VD_HI_OPEN * self.hi_open | _layout.VD_ZERO * self.zero
 
 
 ANY = Domain()  # a parameter: its derived numbers have the rules above; a start value y0.*/yd0.* has MAGNITUDE's
