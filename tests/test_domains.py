@@ -430,9 +430,9 @@ def _corrupt(blob, sid, index, value):
 def test_corrupt_domain_tables_are_refused_at_load(section, index, value):
     """A compiled scene whose rule, domain or limit tables point outside the scene or make no sense is refused
     when loaded, with a message (a host reading a damaged scene.bin is not crashed by the checks)."""
-    from mbsfmu.engine import EngineError, Instance, compile as engine_compile
+    from mbsfmu.engine import EngineError, Instance, layout
     sim = Simulation(loads(RULES.format(**NOMINAL)).spec)
-    blob = _corrupt(sim.blob, getattr(engine_compile, section), index, value)
+    blob = _corrupt(sim.blob, getattr(layout, section), index, value)
     with pytest.raises(EngineError, match="corrupt"):
         Instance(blob)
 

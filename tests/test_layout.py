@@ -1,0 +1,107 @@
+"""The compiled scene's layout is declared once (mbs_layout.h, issue 23): Python's reading of it (engine/layout.py)
+is held against what a C compiler makes of the same header, and no Python source keeps a copy of its own."""
+
+import ctypes
+import random
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from mbsfmu.engine import layout
+from mbsfmu.engine.layout import LayoutError, parse
+
+ENGINE = Path(layout.__file__).parent
+SRC = ENGINE.parent
+
+needs_cc = pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")), reason="no C compiler")
+
+
+def _c_values(tmp_path, includes, names):
+    """{name: value} as a C compiler evaluates each name after `includes` (compiled with -Wall -Werror)."""
+    prog = "".join(f'#include "{h}"\n' for h in includes) + "#include <stdio.h>\nint main(void) {\n"
+    prog += "".join(f'    printf("%s %lld\\n", "{n}", (long long)({n}));\n' for n in names) + "    return 0;\n}\n"
+    (tmp_path / "layout_print.c").write_text(prog)
+    exe = tmp_path / "layout_print"
+    cc = shutil.which("cc") or shutil.which("gcc")
+    subprocess.run([cc, "-std=c99", "-pedantic", "-Wall", "-Werror", f"-I{ENGINE}", f"-I{tmp_path}", "-o", str(exe),
+                    str(tmp_path / "layout_print.c")], check=True, capture_output=True)
+    out = subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout
+    return {n: int(v) for n, v in (line.split() for line in out.splitlines())}
+
+
+@needs_cc
+def test_every_constant_is_what_the_c_compiler_makes_of_the_header(tmp_path):
+    """All ~200 names, included the way the engine includes them (mbs_model.h, mbs_integrator.h): a name the
+    parser reads differently from C (offsets of wide fields, totals, flag values) fails here; a copy left in
+    another header would not compile (redeclared enumerator)."""
+    assert len(layout.CONSTANTS) > 190
+    c = _c_values(tmp_path, ["mbs_model.h", "mbs_integrator.h"], sorted(layout.CONSTANTS))
+    assert c == layout.CONSTANTS
+
+
+@needs_cc
+def test_parser_agrees_with_c_on_random_layouts(tmp_path):
+    """Random lists of each kind (codes, fields of random widths, flag values) in the header's grammar: the
+    parser's numbers are the compiler's, so its reading holds for lists not yet written too."""
+    rng = random.Random(23)
+    head = (ENGINE / "mbs_layout.h").read_text()
+    generators = head[head.index("#define MBS_CODE("):head.index("#define MBS_FORMAT_VERSION")]
+    lines = ["#ifndef MBS_LAYOUT_H", "#define MBS_LAYOUT_H", generators]
+    for k in range(12):
+        kind = ("MBS_CODE", "MBS_FIELD", "MBS_VALUE")[k % 3]
+        entries = []
+        for j in range(rng.randint(1, 9)):
+            args = [f"T{k}_E{j}"]
+            if kind != "MBS_CODE":
+                args.append(str(rng.randint(1, 12) if kind == "MBS_FIELD" else 1 << j))
+            if kind != "MBS_FIELD" and rng.random() < 0.5:
+                args.append(f'"name_{j}"')
+            entries.append(f"X({', '.join(args)})")
+        lines.append(f"#define MBS_T{k}(X) \\\n    " + " \\\n    ".join(entries) + f"  /* list {k} */")
+        lines.append(f"enum {{ MBS_T{k}({kind}){'' if kind == 'MBS_VALUE' else f' T{k}_N'} }};")
+    lines += ["#define T_LIMIT 1073741824", "#endif"]
+    text = "\n".join(lines) + "\n"
+    (tmp_path / "mbs_layout.h").write_text(text)
+    consts, _ = parse(text)
+    assert _c_values(tmp_path, ["mbs_layout.h"], sorted(consts)) == consts
+
+
+def test_engine_method_names_are_the_layouts():
+    """The names the engine accepts for integrator.method (mbs_method_names, generated from MBS_METHODS) are
+    Python's, in code order."""
+    from mbsfmu.engine.build import library_path
+    lib = ctypes.CDLL(str(library_path()))
+    names = (ctypes.c_char_p * layout.MBS_NMETHODS).in_dll(lib, "mbs_method_names")
+    assert tuple(n.decode() for n in names) == layout.METHODS
+
+
+@pytest.mark.parametrize("text, words", [
+    ("#define MBS_A(X) X(A0) X(A1)\nenum { MBS_A(MBS_CODE) A_N };\nint x;\n", ["not a line of the layout"]),
+    ("#define MBS_A(X) X(A0, 1.5)\n", ["1.5", "not a NAME, an integer"]),
+    ("#define MBS_A(X) X(A0) X(A0)\nenum { MBS_A(MBS_CODE) };\n", ["A0 declared twice"]),
+    ("enum { MBS_B(MBS_CODE) B_N };\n", ["MBS_B", "not declared"]),
+    ("#define MBS_A(X) X(A0) junk\n", ["expected X(...)"]),
+    ("#define MBS_A(X) X(A0)\nenum { MBS_A(MBS_FIELD) A_N };\n", ["A0", "integer second argument"]),
+    ("#define MBS_A(X) X(A0, 1)\nenum { MBS_A(MBS_VALUE) A_N };\n", ["no total"]),
+    ("#define A 1 + 2\n", ["not a line of the layout"]),
+])
+def test_a_line_outside_the_grammar_is_refused_with_its_line(text, words):
+    """A line the parser does not know would be a constant C has and Python not: refused, naming the line."""
+    with pytest.raises(LayoutError) as e:
+        parse("/* a\n comment */\n" + text, "t.h")
+    for w in words + ["t.h:"]:
+        assert w in str(e.value)
+
+
+def test_no_python_source_keeps_its_own_copy_of_a_layout_name():
+    """The class of defect the header removes: a module assigning a name of the layout (an offset, a size, a
+    code) a number by hand, which nothing keeps equal to C's. (The scan finds every copy compile.py and
+    elastic_tables.py held before.)"""
+    names = "|".join(sorted(layout.CONSTANTS, key=len, reverse=True))
+    assign = re.compile(rf"^\s*(?:[A-Z0-9_]+\s*,\s*)*(?:{names})\b(?:\s*,\s*[A-Z0-9_]+)*\s*=\s*(?:-?\d|range\()", re.M)
+    bad = [f"{p.relative_to(SRC)}: {m.group(0).strip()}" for p in sorted(SRC.rglob("*.py")) if p.name != "layout.py"
+           for m in assign.finditer(p.read_text())]
+    assert not bad, bad
