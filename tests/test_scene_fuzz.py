@@ -271,14 +271,15 @@ def test_workspace_limit_of_compile_py_holds_at_load():
         H[h[key]] += extra
     for key in ("D_OUT", "D_INTEG", "ND"):
         H[h[key]] += 2 * extra
-    parts = [(sid, kind, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
+    from mbsfmu.engine.compile import _pack
+    parts = [(sid, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
              for sid, (_, kind, _, _) in sorted(sec.items())]
-    big = c._pack(parts, blob[8:72].split(b"\0")[0].decode())
+    big = _pack(parts, blob[8:72].split(b"\0")[0].decode())
     _refused(big, "scene too large", "20002 velocity coordinates", "GiB")
     H[h["NVEL"]] -= 1  # and the same file with one count off is corrupt, not large
-    parts = [(sid, kind, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
+    parts = [(sid, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
              for sid, (_, kind, _, _) in sorted(sec.items())]
-    _refused(c._pack(parts, "g"), "corrupt")
+    _refused(_pack(parts, "g"), "corrupt")
 
 
 @pytest.fixture(scope="module")

@@ -15,9 +15,9 @@ typedef struct {
 
 static AutoState *state(const MbsIntegrator *it) { return (AutoState *)it->ms; }
 
-MbsIntegrator *mbs_auto_active(const MbsIntegrator *it) { return it->sub[state(it)->phase]; }
+static MbsIntegrator *auto_active(const MbsIntegrator *it) { return it->sub[state(it)->phase]; }
 
-int mbs_auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen)
+static int auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen)
 {
     MbsIntegOptions o = *opt;
     o.dense = it->dense;
@@ -48,7 +48,7 @@ static int child_failed(MbsIntegrator *it, const MbsIntegrator *child)
     return 1;
 }
 
-int mbs_auto_reset(MbsIntegrator *it, double t0, const double *x0)
+static int auto_reset(MbsIntegrator *it, double t0, const double *x0)
 {
     mbs_msg_set(it, "");
     if (mbs_integ_reset(it->sub[0], t0, x0)) return child_failed(it, it->sub[0]);
@@ -57,7 +57,7 @@ int mbs_auto_reset(MbsIntegrator *it, double t0, const double *x0)
     return 0;
 }
 
-void mbs_auto_inputs_changed(MbsIntegrator *it) { mbs_integ_inputs_changed(mbs_auto_active(it)); }
+static void auto_inputs_changed(MbsIntegrator *it) { mbs_integ_inputs_changed(auto_active(it)); }
 
 /* Hand (t, x) and the current step size to RADAU5, which grows h as stability allows. */
 static int switch_to_radau5(MbsIntegrator *it)
@@ -71,7 +71,7 @@ static int switch_to_radau5(MbsIntegrator *it)
     return 0;
 }
 
-int mbs_auto_advance(MbsIntegrator *it, double t_end)
+static int auto_advance(MbsIntegrator *it, double t_end)
 {
     mbs_msg_set(it, "");
     if (state(it)->phase == 0) {
@@ -84,7 +84,7 @@ int mbs_auto_advance(MbsIntegrator *it, double t_end)
     return 0;
 }
 
-void mbs_auto_stats(const MbsIntegrator *it, MbsStats *out)
+static void auto_stats(const MbsIntegrator *it, MbsStats *out)
 {
     MbsStats s;
     mbs_integ_stats(it->sub[0], out);
@@ -102,12 +102,12 @@ void mbs_auto_stats(const MbsIntegrator *it, MbsStats *out)
 
 /* ---- snapshot: header, then both children's snapshots (fixed size) ---- */
 
-size_t mbs_auto_snapshot_size(const MbsIntegrator *it)
+static size_t auto_snapshot_size(const MbsIntegrator *it)
 {
     return AUTO_HEADER + mbs_integ_snapshot_size(it->sub[0]) + mbs_integ_snapshot_size(it->sub[1]);
 }
 
-void mbs_auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
+static void auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
 {
     size_t n0 = mbs_integ_snapshot_size(it->sub[0]);
     memcpy(buf, "MBSA", 4);
@@ -121,7 +121,7 @@ void mbs_auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
     mbs_integ_snapshot_save(it->sub[1], buf + AUTO_HEADER + n0);
 }
 
-int mbs_auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
+static int auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
 {
     size_t n0 = mbs_integ_snapshot_size(it->sub[0]), n1 = mbs_integ_snapshot_size(it->sub[1]);
     long phase;
@@ -141,3 +141,7 @@ int mbs_auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t l
     mbs_msg_set(it, "");
     return 0;
 }
+
+static const MbsComposite composite = {auto_init, auto_reset, auto_inputs_changed, auto_advance, auto_active,
+                                       auto_stats, auto_snapshot_size, auto_snapshot_save, auto_snapshot_load};
+const MbsMethodClass mbs_auto_class = {.name = "auto", .composite = &composite};

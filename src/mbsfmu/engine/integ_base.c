@@ -1,6 +1,7 @@
 /* The common integrator driver: options, reset, advance to exact communication points with the step size
  * carried over, dense output (ahead point + segment), advance_many, stats, snapshots, messages.
- * Methods plug in through MbsMethodClass (integ_internal.h); 'auto' composes two of them (integ_auto.c). */
+ * Methods plug in through MbsMethodClass (integ_internal.h); a composite one (auto, integ_auto.c) takes every
+ * public call through its MbsComposite. */
 #include <float.h>
 #include <math.h>
 #include <stdio.h>
@@ -12,6 +13,8 @@
 #define METHOD_NAME(code, name) name,
 const char *const mbs_method_names[MBS_NMETHODS] = {MBS_METHODS(METHOD_NAME)};
 #undef METHOD_NAME
+#define METHOD_LISTED(code, name) ", " name
+#define METHODS_LISTED (MBS_METHODS(METHOD_LISTED)) /* ", rk4, dopri5, ..." */
 
 #ifdef MBS_NO_RADAU5
 #define RADAU5_CLASS NULL
@@ -25,7 +28,8 @@ const char *const mbs_method_names[MBS_NMETHODS] = {MBS_METHODS(METHOD_NAME)};
 #endif
 
 static const MbsMethodClass *const method_classes[MBS_NMETHODS] = {
-    &mbs_rk4_class, &mbs_dopri5_class, &mbs_dop853_class, RADAU5_CLASS, GEN_ALPHA_CLASS, NULL};
+    [MBS_RK4] = &mbs_rk4_class, [MBS_DOPRI5] = &mbs_dopri5_class, [MBS_DOP853] = &mbs_dop853_class,
+    [MBS_RADAU5] = RADAU5_CLASS, [MBS_GEN_ALPHA] = GEN_ALPHA_CLASS, [MBS_AUTO] = &mbs_auto_class};
 
 #define SNAP_HEADER 24 /* "MBSI", method, n, dense (int32 each), history bytes (uint64) */
 
@@ -469,8 +473,7 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
     size_t n, m, off_x, nwork_d, work_bytes;
     if (err && errlen) err[0] = '\0';
     if (method < 0 || method >= MBS_NMETHODS) {
-        err_put(err, errlen, "unknown integrator method; valid: rk4, dopri5, dop853, radau5, gen_alpha, auto",
-                NULL, NULL);
+        err_put(err, errlen, "unknown integrator method; valid: ", NULL, METHODS_LISTED + 2);
         return NULL;
     }
     if (!opt) {
@@ -483,13 +486,6 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
         return NULL;
     }
     it->method = method;
-    if (method == MBS_AUTO) {
-        if (take_options(it, ode, opt, 1, "auto", err, errlen) || mbs_auto_init(it, opt, err, errlen)) {
-            mbs_integ_free(it);
-            return NULL;
-        }
-        return it;
-    }
     cls = method_classes[method];
     if (!cls) {
         err_put(err, errlen, mbs_method_names[method], NULL, " is not available in this build");
@@ -497,6 +493,13 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
         return NULL;
     }
     it->cls = cls;
+    if (cls->composite) { /* dense output: its children's */
+        if (take_options(it, ode, opt, 1, cls->name, err, errlen) || cls->composite->init(it, opt, err, errlen)) {
+            mbs_integ_free(it);
+            return NULL;
+        }
+        return it;
+    }
     if (take_options(it, ode, opt, cls->dense_rows > 0, cls->name, err, errlen)) {
         free(it);
         return NULL;
@@ -569,7 +572,7 @@ int mbs_integ_method(const MbsIntegrator *it) { return it->method; }
 int mbs_integ_reset(MbsIntegrator *it, double t0, const double *x0)
 {
     MbsCommon *c = it->c;
-    if (it->method == MBS_AUTO) return mbs_auto_reset(it, t0, x0);
+    if (it->cls->composite) return it->cls->composite->reset(it, t0, x0);
     mbs_msg_set(it, "");
     if (!isfinite(t0) || !x0 || !mbs_all_finite(it->n, x0)) {
         mbs_msg_set(it, "initial state is not finite");
@@ -589,8 +592,8 @@ int mbs_integ_reset(MbsIntegrator *it, double t0, const double *x0)
 
 void mbs_integ_inputs_changed(MbsIntegrator *it)
 {
-    if (it->method == MBS_AUTO) {
-        mbs_auto_inputs_changed(it);
+    if (it->cls->composite) {
+        it->cls->composite->inputs_changed(it);
         return;
     }
     /* with dense output restart from the visible (interpolated) state, so the new inputs act from t on;
@@ -602,7 +605,7 @@ void mbs_integ_inputs_changed(MbsIntegrator *it)
 static MBS_NOINLINE int advance(MbsIntegrator *it, double t_end)
 {
     MbsCommon *c;
-    if (it->method == MBS_AUTO) return mbs_auto_advance(it, t_end);
+    if (it->cls->composite) return it->cls->composite->advance(it, t_end);
     c = it->c;
     it->msg[0] = '\0', it->msg_len = 0;
     if (!c->started) {
@@ -633,8 +636,9 @@ static MBS_NOINLINE int advance(MbsIntegrator *it, double t_end)
 int mbs_integ_advance(MbsIntegrator *it, double t_end)
 {
     /* a fixed-step method stepping on from its last point (what a master does) calls it directly; small
-     * enough to inline into the caller, which saves a call per communication point */
-    if (it->method != MBS_AUTO && it->cls->advance && it->c->started && !it->c->has_ahead && t_end > it->c->t) {
+     * enough to inline into the caller, which saves a call per communication point (a composite has no
+     * advance of its class) */
+    if (it->cls->advance && it->c->started && !it->c->has_ahead && t_end > it->c->t) {
         it->msg[0] = '\0', it->msg_len = 0;
         return it->cls->advance(it, t_end);
     }
@@ -656,7 +660,7 @@ int mbs_integ_advance_many(MbsIntegrator *it, const double *ts, int m, double *X
         if (mbs_integ_advance(it, ts[i])) return 1;
         memcpy(X + (size_t)i * n, mbs_integ_x(it), (size_t)n * sizeof(double));
         i++;
-        a = it->method == MBS_AUTO ? mbs_auto_active(it) : it;
+        a = it->cls->composite ? it->cls->composite->active(it) : it;
         c = a->c;
         if (!c->has_ahead) continue;
         /* points strictly inside the step come from its continuous extension (its end lands exactly) */
@@ -676,25 +680,25 @@ int mbs_integ_advance_many(MbsIntegrator *it, const double *ts, int m, double *X
 
 double mbs_integ_t(const MbsIntegrator *it)
 {
-    return it->method == MBS_AUTO ? mbs_integ_t(mbs_auto_active(it)) : it->c->t;
+    return it->cls->composite ? mbs_integ_t(it->cls->composite->active(it)) : it->c->t;
 }
 
 const double *mbs_integ_x(const MbsIntegrator *it)
 {
-    return it->method == MBS_AUTO ? mbs_integ_x(mbs_auto_active(it)) : it->x;
+    return it->cls->composite ? mbs_integ_x(it->cls->composite->active(it)) : it->x;
 }
 
 double mbs_integ_h(const MbsIntegrator *it)
 {
-    if (it->method == MBS_AUTO) return mbs_integ_h(mbs_auto_active(it));
+    if (it->cls->composite) return mbs_integ_h(it->cls->composite->active(it));
     return it->c->has_h ? it->c->h : NAN;
 }
 
 void mbs_integ_stats(const MbsIntegrator *it, MbsStats *out)
 {
     const MbsCommon *c;
-    if (it->method == MBS_AUTO) {
-        mbs_auto_stats(it, out);
+    if (it->cls->composite) {
+        it->cls->composite->stats(it, out);
         return;
     }
     c = it->c;
@@ -728,15 +732,15 @@ long mbs_get_i32(const unsigned char *p)
 
 size_t mbs_integ_snapshot_size(const MbsIntegrator *it)
 {
-    return it->method == MBS_AUTO ? mbs_auto_snapshot_size(it) : SNAP_HEADER + it->hist_bytes;
+    return it->cls->composite ? it->cls->composite->snapshot_size(it) : SNAP_HEADER + it->hist_bytes;
 }
 
 void mbs_integ_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
 {
     unsigned long long hb = it->hist_bytes;
     int k;
-    if (it->method == MBS_AUTO) {
-        mbs_auto_snapshot_save(it, buf);
+    if (it->cls->composite) {
+        it->cls->composite->snapshot_save(it, buf);
         return;
     }
     memcpy(buf, "MBSI", 4);
@@ -788,7 +792,7 @@ void mbs_integ_snapshot_commit(MbsIntegrator *it)
 
 int mbs_integ_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
 {
-    if (it->method == MBS_AUTO) return mbs_auto_snapshot_load(it, buf, len);
+    if (it->cls->composite) return it->cls->composite->snapshot_load(it, buf, len);
     if (mbs_integ_snapshot_check(it, buf, len)) return 1;
     mbs_integ_snapshot_commit(it);
     return 0;

@@ -61,8 +61,8 @@
  *
  * REGISTRATION: integ_base.c's table mbs_method_classes[MBS_NMETHODS] points at mbs_rk4_class,
  * mbs_dopri5_class, mbs_dop853_class (integ_erk.c), mbs_radau5_class (integ_radau5.c), mbs_gen_alpha_class
- * (integ_gen_alpha.c).  MBS_AUTO has no class: integ_auto.c composes a dopri5 (stop_when_stiff) and a
- * radau5 child; it sets the radau5 child's c->h/has_h after reset to hand the step size over.
+ * (integ_gen_alpha.c), mbs_auto_class (integ_auto.c: a composite, MbsComposite, of a dopri5 child with
+ * stop_when_stiff and a radau5 child; it sets the radau5 child's c->h/has_h after reset to hand the step size over).
  * Until a file exists, compiling with -DMBS_NO_RADAU5 / -DMBS_NO_GEN_ALPHA leaves its entry NULL
  * (mbs_integ_new then says the method is not available).
  */
@@ -101,6 +101,20 @@ typedef struct {
     size_t view;           /* bytes of the method's pointer struct (it->view) */
 } MbsSizes;
 
+/* A composite method ('auto'): integrators of other classes run under it, and the public functions hand every
+ * call to these, so the common driver names no method. */
+typedef struct MbsComposite {
+    int (*init)(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen); /* after the options */
+    int (*reset)(MbsIntegrator *it, double t0, const double *x0);
+    void (*inputs_changed)(MbsIntegrator *it);
+    int (*advance)(MbsIntegrator *it, double t_end);
+    MbsIntegrator *(*active)(const MbsIntegrator *it); /* the child in charge: t, x, h, dense output */
+    void (*stats)(const MbsIntegrator *it, MbsStats *out);
+    size_t (*snapshot_size)(const MbsIntegrator *it);
+    void (*snapshot_save)(const MbsIntegrator *it, unsigned char *buf);
+    int (*snapshot_load)(MbsIntegrator *it, const unsigned char *buf, size_t len);
+} MbsComposite;
+
 typedef struct MbsMethodClass {
     const char *name;
     int dense_rows;  /* rows of the continuous extension's coefficients Q; 0: no dense output */
@@ -117,10 +131,11 @@ typedef struct MbsMethodClass {
     int (*stop_early)(const MbsIntegrator *it);                           /* NULL: never */
     int (*advance)(MbsIntegrator *it, double t_end);                      /* NULL: mbs_integ_adaptive */
     int (*check)(const MbsIntegrator *it, const void *ms, const int *hi); /* NULL: nothing to check */
+    const MbsComposite *composite; /* NULL: a single method (the fields above), else only name and this */
 } MbsMethodClass;
 
 struct MbsIntegrator {
-    const MbsMethodClass *cls; /* NULL for auto */
+    const MbsMethodClass *cls;
     int method;                /* MBS_* */
     MbsOde ode;
     int n;
@@ -157,7 +172,7 @@ struct MbsIntegrator {
 };
 
 extern const MbsMethodClass mbs_rk4_class, mbs_dopri5_class, mbs_dop853_class, mbs_radau5_class,
-    mbs_gen_alpha_class;
+    mbs_gen_alpha_class, mbs_auto_class;
 
 /* Python's min/max of two floats (the first argument wins unless the second compares smaller/larger), so
  * NaN propagates exactly as in the reference implementation. */
@@ -210,16 +225,6 @@ void mbs_integ_snapshot_commit(MbsIntegrator *it);
 void mbs_put_i32(unsigned char *p, long v);
 long mbs_get_i32(const unsigned char *p);
 
-/* ---- auto (integ_auto.c), dispatched from the public functions in integ_base.c ---- */
-int mbs_auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen);
-int mbs_auto_reset(MbsIntegrator *it, double t0, const double *x0);
-void mbs_auto_inputs_changed(MbsIntegrator *it);
-int mbs_auto_advance(MbsIntegrator *it, double t_end);
-MbsIntegrator *mbs_auto_active(const MbsIntegrator *it);
-void mbs_auto_stats(const MbsIntegrator *it, MbsStats *out);
-size_t mbs_auto_snapshot_size(const MbsIntegrator *it);
-void mbs_auto_snapshot_save(const MbsIntegrator *it, unsigned char *buf);
-int mbs_auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len);
 /* dopri5 (integ_erk.c): 1 once its stiffness test fired. */
 int mbs_dopri5_stiff(const MbsIntegrator *it);
 
