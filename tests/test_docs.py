@@ -121,6 +121,17 @@ def _commands(page):
                 yield words[1:]
 
 
+def test_documented_method_lists_are_the_engines():
+    """Every place the docs list the integrators (the scene format, the FMU's variable, the CLI's --method) names
+    exactly the engine's table, in its order (mbs_layout.h: MBS_METHODS, what the loader accepts)."""
+    from mbsfmu.engine.layout import METHODS
+    lines = [(p.name, ln) for p in OWN_PAGES for ln in p.read_text(encoding="utf-8").splitlines()
+             if ln.startswith("|") and ("integrator.method" in ln or "--method" in ln)]
+    assert {p for p, _ in lines} >= {"scene-format.md", "fmu.md", "cli.md"}
+    for page, ln in lines:
+        assert tuple(re.findall(r"`(\w+)`", ln)) == METHODS, (page, ln)
+
+
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
 def test_documented_commands_parse(page):
     """Every `mbsfmu …` line in the README and docs/ is accepted by the command-line parser."""

@@ -12,6 +12,7 @@ import re
 import sys
 
 from . import __version__, files
+from .engine.layout import METHODS
 from .errors import IntegrationError, ModelError, printable
 from .scene.limits import RESULT_POINTS, TABLE_ROWS
 
@@ -388,7 +389,7 @@ def parser():
     p.add_argument("--step", type=_seconds, default=None,
                    help="communication step in s (default: the experiment's step)")
     p.add_argument("--method", default=None,
-                   help="integrator: auto, rk4, dopri5, dop853, radau5, gen_alpha (default: the scene's)")
+                   help=f"integrator: {', '.join(METHODS)} (default: the scene's)")
     p.add_argument("--signals", default=None, metavar="NAMES",
                    help="comma-separated outputs or shell patterns to keep, e.g. 'y.*,bob.r.z' (default: all)")
     p.add_argument("--csv", metavar="FILE", help="write every row of the result as CSV")

@@ -17,8 +17,7 @@ from .engine.elastic_tables import structural_parameters
 from .equations.model import Model
 from .errors import IntegrationError
 from .scene import domains
-
-METHODS = ("auto", "rk4", "dopri5", "dop853", "radau5", "gen_alpha")
+from .engine.layout import METHODS  # the engine's integrators (mbs_layout.h: MBS_METHODS)
 
 
 class Variable:

@@ -22,7 +22,7 @@ from .yaml_lines import Date, Map, Seq, read_yaml
 
 JOINT_TYPES = ("fixed", "revolute", "prismatic", "cylindrical", "universal", "planar", "spherical", "free")
 FORCE_TYPES = ("spring_damper", "joint_spring_damper", "force", "torque")
-METHODS = ("auto", "rk4", "dopri5", "dop853", "radau5", "gen_alpha")
+from ..engine.layout import METHODS  # noqa: E402  the engine's integrators (mbs_layout.h: MBS_METHODS)
 TOP_KEYS = ("mbsfmu", "name", "description", "gravity", "parameters", "bodies", "forces", "integrator",
             "experiment", "outputs")
 RESERVED = {"t", "pi", "world", "q", "y", "yd", "integrator"}
