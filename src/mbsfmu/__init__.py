@@ -1,7 +1,7 @@
 """mbsfmu: multibody scenes (YAML) → equations of motion → FMI 2.0 co-simulation FMUs.
 
-Build-time parts (YAML, FMU packaging) are imported lazily, so the run time inside an FMU
-imports only numpy/scipy.
+Build-time parts (YAML, FMU packaging) are imported lazily. Inside an FMU only the C engine runs: a native FMU
+has no Python, a pythonfmu FMU imports the engine's ctypes seam (standard library only, no numpy or scipy).
 """
 
 from .errors import IntegrationError, ModelError

@@ -424,9 +424,7 @@ int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errle
     const double *val = m->elastic_d + m->n_elastic_d - nfix;
     for (int k = 0; k < nfix; k++) {
         if (D[fix[k]] == val[k]) continue;
-        int vr = 0;
-        while (vr < m->hdr[H_NVARS] && !(m->vars[2 * vr] == MBS_V_PARAM && m->vars[2 * vr + 1] == fix[k])) vr++;
-        const char *name = vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?";
+        const char *name = mbs_var_name_of(m, MBS_V_PARAM, fix[k]);
         FAIL("parameter %s is structural: it feeds the finite-element data of an elastic body, which the engine "
              "cannot recompute (compiled with %s = %.17g, set to %.17g); compile the scene again with the new value",
              name, name, val[k], D[fix[k]]);

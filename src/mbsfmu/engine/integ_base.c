@@ -35,84 +35,21 @@ static const MbsMethodClass *const method_classes[MBS_NMETHODS] = {
 
 /* ------------------------------------------------------------------------------------------- messages */
 
-static int fmt_int(char *buf, unsigned long long v)
+/* Python's format(v, ".<digits>g") is C's %.<digits>g (trailing zeros stripped, exponent of 2 digits at least) */
+static void fmt_g(char *buf, double v, int digits)
 {
-    char tmp[24];
-    int k = 0, len = 0;
-    do {
-        tmp[k++] = (char)('0' + (int)(v % 10));
-        v /= 10;
-    } while (v);
-    while (k) buf[len++] = tmp[--k];
-    buf[len] = '\0';
-    return len;
+    snprintf(buf, 32, "%.*g", digits < 1 ? 1 : digits > 17 ? 17 : digits, v);
 }
 
-/* Python's format(v, ".<digits>g"): shortest of fixed/scientific, trailing zeros stripped, exponent >= 2 digits. */
-void mbs_fmt_g(char *buf, double v, int digits)
-{
-    char d[24];
-    char *p = buf;
-    double a = fabs(v), scaled, p10;
-    unsigned long long r, lim;
-    int e, i, last;
-    if (digits < 1) digits = 1;
-    if (digits > 17) digits = 17;
-    if (v != v) { strcpy(buf, "nan"); return; }
-    if (signbit(v)) *p++ = '-';
-    if (isinf(v)) { strcpy(p, "inf"); return; }
-    if (a == 0.0) { strcpy(p, "0"); return; }
-    e = (int)floor(log10(a));
-    for (;;) { /* mantissa digits r (digits of them) and decimal exponent e, corrected for log10 rounding */
-        scaled = e > 300 || e < -300 ? a / pow(10.0, e / 2) / pow(10.0, e - e / 2) : a / pow(10.0, e);
-        if (scaled < 1.0) { e--; continue; }
-        if (scaled >= 10.0) { e++; continue; }
-        break;
-    }
-    p10 = pow(10.0, digits - 1);
-    lim = (unsigned long long)(p10 * 10.0 + 0.5);
-    r = (unsigned long long)floor(scaled * p10 + 0.5);
-    if (r >= lim) { r /= 10; e++; }
-    for (i = digits - 1; i >= 0; i--) { d[i] = (char)('0' + (int)(r % 10)); r /= 10; }
-    last = digits - 1;
-    while (last > 0 && d[last] == '0') last--; /* significant digits d[0..last] */
-    if (e >= -4 && e < digits) {
-        if (e < 0) {
-            *p++ = '0';
-            *p++ = '.';
-            for (i = 0; i < -e - 1; i++) *p++ = '0';
-            for (i = 0; i <= last; i++) *p++ = d[i];
-        } else {
-            for (i = 0; i <= e; i++) *p++ = i <= last ? d[i] : '0';
-            if (last > e) {
-                *p++ = '.';
-                for (i = e + 1; i <= last; i++) *p++ = d[i];
-            }
-        }
-        *p = '\0';
-        return;
-    }
-    *p++ = d[0];
-    if (last > 0) {
-        *p++ = '.';
-        for (i = 1; i <= last; i++) *p++ = d[i];
-    }
-    *p++ = 'e';
-    *p++ = e < 0 ? '-' : '+';
-    if (e < 0) e = -e;
-    if (e < 10) *p++ = '0';
-    fmt_int(p, (unsigned long long)e);
-}
-
-/* shortest %g that reads back as the same double (Python's repr, close enough for messages) */
+/* the shortest %g that reads back as the same double (Python's repr, close enough for messages) */
 static void fmt_repr(char *buf, double v)
 {
     int digits;
     for (digits = 1; digits < 17; digits++) {
-        mbs_fmt_g(buf, v, digits);
+        fmt_g(buf, v, digits);
         if (strtod(buf, NULL) == v) return;
     }
-    mbs_fmt_g(buf, v, 17);
+    fmt_g(buf, v, 17);
 }
 
 void mbs_msg_set(MbsIntegrator *it, const char *s)
@@ -134,19 +71,14 @@ void mbs_msg_add(MbsIntegrator *it, const char *s)
 void mbs_msg_num(MbsIntegrator *it, double v, int digits)
 {
     char b[40];
-    mbs_fmt_g(b, v, digits);
+    fmt_g(b, v, digits);
     mbs_msg_add(it, b);
 }
 
 void mbs_msg_long(MbsIntegrator *it, long long v)
 {
     char b[32];
-    if (v < 0) {
-        b[0] = '-';
-        fmt_int(b + 1, (unsigned long long)(-(v + 1)) + 1u);
-    } else {
-        fmt_int(b, (unsigned long long)v);
-    }
+    snprintf(b, sizeof b, "%lld", v);
     mbs_msg_add(it, b);
 }
 
@@ -311,7 +243,7 @@ static void failure_reason(MbsIntegrator *it)
     mbs_msg_add(it, ") cannot be met — singularity, discontinuity or too strict tolerances");
 }
 
-/* base.py's _advance: the proposed h is clipped to hit t_end exactly (or, with dense output, steps past it),
+/* The adaptive driver: the proposed h is clipped to hit t_end exactly (or, with dense output, steps past it),
  * and the unclipped h is carried over to the next call. */
 int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
 {
@@ -416,7 +348,7 @@ int mbs_method_index(const char *name)
 
 static size_t align8(size_t k) { return (k + 7u) & ~(size_t)7u; }
 
-/* Common option checks and normalization (base.py's __init__). */
+/* Common option checks and normalization. */
 static int take_options(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, int has_dense,
                         const char *name, char *err, size_t errlen)
 {

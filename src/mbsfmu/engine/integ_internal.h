@@ -2,10 +2,10 @@
  *
  * HOW TO WRITE A METHOD (integ_<name>.c defines `const MbsMethodClass mbs_<name>_class`)
  * --------------------------------------------------------------------------------------
- * The driver does what base.py's Integrator does: option checks, reset, advance to exact communication
+ * The driver does what every method shares: option checks, reset, advance to exact communication
  * points (clip to t_end, the "stretch by 1 %" rule, unclipped h carried over, max_steps and underflow
  * messages), dense output (the ahead point and its segment), normalization after every accepted step,
- * stats, snapshots.  A method supplies the hooks of base.py's subclasses:
+ * stats, snapshots.  A method supplies the hooks (and its name in mbs_layout.h's MBS_METHODS):
  *
  *   sizes(n, nvel, opt, &sz)   how much memory: sz->state (bytes of the method's POD history struct),
  *                              sz->hist / sz->hist_int (doubles / ints of history arrays), sz->work /
@@ -192,7 +192,7 @@ int mbs_integ_check_start(MbsIntegrator *it, const double *f0);
 /* A trial produced NaN/Inf: c->h = h/4 and MBS_REJECT, or MBS_FAIL after MBS_MAX_NONFINITE_TRIALS. what:
  * "right-hand side" or "accelerations". */
 int mbs_integ_trial_nonfinite(MbsIntegrator *it, double h, const char *what);
-/* The adaptive driver (base.py's _advance) from (c->t, x) to t_end; 0 or 1. */
+/* The adaptive driver from (c->t, x) to t_end; 0 or 1. */
 int mbs_integ_adaptive(MbsIntegrator *it, double t_end);
 /* The fixed-step substep count of rk4 / gen_alpha: equal steps <= h_max over span (max_steps checked,
  * message set): 0 and *nsub, or 1. No extra step when span/h is an integer up to rounding. The slack covers the
@@ -209,13 +209,11 @@ static inline int mbs_integ_fixed_substeps(MbsIntegrator *it, double span, doubl
 /* Normalize x with ode->normalize when present. */
 void mbs_integ_normalize(MbsIntegrator *it, double *x);
 
-/* Messages (no stdio): set, then append pieces. */
+/* Messages: set, then append pieces. */
 void mbs_msg_set(MbsIntegrator *it, const char *s);
 void mbs_msg_add(MbsIntegrator *it, const char *s);
 void mbs_msg_num(MbsIntegrator *it, double v, int digits); /* like Python's {v:.<digits>g} */
 void mbs_msg_long(MbsIntegrator *it, long long v);
-/* Python-style %g into buf (at least 32 bytes). */
-void mbs_fmt_g(char *buf, double v, int digits);
 
 /* Snapshot in two phases (auto loads both children atomically): check validates into it->hist_tmp (0 =
  * valid, the integrator untouched), commit makes the checked candidate current. */

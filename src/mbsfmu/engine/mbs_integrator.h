@@ -1,7 +1,6 @@
-/* Time integrators of the engine: rk4, dopri5, dop853, radau5, gen_alpha, auto.
+/* Time integrators of the engine (mbs_layout.h's MBS_METHODS: rk4, dopri5, dop853, radau5, gen_alpha, auto).
  *
- * The same algorithms and behaviour as the former Python integrators (see git history of
- * src/mbsfmu/integrators/): exact landing on communication points, step size carried across them, dense
+ * Exact landing on communication points, step size carried across them, dense
  * output (dopri5, dop853, radau5, auto) that steps past a point and interpolates, quaternion normalization
  * after every accepted step, stiffness switching (auto), and snapshots after which a repeated step is
  * bit-identical.

@@ -63,6 +63,7 @@ typedef struct {
 
 /* model.c */
 const double *mbs_body_d(const MbsEval *e, int i);
+const char *mbs_var_name_of(const MbsModel *m, int kind, int index); /* name of variable (MBS_V_*, index), "?" none */
 /* expr.c: run the programs of one stage (0 bind: targets in D; 1 time: targets in td). NaN/Inf results
  * are left in place: callers check. */
 int mbs_validate_code(const MbsModel *m, char *err, size_t errlen);

@@ -272,5 +272,12 @@ const char *mbs_model_guid(const MbsModel *m) { return m->guid; }
 int mbs_model_nvars(const MbsModel *m) { return m->hdr[H_NVARS]; }
 int mbs_model_var_kind(const MbsModel *m, int vr) { return vr >= 0 && vr < m->hdr[H_NVARS] ? m->vars[2 * vr] : -1; }
 const char *mbs_model_var_name(const MbsModel *m, int vr) { return vr >= 0 && vr < m->hdr[H_NVARS] ? m->var_name[vr] : NULL; }
+
+const char *mbs_var_name_of(const MbsModel *m, int kind, int index)
+{
+    for (int vr = 0; vr < m->hdr[H_NVARS]; vr++)
+        if (m->vars[2 * vr] == kind && m->vars[2 * vr + 1] == index) return m->var_name[vr];
+    return "?";
+}
 int mbs_model_npos(const MbsModel *m) { return NPOS(m); }
 int mbs_model_nvel(const MbsModel *m) { return NVEL(m); }

@@ -461,9 +461,7 @@ static int bind(MbsInstance *s)
     s->kin_valid = s->rule_broken = 0;
     for (int p = 0; p < m->hdr[H_NPARAM]; p++)
         if (!isfinite(s->D[p])) {
-            int vr = 0;
-            while (vr < m->hdr[H_NVARS] && !(m->vars[2 * vr] == MBS_V_PARAM && m->vars[2 * vr + 1] == p)) vr++;
-            return say(s, "parameter %s is not finite (%g)", vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?", s->D[p]);
+            return say(s, "parameter %s is not finite (%g)", mbs_var_name_of(m, MBS_V_PARAM, p), s->D[p]);
         }
 #ifdef MBS_WITH_EXPR
     mbs_run_programs(m, 0, s->D, NULL, 0.0);
@@ -512,10 +510,8 @@ static int apply_inputs(MbsInstance *s)
     const int f = NVEL(m);
     for (int i = 0; i < s->nu; i++)
         if (!isfinite(s->u[i])) {
-            int want_kind = i < f ? MBS_V_QIN : MBS_V_FIN, want = i < f ? i : i - f, vr = 0;
-            while (vr < m->hdr[H_NVARS] && !(m->vars[2 * vr] == want_kind && m->vars[2 * vr + 1] == want)) vr++;
             return report(s, MBS_DISCARD, "input %s is not finite (%g); step refused",
-                          vr < m->hdr[H_NVARS] ? m->var_name[vr] : "?", s->u[i]);
+                          mbs_var_name_of(m, i < f ? MBS_V_QIN : MBS_V_FIN, i < f ? i : i - f), s->u[i]);
         }
     s->inputs_dirty = 0;
     if (!memcmp(s->u, s->u_applied, (size_t)s->nu * sizeof(double))) return MBS_OK;

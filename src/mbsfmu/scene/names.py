@@ -1,4 +1,4 @@
-"""The FMU variable names a scene generates (contract: model-format.md, "The FMU interface"), each with the scene
+"""The FMU variable names a scene generates (contract: docs/fmu.md, "Variables"), each with the scene
 key it comes from, so that two scene names that would give one FMU variable are refused at load, naming both."""
 
 INTEGRATOR = ("integrator.method", "integrator.rtol", "integrator.atol", "integrator.max_step", "integrator.step")
