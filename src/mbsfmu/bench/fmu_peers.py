@@ -40,7 +40,7 @@ import numpy as np
 from .. import files
 from . import output
 from .work_precision import REPEATS, TARGET_ERROR, _best_of, build_exudyn, comm_points, exudyn_supported, reference, \
-    run_mbsfmu, run_scipy
+    run_exudyn, run_mbsfmu, run_scipy
 
 MODELS = Path(__file__).resolve().parents[3] / "models"
 CASES = {"spinning_top": ("spinning_top.yaml", 2.0, {"spin": 150.0}),
@@ -236,48 +236,6 @@ def exudyn_twin(spec):
     return build_exudyn, lambda A: A
 
 
-def run_exudyn(spec, solver, ts, h=None, rtol=None, atol=None):
-    """Exudyn SolveDynamic over ts → (Y at ts, cpu, stats). Fixed step h (dividing the communication step):
-    the sensor records exactly the communication points. rtol: DOPRI5's own step-size control (atol =
-    rtol·1e-2, largest step one interval); it has no dense output and records at the first step end after each
-    period, so the points come from cubic Hermite interpolation of the recorded coordinates and velocities."""
-    atol = rtol * 1e-2 if atol is None and rtol is not None else atol
-    import exudyn as exu
-    from exudyn.itemInterface import SensorNode
-    from scipy.interpolate import CubicHermiteSpline
-    build, to_positions = exudyn_twin(spec)
-    c0 = time.process_time()
-    SC, mbs, sensor = build(spec)
-    if rtol is not None:
-        rates = mbs.AddSensor(SensorNode(nodeNumber=0, storeInternal=True, writeToFile=False,
-                                         outputVariableType=exu.OutputVariableType.Coordinates_t))
-        mbs.Assemble()
-    s = exu.SimulationSettings()
-    dt, T = float(ts[1] - ts[0]), float(ts[-1] - ts[0])
-    ti = s.timeIntegration
-    ti.endTime, ti.verboseMode = T, 0
-    if rtol is None:
-        ti.numberOfSteps, ti.automaticStepSize = max(1, int(round(dt / h))) * (len(ts) - 1), False
-    else:
-        ti.numberOfSteps, ti.automaticStepSize = len(ts) - 1, True
-        ti.relativeTolerance, ti.absoluteTolerance = rtol, atol
-    ti.generalizedAlpha.spectralRadius = 0.8  # mbsfmu gen_alpha's default
-    s.solution.file.write = False
-    s.solution.sensors.writePeriod = dt
-    exu.SolveDynamic(mbs, s, solverType=getattr(exu.DynamicSolverType, solver), showHints=False)
-    d = np.asarray(mbs.GetSensorStoredData(sensor))
-    if rtol is None:
-        if len(d) != len(ts) or np.max(np.abs(d[:, 0] + ts[0] - ts)) > 1e-9 * max(1.0, T):
-            raise RuntimeError(f"Exudyn {solver}: sensor times miss the communication points")
-        A = d[:, 1:]
-    else:
-        v = np.asarray(mbs.GetSensorStoredData(rates))
-        A = CubicHermiteSpline(d[:, 0] + ts[0], d[:, 1:], v[:, 1:], axis=0)(ts)
-    Y = to_positions(A)
-    cpu = time.process_time() - c0
-    return Y, cpu, {"steps": ti.numberOfSteps if rtol is None else ""}
-
-
 # ------------------------------------------------------------------------------------------- MuJoCo
 def _vec(v):
     return " ".join(f"{float(x):.17g}" for x in v)
@@ -372,7 +330,7 @@ def runner(family, method, spec, ts, params, fmu):
     if family == "scipy":
         return lambda **kw: run_scipy(spec, method, ts, **kw)
     if family == "exudyn":
-        return lambda **kw: run_exudyn(spec, method, ts, **kw)
+        return lambda **kw: run_exudyn(spec, method, ts, twin=exudyn_twin(spec), **kw)
     if family == "mujoco":
         return lambda **kw: run_mujoco(spec, ts, **kw)
     raise ValueError(family)

@@ -238,35 +238,47 @@ def build_exudyn(spec):
     return SC, mbs, sensor
 
 
-def run_exudyn(spec, solver, ts, h):
-    """Fixed step h (rounded so that it divides the communication step) → (Y at ts, cpu, stats)."""
+def run_exudyn(spec, solver, ts, h=None, rtol=None, atol=None, twin=None):
+    """Exudyn SolveDynamic over ts → (Y at ts, cpu, stats); twin: (builder, coordinates → positions), by default
+    build_exudyn's ObjectKinematicTree. Fixed step h (dividing the communication step):
+    the sensor records exactly the communication points. rtol: DOPRI5's own step-size control (atol =
+    rtol·1e-2, largest step one interval); it has no dense output and records at the first step end after each
+    period, so the points come from cubic Hermite interpolation of the recorded coordinates and velocities."""
+    atol = rtol * 1e-2 if atol is None and rtol is not None else atol
     import exudyn as exu
+    from exudyn.itemInterface import SensorNode
+    from scipy.interpolate import CubicHermiteSpline
+    build, to_positions = twin or (build_exudyn, lambda A: A)
     c0 = time.process_time()
-    SC, mbs, sensor = build_exudyn(spec)
-    dt = ts[1] - ts[0]
-    sub = max(1, int(round(dt / h)))
+    SC, mbs, sensor = build(spec)
+    if rtol is not None:
+        rates = mbs.AddSensor(SensorNode(nodeNumber=0, storeInternal=True, writeToFile=False,
+                                         outputVariableType=exu.OutputVariableType.Coordinates_t))
+        mbs.Assemble()
     s = exu.SimulationSettings()
-    s.timeIntegration.endTime = float(ts[-1] - ts[0])
-    s.timeIntegration.startTime = 0.0
-    s.timeIntegration.numberOfSteps = sub * (len(ts) - 1)
-    s.timeIntegration.verboseMode = 0
-    s.solutionSettings.writeSolutionToFile = False
-    s.solutionSettings.sensorsWritePeriod = float(dt)
-    s.displayComputationTime = False
-    s.displayStatistics = False
-    if solver == "GeneralizedAlpha":
-        s.timeIntegration.generalizedAlpha.spectralRadius = 0.8  # same ρ∞ as mbsfmu gen_alpha's default
-        exu.SolveDynamic(mbs, s, solverType=exu.DynamicSolverType.GeneralizedAlpha, showHints=False)
+    dt, T = float(ts[1] - ts[0]), float(ts[-1] - ts[0])
+    ti = s.timeIntegration
+    ti.endTime, ti.verboseMode = T, 0
+    if rtol is None:
+        ti.numberOfSteps, ti.automaticStepSize = max(1, int(round(dt / h))) * (len(ts) - 1), False
     else:
-        pass
-        exu.SolveDynamic(mbs, s, solverType=getattr(exu.DynamicSolverType, solver), showHints=False)
+        ti.numberOfSteps, ti.automaticStepSize = len(ts) - 1, True
+        ti.relativeTolerance, ti.absoluteTolerance = rtol, atol
+    ti.generalizedAlpha.spectralRadius = 0.8  # mbsfmu gen_alpha's default
+    s.solution.file.write = False
+    s.solution.sensors.writePeriod = dt
+    exu.SolveDynamic(mbs, s, solverType=getattr(exu.DynamicSolverType, solver), showHints=False)
+    d = np.asarray(mbs.GetSensorStoredData(sensor))
+    if rtol is None:
+        if len(d) != len(ts) or np.max(np.abs(d[:, 0] + ts[0] - ts)) > 1e-9 * max(1.0, T):
+            raise RuntimeError(f"Exudyn {solver}: sensor times miss the communication points")
+        A = d[:, 1:]
+    else:
+        v = np.asarray(mbs.GetSensorStoredData(rates))
+        A = CubicHermiteSpline(d[:, 0] + ts[0], d[:, 1:], v[:, 1:], axis=0)(ts)
+    Y = to_positions(A)
     cpu = time.process_time() - c0
-    data = np.asarray(mbs.GetSensorStoredData(sensor))
-    tt = data[:, 0] + ts[0]
-    Y = np.array([np.interp(ts, tt, data[:, 1 + j]) for j in range(data.shape[1] - 1)]).T
-    if len(tt) < len(ts) - 1 or np.max(np.abs(np.interp(ts, tt, tt) - ts)) > 1e-9:
-        raise RuntimeError("Exudyn sensor times do not match the communication points")
-    return Y, cpu, {"steps": s.timeIntegration.numberOfSteps, "rhs_evaluations": ""}
+    return Y, cpu, {"steps": ti.numberOfSteps if rtol is None else ""}
 
 
 # ------------------------------------------------------------------------------------------------ driver
