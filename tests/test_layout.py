@@ -78,6 +78,18 @@ def test_engine_method_names_are_the_layouts():
     assert tuple(n.decode() for n in names) == layout.METHODS
 
 
+@pytest.mark.parametrize("entry", layout.LISTS["MBS_JOINTS"], ids=lambda e: e[0])
+def test_joint_coordinate_counts_are_the_kinematics(entry):
+    """The engine refuses a body whose coordinate counts are not its joint type's (model.c, from MBS_JOINTS): the
+    counts are those of the numpy reference's joint (kinematics/joints.py), for every code the compiler writes."""
+    from mbsfmu.engine.compile import JOINT_TYPES
+    from mbsfmu.kinematics.joints import make_joint
+    name, kind, param, npos, nvel = entry
+    joint = make_joint(kind, axis=[0, 0, 1], axes=[[1, 0, 0], [0, 1, 0]], parameterization=param or "quaternion")
+    assert (joint.npos, joint.nvel) == (npos, nvel)
+    assert JOINT_TYPES[(kind, param or None)] == layout.CONSTANTS[name]
+
+
 @pytest.mark.parametrize("text, words", [
     ("#define MBS_A(X) X(A0) X(A1)\nenum { MBS_A(MBS_CODE) A_N };\nint x;\n", ["not a line of the layout"]),
     ("#define MBS_A(X) X(A0, 1.5)\n", ["1.5", "not a NAME, an integer"]),

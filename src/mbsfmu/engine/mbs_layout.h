@@ -60,12 +60,13 @@ enum { MBS_HEADER(MBS_CODE) H_SIZE };
 #define MBS_FEATURES(X) X(F_EXPR, 1, "expr") X(F_ELASTIC, 2, "elastic")
 enum { MBS_FEATURES(MBS_VALUE) };
 
-/* joint types: the scene's joint and, for spherical/free joints, their parametrization */
+/* joint types: the scene's joint and, for spherical/free joints, their parametrization; position and velocity
+ * coordinates (kinematics/joints.py's npos, nvel) */
 #define MBS_JOINTS(X) \
-    X(J_FIXED, "fixed", "") X(J_REVOLUTE, "revolute", "") X(J_PRISMATIC, "prismatic", "") \
-    X(J_CYLINDRICAL, "cylindrical", "") X(J_UNIVERSAL, "universal", "") X(J_PLANAR, "planar", "") \
-    X(J_SPH_QUAT, "spherical", "quaternion") X(J_SPH_CARDAN, "spherical", "cardan") \
-    X(J_FREE_QUAT, "free", "quaternion") X(J_FREE_CARDAN, "free", "cardan")
+    X(J_FIXED, "fixed", "", 0, 0) X(J_REVOLUTE, "revolute", "", 1, 1) X(J_PRISMATIC, "prismatic", "", 1, 1) \
+    X(J_CYLINDRICAL, "cylindrical", "", 2, 2) X(J_UNIVERSAL, "universal", "", 2, 2) X(J_PLANAR, "planar", "", 3, 3) \
+    X(J_SPH_QUAT, "spherical", "quaternion", 4, 3) X(J_SPH_CARDAN, "spherical", "cardan", 3, 3) \
+    X(J_FREE_QUAT, "free", "quaternion", 7, 6) X(J_FREE_CARDAN, "free", "cardan", 6, 6)
 enum { MBS_JOINTS(MBS_CODE) J_N };
 
 /* force element types (the scene's force `type`) */

@@ -34,8 +34,10 @@ static int in(int64_t v, int64_t lo, int64_t hi) { return v >= lo && v < hi; }
 #define BAD(...) do { snprintf(err, errlen, __VA_ARGS__); return 1; } while (0)
 
 /* position and velocity coordinates each joint type moves (kinematics/joints.py) */
-static const int8_t joint_npos[] = {0, 1, 1, 2, 2, 3, 4, 3, 7, 6};
-static const int8_t joint_nvel[] = {0, 1, 1, 2, 2, 3, 3, 3, 6, 6};
+#define JOINT_NPOS(code, kind, param, npos, nvel) npos,
+#define JOINT_NVEL(code, kind, param, npos, nvel) nvel,
+static const int8_t joint_npos[J_N] = {MBS_JOINTS(JOINT_NPOS)};
+static const int8_t joint_nvel[J_N] = {MBS_JOINTS(JOINT_NVEL)};
 
 /* Header counts: non-negative and each bounded by bytes of the file. The body, force, output, coordinate and
  * parameter counts size the number layout of D, whose length the D section must match (so D's bytes bound
@@ -95,7 +97,7 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
         const int t = ib[IB_JTYPE];
         if (!in(ib[IB_PARENT], -1, i))
             BAD("corrupt body table (body %d: parent %d, valid -1..%d)", i, (int)ib[IB_PARENT], i - 1);
-        if (!in(t, J_FIXED, J_FREE_CARDAN + 1) || ib[IB_NPOS] != joint_npos[t] || ib[IB_NVEL] != joint_nvel[t])
+        if (!in(t, 0, J_N) || ib[IB_NPOS] != joint_npos[t] || ib[IB_NVEL] != joint_nvel[t])
             BAD("corrupt body table (body %d: joint type %d with %d/%d coordinates)", i, t, (int)ib[IB_NPOS],
                 (int)ib[IB_NVEL]);
         if (!in(ib[IB_ROT], 0, 3) || !in(ib[IB_IROT], 0, 3)) BAD("corrupt body table (body %d: rotation code)", i);
