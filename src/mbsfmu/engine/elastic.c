@@ -98,7 +98,7 @@ static double *body_work(const MbsEval *e, int i) { return e->work + (size_t)i *
 void mbs_elastic_kinematics(const MbsEval *e, int body)
 {
     const MbsModel *m = e->m;
-    const int el = m->ib[body * IB + IB_ELASTIC];
+    const int el = mbs_body_i(m, body)->elastic;
     const int32_t *r = row(m, el);
     double *wk = body_work(e, body), *cols = (double *)e->elastic_work + 2 * el;
     cols[0] = wk[W_LO];  /* the reference frame's own columns, for J_z */
@@ -113,7 +113,7 @@ static void node_motion(const MbsEval *e, int i, int P, double *rho, double *r, 
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
-    const Inv in = inv_of(m, m->ib[i * IB + IB_ELASTIC]);
+    const Inv in = inv_of(m, mbs_body_i(m, i)->elastic);
     const double *wk = body_work(e, i), *S = wk + W_S, *w = wk + W_W;
     const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0, *Phi = node_Phi(&in, P), *R = node_R(&in, P);
     double rR[3], uR[3], u[3], wxr[3];
@@ -156,7 +156,7 @@ void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, double *J_R)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
-    const Inv in = inv_of(m, m->ib[body * IB + IB_ELASTIC]);
+    const Inv in = inv_of(m, mbs_body_i(m, body)->elastic);
     const double *wk = body_work(e, body), *S = wk + W_S, *Psi = node_Psi(&in, node);
     for (int k = 0; k < 3; k++)
         for (int c = (int)wk[W_LO]; c < (int)wk[W_HI]; c++) J_R[k * f + c] = wk[W_J + k * f + c];
@@ -172,8 +172,8 @@ void mbs_elastic_node_frame(const MbsEval *e, int child, double *S_P, double *r,
                             double *al, double *J_R, double *J_T)
 {
     const MbsModel *m = e->m;
-    const int f = NVEL(m), i = m->ib[child * IB + IB_PARENT], P = m->ib[child * IB + IB_NODE];
-    const Inv in = inv_of(m, m->ib[i * IB + IB_ELASTIC]);
+    const int f = NVEL(m), i = mbs_body_i(m, child)->parent, P = mbs_body_i(m, child)->node;
+    const Inv in = inv_of(m, mbs_body_i(m, i)->elastic);
     const double *wk = body_work(e, i), *S = wk + W_S, *wp = wk + W_W, *Psi = node_Psi(&in, P);
     const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0;
     double rho[3], th[3], thd[3], w_rel[3], E_th[9];
@@ -370,7 +370,7 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
     for (int el = 0; el < ne; el++) {
         const int32_t *r = row(m, el);
         const int b = r[EI_BODY], n = r[EI_N], N = r[EI_NODES];
-        if (!in_range(b, 0, nb) || m->ib[b * IB + IB_ELASTIC] != el || !in_range(n, 1, MAX_MODES + 1) ||
+        if (!in_range(b, 0, nb) || mbs_body_i(m, b)->elastic != el || !in_range(n, 1, MAX_MODES + 1) ||
             N < 1 || !in_range(r[EI_STIFF], 0, 2) || r[EI_D] != off ||
             !in_range(r[EI_Q], 0, NPOS(m)) || r[EI_Q] + n > NPOS(m) || !in_range(r[EI_QD], 0, NVEL(m)) ||
             r[EI_QD] + n > NVEL(m) || N > m->n_elastic_d)
@@ -382,7 +382,7 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
     if (off + nfix != m->n_elastic_d) FAIL("corrupt elastic section (data length)");
     /* and back: a body names the row that names it (or none), so rows and elastic bodies pair one to one */
     for (int i = 0; i < nb; i++) {
-        const int el = m->ib[i * IB + IB_ELASTIC];
+        const int el = mbs_body_i(m, i)->elastic;
         if (el >= 0 && (el >= ne || row(m, el)[EI_BODY] != i))
             FAIL("corrupt body table (body %d names elastic data %d; the scene has %d, and that one belongs to another body)", i, el, ne);
     }
@@ -390,10 +390,10 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
     for (int k = 0; k < nfix; k++) if (!in_range(fix[k], 0, m->hdr[H_NPARAM])) FAIL("corrupt elastic section (parameter)");
     /* node indices wherever a node is named */
     for (int i = 0; i < nb; i++) {
-        const int32_t *ib = m->ib + i * IB;
-        if (ib[IB_NODE] < 0) continue;
-        int p = ib[IB_PARENT], el = p >= 0 ? m->ib[p * IB + IB_ELASTIC] : -1;
-        if (el < 0 || ib[IB_NODE] >= row(m, el)[EI_NODES]) FAIL("corrupt body table (node of body %d)", i);
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        if (bi->node < 0) continue;
+        int p = bi->parent, el = p >= 0 ? mbs_body_i(m, p)->elastic : -1;
+        if (el < 0 || bi->node >= row(m, el)[EI_NODES]) FAIL("corrupt body table (node of body %d)", i);
     }
     for (int k = 0; k < m->hdr[H_NFORCE]; k++) {
         const int32_t *fi = m->iforce + k * IF;
@@ -401,14 +401,14 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
             int node = fi[IF_NODE_A + end], b = end ? fi[IF_B] : fi[IF_A];
             if (node < 0) continue;
             if (fi[IF_TYPE] == FE_JOINT_SPRING || (end && fi[IF_TYPE] != FE_SPRING)) FAIL("corrupt force table (node of element %d)", k);
-            int el = b >= 0 ? m->ib[b * IB + IB_ELASTIC] : -1;
+            int el = b >= 0 ? mbs_body_i(m, b)->elastic : -1;
             if (el < 0 || node >= row(m, el)[EI_NODES]) FAIL("corrupt force table (node of element %d)", k);
         }
     }
     for (int o = 0; o < m->hdr[H_NOUT]; o++) {
         int b = m->out[3 * o], node = m->out[3 * o + 1];
         if (node < 0) continue;
-        int el = m->ib[b * IB + IB_ELASTIC];
+        int el = mbs_body_i(m, b)->elastic;
         if (el < 0 || node >= row(m, el)[EI_NODES]) FAIL("corrupt output table (node of output %d)", o);
     }
     return 0;

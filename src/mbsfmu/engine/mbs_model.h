@@ -8,6 +8,7 @@
 #ifndef MBS_MODEL_H
 #define MBS_MODEL_H
 
+#include <stddef.h>
 #include <stdint.h>
 #include "mbs_engine.h"
 #include "mbs_layout.h"
@@ -31,6 +32,23 @@ struct MbsModel {
     int nrules, n_rule_names;
     void *blob;                        /* owned copy of the compiled scene */
 };
+
+/* A body's int row (S_BODY_I) by name: a view of the MBS_BODY_I fields, which the checks below hold to the
+ * layout's offsets at compile time (a field moved in mbs_layout.h without this view stops the build). */
+typedef struct {
+    int32_t parent, jtype, npos, nvel, massive, pos[7], vel[6], drv[7];
+    int32_t rot, irot, irot_mask, elastic, node; /* see MBS_BODY_I */
+} MbsBodyI;
+#define MBS_VIEW_CHECK(name, cond) typedef char mbs_view_check_##name[(cond) ? 1 : -1]
+#define MBS_BODY_FIELD(member, FIELD) \
+    MBS_VIEW_CHECK(member, offsetof(MbsBodyI, member) == sizeof(int32_t) * FIELD && \
+                   sizeof(((MbsBodyI *)0)->member) == sizeof(int32_t) * (FIELD##_END_ + 1 - FIELD))
+MBS_BODY_FIELD(parent, IB_PARENT); MBS_BODY_FIELD(jtype, IB_JTYPE); MBS_BODY_FIELD(npos, IB_NPOS);
+MBS_BODY_FIELD(nvel, IB_NVEL); MBS_BODY_FIELD(massive, IB_MASSIVE); MBS_BODY_FIELD(pos, IB_POS);
+MBS_BODY_FIELD(vel, IB_VEL); MBS_BODY_FIELD(drv, IB_DRV); MBS_BODY_FIELD(rot, IB_ROT); MBS_BODY_FIELD(irot, IB_IROT);
+MBS_BODY_FIELD(irot_mask, IB_IROT_MASK); MBS_BODY_FIELD(elastic, IB_ELASTIC); MBS_BODY_FIELD(node, IB_NODE);
+MBS_VIEW_CHECK(body_size, sizeof(MbsBodyI) == sizeof(int32_t) * IB);
+static inline const MbsBodyI *mbs_body_i(const MbsModel *m, int i) { return (const MbsBodyI *)(m->ib + (size_t)i * IB); }
 
 #define NB(m) ((m)->hdr[H_NB])
 #define NPOS(m) ((m)->hdr[H_NPOS])

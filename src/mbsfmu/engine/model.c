@@ -93,24 +93,24 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
     const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], ndrv = H[H_NDRV], elastic = H[H_FEATURES] & F_ELASTIC;
     int64_t driven = 0, cardan = 0;
     for (int i = 0; i < nb; i++) {
-        const int32_t *ib = m->ib + i * IB;
-        const int t = ib[IB_JTYPE];
-        if (!in(ib[IB_PARENT], -1, i))
-            BAD("corrupt body table (body %d: parent %d, valid -1..%d)", i, (int)ib[IB_PARENT], i - 1);
-        if (!in(t, 0, J_N) || ib[IB_NPOS] != joint_npos[t] || ib[IB_NVEL] != joint_nvel[t])
-            BAD("corrupt body table (body %d: joint type %d with %d/%d coordinates)", i, t, (int)ib[IB_NPOS],
-                (int)ib[IB_NVEL]);
-        if (!in(ib[IB_ROT], 0, 3) || !in(ib[IB_IROT], 0, 3)) BAD("corrupt body table (body %d: rotation code)", i);
-        for (int k = 0; k < ib[IB_NPOS]; k++) {
-            if (check_coordinate(i, ib[IB_POS + k], ib[IB_DRV + k], np, ndrv, "coordinate", err, errlen)) return 1;
-            driven += ib[IB_POS + k] < 0;
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        const int t = bi->jtype;
+        if (!in(bi->parent, -1, i))
+            BAD("corrupt body table (body %d: parent %d, valid -1..%d)", i, (int)bi->parent, i - 1);
+        if (!in(t, 0, J_N) || bi->npos != joint_npos[t] || bi->nvel != joint_nvel[t])
+            BAD("corrupt body table (body %d: joint type %d with %d/%d coordinates)", i, t, (int)bi->npos,
+                (int)bi->nvel);
+        if (!in(bi->rot, 0, 3) || !in(bi->irot, 0, 3)) BAD("corrupt body table (body %d: rotation code)", i);
+        for (int k = 0; k < bi->npos; k++) {
+            if (check_coordinate(i, bi->pos[k], bi->drv[k], np, ndrv, "coordinate", err, errlen)) return 1;
+            driven += bi->pos[k] < 0;
         }
-        for (int k = 0; k < ib[IB_NVEL]; k++)
-            if (check_coordinate(i, ib[IB_VEL + k], ib[IB_DRV + k], nv, ndrv, "velocity", err, errlen)) return 1;
+        for (int k = 0; k < bi->nvel; k++)
+            if (check_coordinate(i, bi->vel[k], bi->drv[k], nv, ndrv, "velocity", err, errlen)) return 1;
         cardan += t == J_SPH_CARDAN || t == J_FREE_CARDAN;
-        if (ib[IB_ELASTIC] < -1 || ib[IB_NODE] < -1 || (!elastic && (ib[IB_ELASTIC] >= 0 || ib[IB_NODE] >= 0)))
+        if (bi->elastic < -1 || bi->node < -1 || (!elastic && (bi->elastic >= 0 || bi->node >= 0)))
             BAD("corrupt body table (body %d: elastic data %d, node %d in a scene %s elastic bodies)", i,
-                (int)ib[IB_ELASTIC], (int)ib[IB_NODE], elastic ? "with" : "without");
+                (int)bi->elastic, (int)bi->node, elastic ? "with" : "without");
     }
     if (ndrv > driven) BAD("corrupt header (%d drives for %lld driven coordinates)", ndrv, (long long)driven);
     if (H[H_NCARDAN] != cardan)

@@ -181,10 +181,10 @@ static void mark_carried(MbsInstance *s)
     const MbsModel *m = s->m;
     for (int i = 0; i < NB(m); i++) {
         const double *db = s->D + m->hdr[H_D_BODY] + (size_t)i * DB;
-        s->carries[i] = m->ib[i * IB + IB_ELASTIC] >= 0 || db[DB_M] > 0 || db[DB_I] > 0 || db[DB_I + 4] > 0 || db[DB_I + 8] > 0;
+        s->carries[i] = mbs_body_i(m, i)->elastic >= 0 || db[DB_M] > 0 || db[DB_I] > 0 || db[DB_I + 4] > 0 || db[DB_I + 8] > 0;
     }
     for (int i = NB(m) - 1; i > 0; i--) {
-        const int p = m->ib[i * IB + IB_PARENT];
+        const int p = mbs_body_i(m, i)->parent;
         if (p >= 0 && s->carries[i]) s->carries[p] = 1;
     }
 }
@@ -276,10 +276,10 @@ static int gimbal(const MbsInstance *s, const double *x, const double *x_before,
     const MbsModel *m = s->m;
     if (!m->hdr[H_NCARDAN]) return 0;
     for (int i = 0; i < NB(m); i++) {
-        const int *ib = m->ib + i * IB;
-        int k = ib[IB_JTYPE] == J_SPH_CARDAN ? 1 : ib[IB_JTYPE] == J_FREE_CARDAN ? 4 : -1;
-        if (k < 0 || ib[IB_POS + k] < 0) continue;
-        int idx = ib[IB_POS + k];
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        int k = bi->jtype == J_SPH_CARDAN ? 1 : bi->jtype == J_FREE_CARDAN ? 4 : -1;
+        if (k < 0 || bi->pos[k] < 0) continue;
+        int idx = bi->pos[k];
         double c = cos(x[idx]);
         if (fabs(c) < 1e-3 || (x_before && cos(x_before[idx]) * c < 0)) {
             snprintf(buf, len, "gimbal lock: Cardan angle %s = %.6g rad reached ±90°, where the x-y-z angles of body "

@@ -137,7 +137,8 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
 {
     static const double Z[3] = {0, 0, 0};
     const MbsModel *m = e->m;
-    const int f = NVEL(m), *ib = m->ib + i * IB, par = ib[IB_PARENT];
+    const MbsBodyI *bi = mbs_body_i(m, i);
+    const int f = NVEL(m), par = bi->parent;
     const double *db = mbs_body_d(e, i);
     if (par < 0) {
         *o_p = *w_p = *v_p = *a_p = *al_p = Z;
@@ -152,7 +153,7 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
     *lo = col_lo(pw);
     *hi = col_hi(pw);
 #ifdef MBS_WITH_ELASTIC
-    if (ib[IB_NODE] >= 0) {  /* at a node of an elastic parent: it moves with r_IP, S_IP (seed 004) */
+    if (bi->node >= 0) {  /* at a node of an elastic parent: it moves with r_IP, S_IP (seed 004) */
         double S_P[9], *nb_ = node_buf;
         mbs_elastic_node_frame(e, i, S_P, nb_, nb_ + 3, nb_ + 6, nb_ + 9, nb_ + 12, J_R, J_R + 3 * f);
         *o_p = nb_; *w_p = nb_ + 3; *v_p = nb_ + 6; *a_p = nb_ + 9; *al_p = nb_ + 12;
@@ -179,26 +180,26 @@ void mbs_kinematics(const MbsEval *e)
     const int f = NVEL(m);
     const double *y = e->x, *yd = e->x + NPOS(m);
     for (int i = 0; i < NB(m); i++) {
-        const int *ib = m->ib + i * IB;
+        const MbsBodyI *bi = mbs_body_i(m, i);
         const double *db = mbs_body_d(e, i);
         double *wk = body_work(e, i);
         double *J_R = wk + W_J, *J_T = J_R + 3 * f;
-        const int nv = ib[IB_NVEL], np = ib[IB_NPOS];
+        const int nv = bi->nvel, np = bi->npos;
         const double *o_p, *w_p, *v_p, *a_p, *al_p;
         double S_J[9], rho[3], node_buf[15];
         int lo, hi;
         attachment(e, i, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
         double p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
         for (int k = 0; k < np; k++) {
-            int pi = ib[IB_POS + k], s = ib[IB_DRV + k];
+            int pi = bi->pos[k], s = bi->drv[k];
             p[k] = pi >= 0 ? y[pi] : e->td[3 * s];
         }
         for (int k = 0; k < nv; k++) {
-            int vi = ib[IB_VEL + k], s = ib[IB_DRV + k];
+            int vi = bi->vel[k], s = bi->drv[k];
             if (vi >= 0) v[k] = yd[vi];
             else { v[k] = e->td[3 * s + 1]; acc[k] = e->td[3 * s + 2]; }
         }
-        joint_motion(ib[IB_JTYPE], nv, db, p, v, R, d, H_R, H_T, b_R, b_T);
+        joint_motion(bi->jtype, nv, db, p, v, R, d, H_R, H_T, b_R, b_T);
         double w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0}, dd[3], w_rel[3], v_rel[3], wxr[3];
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 3; r++) {
@@ -243,7 +244,7 @@ void mbs_kinematics(const MbsEval *e)
             for (int r = 0; r < 3; r++) J_T[r * f + c] -= x[r];
         }
         for (int k = 0; k < nv; k++) {
-            int col = ib[IB_VEL + k];
+            int col = bi->vel[k];
             if (col < 0) continue;
             if (col < lo) lo = col;
             if (col + 1 > hi) hi = col + 1;
@@ -255,7 +256,7 @@ void mbs_kinematics(const MbsEval *e)
         wk[W_LO] = lo;
         wk[W_HI] = hi;
 #ifdef MBS_WITH_ELASTIC
-        if (ib[IB_ELASTIC] >= 0) mbs_elastic_kinematics(e, i);  /* may widen [lo, hi) to its q columns */
+        if (bi->elastic >= 0) mbs_elastic_kinematics(e, i);  /* may widen [lo, hi) to its q columns */
 #endif
     }
 }
@@ -302,8 +303,8 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
     memset(k, 0, f * sizeof(double));
     memset(q, 0, f * sizeof(double));
     for (int i = 0; i < NB(m); i++) {
-        const int *ib = m->ib + i * IB;
-        if (!ib[IB_MASSIVE]) continue;
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        if (!bi->massive) continue;
         const double *db = mbs_body_d(e, i), *wk = body_work(e, i), *J_R = wk + W_J, *S = wk + W_S;
         const double *w = wk + W_W, *al = wk + W_AL, mass = db[DB_M];
         double xc[3], vc[3], c[3], wxc[3], axc[3], wwxc[3], a_c[3];
@@ -502,14 +503,14 @@ static void rotation(int code, const double *raw, double *R)
 void mbs_derive(const MbsModel *m, double *D)
 {
     for (int i = 0; i < NB(m); i++) {
-        const int *ib = m->ib + i * IB;
+        const MbsBodyI *bi = mbs_body_i(m, i);
         double *db = D + m->hdr[H_D_BODY] + (size_t)i * DB;
-        int t = ib[IB_JTYPE];
+        int t = bi->jtype;
         if (t == J_REVOLUTE || t == J_PRISMATIC || t == J_CYLINDRICAL || t == J_UNIVERSAL || t == J_PLANAR)
             unit(db + DB_A1_RAW, db + DB_A1);
         if (t == J_UNIVERSAL || t == J_PLANAR)
             unit(db + DB_A2_RAW, db + DB_A2);
-        rotation(ib[IB_ROT], db + DB_ROT_RAW, db + DB_R0);
+        rotation(bi->rot, db + DB_ROT_RAW, db + DB_R0);
     }
 }
 
@@ -533,21 +534,21 @@ void mbs_initial_state(const MbsModel *m, const double *D, double *x0)
     const int n = NPOS(m) + NVEL(m);
     memcpy(x0, D + m->hdr[H_D_X0], (size_t)n * sizeof(double));
     for (int i = 0; i < NB(m); i++) {
-        const int *ib = m->ib + i * IB;
+        const MbsBodyI *bi = mbs_body_i(m, i);
         const double *db = D + m->hdr[H_D_BODY] + (size_t)i * DB;
-        int t = ib[IB_JTYPE], off = (t == J_FREE_QUAT || t == J_FREE_CARDAN) ? 3 : 0;
+        int t = bi->jtype, off = (t == J_FREE_QUAT || t == J_FREE_CARDAN) ? 3 : 0;
         double S[9], p[4];
         if (t == J_SPH_QUAT || t == J_FREE_QUAT) {
-            rotation(ib[IB_IROT], db + DB_IROT_RAW, S);
+            rotation(bi->irot, db + DB_IROT_RAW, S);
             matrix_to_quat(S, p);
-            for (int k = 0; k < 4; k++) if (ib[IB_POS + off + k] >= 0) x0[ib[IB_POS + off + k]] = p[k];
-        } else if ((t == J_SPH_CARDAN || t == J_FREE_CARDAN) && ib[IB_IROT]) {
-            rotation(ib[IB_IROT], db + DB_IROT_RAW, S);
+            for (int k = 0; k < 4; k++) if (bi->pos[off + k] >= 0) x0[bi->pos[off + k]] = p[k];
+        } else if ((t == J_SPH_CARDAN || t == J_FREE_CARDAN) && bi->irot) {
+            rotation(bi->irot, db + DB_IROT_RAW, S);
             double s02 = S[2] < -1.0 ? -1.0 : S[2] > 1.0 ? 1.0 : S[2];
             double ang[3] = {atan2(-S[5], S[8]), asin(s02), atan2(-S[1], S[0])};
             for (int k = 0; k < 3; k++) {
-                int idx = ib[IB_POS + off + k];
-                if (idx >= 0 && (ib[IB_IROT_MASK] >> k & 1)) x0[idx] = ang[k];
+                int idx = bi->pos[off + k];
+                if (idx >= 0 && (bi->irot_mask >> k & 1)) x0[idx] = ang[k];
             }
         }
     }
