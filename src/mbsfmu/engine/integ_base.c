@@ -10,26 +10,15 @@
 
 #include "integ_internal.h"
 
-#define METHOD_NAME(code, name) name,
+#define METHOD_NAME(code, name, cls) name,
 const char *const mbs_method_names[MBS_NMETHODS] = {MBS_METHODS(METHOD_NAME)};
 #undef METHOD_NAME
-#define METHOD_LISTED(code, name) ", " name
+#define METHOD_LISTED(code, name, cls) ", " name
 #define METHODS_LISTED (MBS_METHODS(METHOD_LISTED)) /* ", rk4, dopri5, ..." */
 
-#ifdef MBS_NO_RADAU5
-#define RADAU5_CLASS NULL
-#else
-#define RADAU5_CLASS (&mbs_radau5_class)
-#endif
-#ifdef MBS_NO_GEN_ALPHA
-#define GEN_ALPHA_CLASS NULL
-#else
-#define GEN_ALPHA_CLASS (&mbs_gen_alpha_class)
-#endif
-
-static const MbsMethodClass *const method_classes[MBS_NMETHODS] = {
-    [MBS_RK4] = &mbs_rk4_class, [MBS_DOPRI5] = &mbs_dopri5_class, [MBS_DOP853] = &mbs_dop853_class,
-    [MBS_RADAU5] = RADAU5_CLASS, [MBS_GEN_ALPHA] = GEN_ALPHA_CLASS, [MBS_AUTO] = &mbs_auto_class};
+#define METHOD_CLASS(code, name, cls) [code] = &mbs_##cls##_class,
+static const MbsMethodClass *const method_classes[MBS_NMETHODS] = {MBS_METHODS(METHOD_CLASS)};
+#undef METHOD_CLASS
 
 #define SNAP_HEADER 24 /* "MBSI", method, n, dense (int32 each), history bytes (uint64) */
 
@@ -418,13 +407,7 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
         return NULL;
     }
     it->method = method;
-    cls = method_classes[method];
-    if (!cls) {
-        err_put(err, errlen, mbs_method_names[method], NULL, " is not available in this build");
-        free(it);
-        return NULL;
-    }
-    it->cls = cls;
+    cls = it->cls = method_classes[method];
     if (cls->composite) { /* dense output: its children's */
         if (take_options(it, ode, opt, 1, cls->name, err, errlen) || cls->composite->init(it, opt, err, errlen)) {
             mbs_integ_free(it);

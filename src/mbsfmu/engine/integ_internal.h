@@ -59,12 +59,11 @@
  * knows mbs_integ_t).  Stats: count c->jac_evaluations / c->lu_decompositions yourself (rhs evaluations
  * are counted by mbs_integ_f); steps and rejections are counted by the driver (by a fixed-step advance).
  *
- * REGISTRATION: integ_base.c's table mbs_method_classes[MBS_NMETHODS] points at mbs_rk4_class,
- * mbs_dopri5_class, mbs_dop853_class (integ_erk.c), mbs_radau5_class (integ_radau5.c), mbs_gen_alpha_class
- * (integ_gen_alpha.c), mbs_auto_class (integ_auto.c: a composite, MbsComposite, of a dopri5 child with
- * stop_when_stiff and a radau5 child; it sets the radau5 child's c->h/has_h after reset to hand the step size over).
- * Until a file exists, compiling with -DMBS_NO_RADAU5 / -DMBS_NO_GEN_ALPHA leaves its entry NULL
- * (mbs_integ_new then says the method is not available).
+ * REGISTRATION: one entry in mbs_layout.h's MBS_METHODS (code, name, class) and a file integ_<name>.c that
+ * defines mbs_<class>_class; integ_base.c's table, the engine's names, Python's list (loader, compiler, CLI,
+ * docs' check) and build.py (integ_*.c) follow. rk4, dopri5, dop853 live in integ_erk.c; auto (integ_auto.c)
+ * is a composite (MbsComposite) of a dopri5 child with stop_when_stiff and a radau5 child; it sets the radau5
+ * child's c->h/has_h after reset to hand the step size over.
  */
 #ifndef MBS_INTEG_INTERNAL_H
 #define MBS_INTEG_INTERNAL_H
@@ -171,8 +170,10 @@ struct MbsIntegrator {
     size_t msg_len;
 };
 
-extern const MbsMethodClass mbs_rk4_class, mbs_dopri5_class, mbs_dop853_class, mbs_radau5_class,
-    mbs_gen_alpha_class, mbs_auto_class;
+/* every method's class: mbs_<class>_class for each MBS_METHODS entry (mbs_layout.h) */
+#define MBS_METHOD_CLASS_DECL(code, name, cls) extern const MbsMethodClass mbs_##cls##_class;
+MBS_METHODS(MBS_METHOD_CLASS_DECL)
+#undef MBS_METHOD_CLASS_DECL
 
 /* Python's min/max of two floats (the first argument wins unless the second compares smaller/larger), so
  * NaN propagates exactly as in the reference implementation. */

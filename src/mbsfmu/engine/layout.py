@@ -17,7 +17,7 @@ _GENERATORS = ("MBS_CODE", "MBS_FIELD", "MBS_VALUE")
 _DEFINE = re.compile(r"#define ([A-Z][A-Z0-9_]*) (-?\d+)")
 _LIST = re.compile(r"#define (MBS_[A-Z0-9_]+)\(X\)(.*)")
 _ENTRY = re.compile(r"\s*X\(([^()]*)\)")
-_ARG = re.compile(r'\s*([A-Z][A-Z0-9_]*|-?\d+|"[a-z0-9_.]*")\s*')
+_ARG = re.compile(r'\s*([A-Za-z_][A-Za-z0-9_]*|-?\d+|"[a-z0-9_.]*")\s*')
 _ENUM = re.compile(r"enum \{ (MBS_[A-Z0-9_]+)\((MBS_CODE|MBS_FIELD|MBS_VALUE)\)(?: ([A-Z][A-Z0-9_]*))? \};")
 _SKIP = re.compile(r"#ifndef MBS_LAYOUT_H|#define MBS_LAYOUT_H|#endif|#define (MBS_CODE|MBS_FIELD|MBS_VALUE)_?\(")
 

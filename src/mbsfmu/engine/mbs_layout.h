@@ -5,7 +5,8 @@
  *
  * Only four kinds of lines may appear (layout.py refuses anything else):
  *   #define NAME integer                      a constant
- *   #define MBS_LIST(X) X(NAME, args) ...     a list; args are integers or "strings" (Python's names for a code)
+ *   #define MBS_LIST(X) X(NAME, args) ...     a list; args are integers, "strings" (Python's names for a code)
+ *                                             or C identifiers
  *   enum { MBS_LIST(MBS_CODE) [TOTAL] };      codes 0, 1, ... (TOTAL: their count)
  *   enum { MBS_LIST(MBS_FIELD) TOTAL };       fields of a row, first arg their width: offsets, TOTAL the row size
  *   enum { MBS_LIST(MBS_VALUE) };             first arg the value (bit flags)
@@ -103,10 +104,11 @@ enum { MBS_FORCE_D(MBS_FIELD) DF };
 #define MBS_INTEG_D(X) X(DI_RTOL) X(DI_ATOL) X(DI_MAX_STEP) X(DI_STEP) X(DI_RHO_INF)
 enum { MBS_INTEG_D(MBS_CODE) DI };
 
-/* the integrators (H_METHOD, the integrator.method variable) and their names */
+/* the integrators (H_METHOD, the integrator.method variable): name, and the class that implements it
+ * (mbs_<class>_class, integ_internal.h) */
 #define MBS_METHODS(X) \
-    X(MBS_RK4, "rk4") X(MBS_DOPRI5, "dopri5") X(MBS_DOP853, "dop853") X(MBS_RADAU5, "radau5") \
-    X(MBS_GEN_ALPHA, "gen_alpha") X(MBS_AUTO, "auto")
+    X(MBS_RK4, "rk4", rk4) X(MBS_DOPRI5, "dopri5", dopri5) X(MBS_DOP853, "dop853", dop853) \
+    X(MBS_RADAU5, "radau5", radau5) X(MBS_GEN_ALPHA, "gen_alpha", gen_alpha) X(MBS_AUTO, "auto", auto)
 enum { MBS_METHODS(MBS_CODE) MBS_NMETHODS };
 
 /* kinds of variables (S_VARS; value reference = row index); the second arg: the variable's name for the
