@@ -19,7 +19,8 @@ from ..errors import EngineUnavailable
 
 HERE = Path(__file__).parent
 CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "fmu_files.c") + tuple(sorted(p.name for p in HERE.glob("integ_*.c")))
-HEADERS = ("mbs_engine.h", "fmu_files.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h", "integ_internal.h", "linalg.h")
+HEADERS = ("mbs_engine.h", "fmu_files.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
+           "integ_internal.h", "linalg.h")
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
 LTO = ("-flto=auto",)  # the engine's small accessors inline across files into the per-step path (issue 10)

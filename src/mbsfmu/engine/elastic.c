@@ -396,11 +396,11 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
         if (el < 0 || bi->node >= row(m, el)[EI_NODES]) FAIL("corrupt body table (node of body %d)", i);
     }
     for (int k = 0; k < m->hdr[H_NFORCE]; k++) {
-        const int32_t *fi = m->iforce + k * IF;
+        const MbsForceI *fi = mbs_force_i(m, k);
         for (int end = 0; end < 2; end++) {
-            int node = fi[IF_NODE_A + end], b = end ? fi[IF_B] : fi[IF_A];
+            int node = end ? fi->node_b : fi->node_a, b = end ? fi->b : fi->a;
             if (node < 0) continue;
-            if (fi[IF_TYPE] == FE_JOINT_SPRING || (end && fi[IF_TYPE] != FE_SPRING)) FAIL("corrupt force table (node of element %d)", k);
+            if (fi->type == FE_JOINT_SPRING || (end && fi->type != FE_SPRING)) FAIL("corrupt force table (node of element %d)", k);
             int el = b >= 0 ? mbs_body_i(m, b)->elastic : -1;
             if (el < 0 || node >= row(m, el)[EI_NODES]) FAIL("corrupt force table (node of element %d)", k);
         }

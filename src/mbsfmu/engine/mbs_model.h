@@ -50,6 +50,18 @@ MBS_BODY_FIELD(irot_mask, IB_IROT_MASK); MBS_BODY_FIELD(elastic, IB_ELASTIC); MB
 MBS_VIEW_CHECK(body_size, sizeof(MbsBodyI) == sizeof(int32_t) * IB);
 static inline const MbsBodyI *mbs_body_i(const MbsModel *m, int i) { return (const MbsBodyI *)(m->ib + (size_t)i * IB); }
 
+/* A force element's int row (S_FORCE_I) by name, checked the same way against MBS_FORCE_I */
+typedef struct {
+    int32_t type, a, b, frame, src, node_a, node_b; /* see MBS_FORCE_I */
+} MbsForceI;
+#define MBS_FORCE_FIELD(member, FIELD) \
+    MBS_VIEW_CHECK(force_##member, offsetof(MbsForceI, member) == sizeof(int32_t) * FIELD && \
+                   sizeof(((MbsForceI *)0)->member) == sizeof(int32_t) * (FIELD##_END_ + 1 - FIELD))
+MBS_FORCE_FIELD(type, IF_TYPE); MBS_FORCE_FIELD(a, IF_A); MBS_FORCE_FIELD(b, IF_B); MBS_FORCE_FIELD(frame, IF_FRAME);
+MBS_FORCE_FIELD(src, IF_SRC); MBS_FORCE_FIELD(node_a, IF_NODE_A); MBS_FORCE_FIELD(node_b, IF_NODE_B);
+MBS_VIEW_CHECK(force_size, sizeof(MbsForceI) == sizeof(int32_t) * IF);
+static inline const MbsForceI *mbs_force_i(const MbsModel *m, int k) { return (const MbsForceI *)(m->iforce + (size_t)k * IF); }
+
 #define NB(m) ((m)->hdr[H_NB])
 #define NPOS(m) ((m)->hdr[H_NPOS])
 #define NVEL(m) ((m)->hdr[H_NVEL])

@@ -125,12 +125,12 @@ static int check_forces(const MbsModel *m, char *err, size_t errlen)
     const int nb = H[H_NB], elastic = H[H_FEATURES] & F_ELASTIC;
     const int64_t ntd = 3 * ((int64_t)H[H_NDRV] + H[H_NVEC]);
     for (int e = 0; e < H[H_NFORCE]; e++) {
-        const int32_t *fi = m->iforce + e * IF;
-        int ok = in(fi[IF_TYPE], 0, 4) && (fi[IF_SRC] == -1 || in(fi[IF_SRC], 0, ntd - 2)) && fi[IF_NODE_A] >= -1 &&
-                 fi[IF_NODE_B] >= -1 && (elastic || (fi[IF_NODE_A] < 0 && fi[IF_NODE_B] < 0));
-        if (fi[IF_TYPE] == FE_JOINT_SPRING) ok = ok && in(fi[IF_A], 0, H[H_NPOS]) && in(fi[IF_B], 0, H[H_NVEL]);
-        else if (fi[IF_TYPE] == FE_SPRING) ok = ok && in(fi[IF_A], -1, nb) && in(fi[IF_B], -1, nb);
-        else ok = ok && in(fi[IF_A], 0, nb);
+        const MbsForceI *fi = mbs_force_i(m, e);
+        int ok = in(fi->type, 0, FE_N) && (fi->src == -1 || in(fi->src, 0, ntd - 2)) && fi->node_a >= -1 &&
+                 fi->node_b >= -1 && (elastic || (fi->node_a < 0 && fi->node_b < 0));
+        if (fi->type == FE_JOINT_SPRING) ok = ok && in(fi->a, 0, H[H_NPOS]) && in(fi->b, 0, H[H_NVEL]);
+        else if (fi->type == FE_SPRING) ok = ok && in(fi->a, -1, nb) && in(fi->b, -1, nb);
+        else ok = ok && in(fi->a, 0, nb);
         if (!ok) BAD("corrupt force table (element %d: type 0..3, its coordinates or bodies in range, value slot -1 or "
                      "one of %lld, nodes only in a scene with elastic bodies)", e, (long long)ntd / 3);
     }

@@ -378,43 +378,43 @@ void mbs_applied_forces(const MbsEval *e)
     double *q = e->q, *Ja = e->work + (size_t)NB(m) * W_SIZE(f), *Jb = Ja + 3 * f;
     if (e->q_in) for (int c = 0; c < f; c++) q[c] += e->q_in[c];
     for (int n = 0; n < m->hdr[H_NFORCE]; n++) {
-        const int *fi = m->iforce + n * IF;
+        const MbsForceI *fi = mbs_force_i(m, n);
         const double *fd = dforce + n * DF;
-        switch (fi[IF_TYPE]) {
+        switch (fi->type) {
         case FE_JOINT_SPRING: {
-            int pi = fi[IF_A], vi = fi[IF_B];
+            int pi = fi->a, vi = fi->b;
             q[vi] -= fd[DF_K] * (y[pi] - fd[DF_L]) + fd[DF_D] * yd[vi];
             break;
         }
         case FE_SPRING: {
             double xa[3], va[3], xb[3], vb[3], dx[3], dv[3];
-            force_point(e, fi[IF_A], fi[IF_NODE_A], fd + DF_AT_A, xa, va, Ja);
-            force_point(e, fi[IF_B], fi[IF_NODE_B], fd + DF_AT_B, xb, vb, Jb);
+            force_point(e, fi->a, fi->node_a, fd + DF_AT_A, xa, va, Ja);
+            force_point(e, fi->b, fi->node_b, fd + DF_AT_B, xb, vb, Jb);
             for (int r = 0; r < 3; r++) { dx[r] = xb[r] - xa[r]; dv[r] = vb[r] - va[r]; }
             double l = sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
             if (l < 1e-12) break; /* direction undefined at zero length: no force rather than NaN */
             double e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
             double mag = fd[DF_K] * (l - fd[DF_L]) + fd[DF_D] * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
             double F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
-            if (fi[IF_A] >= 0) mbs_add_JtF(e, fi[IF_A], Ja, F, 1.0, q);
-            if (fi[IF_B] >= 0) mbs_add_JtF(e, fi[IF_B], Jb, F, -1.0, q);
+            if (fi->a >= 0) mbs_add_JtF(e, fi->a, Ja, F, 1.0, q);
+            if (fi->b >= 0) mbs_add_JtF(e, fi->b, Jb, F, -1.0, q);
             break;
         }
         case FE_FORCE:
         case FE_TORQUE: {
-            int i = fi[IF_A];
-            const double *wk = body_work(e, i), *src = fi[IF_SRC] >= 0 ? e->td + fi[IF_SRC] : fd + DF_VEC;
+            int i = fi->a;
+            const double *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd + DF_VEC;
             double vec[3], xp[3], vp[3];
             if (src[0] == 0.0 && src[1] == 0.0 && src[2] == 0.0) break;
-            if (fi[IF_FRAME]) mv(wk + W_S, src, vec);
+            if (fi->frame) mv(wk + W_S, src, vec);
             else memcpy(vec, src, sizeof vec);
-            if (fi[IF_TYPE] == FE_TORQUE) {
+            if (fi->type == FE_TORQUE) {
 #ifdef MBS_WITH_ELASTIC
-                if (fi[IF_NODE_A] >= 0) { mbs_elastic_node_J_R(e, i, fi[IF_NODE_A], Ja); mbs_add_JtF(e, i, Ja, vec, 1.0, q); break; }
+                if (fi->node_a >= 0) { mbs_elastic_node_J_R(e, i, fi->node_a, Ja); mbs_add_JtF(e, i, Ja, vec, 1.0, q); break; }
 #endif
                 mbs_add_JtF(e, i, wk + W_J, vec, 1.0, q);
             } else {
-                force_point(e, i, fi[IF_NODE_A], fd + DF_AT_A, xp, vp, Ja);
+                force_point(e, i, fi->node_a, fd + DF_AT_A, xp, vp, Ja);
                 mbs_add_JtF(e, i, Ja, vec, 1.0, q);
             }
             break;
