@@ -1,7 +1,9 @@
 """The FMU variable names a scene generates (contract: docs/fmu.md, "Variables"), each with the scene
 key it comes from, so that two scene names that would give one FMU variable are refused at load, naming both."""
 
-INTEGRATOR = ("integrator.method", "integrator.rtol", "integrator.atol", "integrator.max_step", "integrator.step")
+from ..engine.layout import LISTS
+
+INTEGRATOR = tuple(e[1] for e in LISTS["MBS_VAR_KINDS"] if e[1])  # the settable integrator settings
 
 
 def fmu_variables(spec):
