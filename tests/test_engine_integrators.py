@@ -434,180 +434,26 @@ def test_singular_rhs_stops_at_once(lib):
         integ.reset(0.0, [1.0, 1.0])
         with pytest.raises(RuntimeError, match="mass matrix is singular"):
             integ.advance(1.0)
-        assert integ.t <= 0.3 and integ.stats["rejected"] == 0
+        assert integ.t <= 0.3
+        # the explicit methods stop at once; auto hands over to radau5 once (its step sizes cannot cure it either)
+        assert integ.stats["rejected"] == 0 if method != "auto" else integ.stats["switched"] == 1
 
 
-def test_rk4_instability_detected(lib):
-    ode = Ode(lib, "decay", 1000.0)
-    integ = Integ(lib, "rk4", ode, 1, h=0.01)  # h·λ = −10, far outside the stability interval
-    integ.reset(0.0, [1.0])
-    with pytest.raises(RuntimeError, match=r"rk4 is unstable at step size 0.01: the problem is stiff \(estimated "
-                                           r"h·lambda = 10, stability limit 2.8\)"):
-        integ.advance(1.0)
-
-
-def test_bad_options_and_calls(lib):
-    ode = Ode(lib, "harmonic", 1.0)
-    for kw, pat in ((dict(rtol=0.0), "need rtol > 0"), (dict(atol=-1.0), "atol >= 0"),
-                    (dict(max_step=-1.0), "max_step must be > 0"), (dict(h=-0.1), "fixed step h must be > 0"),
-                    (dict(dense=1), "'rk4' has no dense output")):
-        with pytest.raises(ValueError, match=pat):
-            Integ(lib, "rk4", ode, 2, **kw)
-    integ = Integ(lib, "dopri5", ode, 2)
-    with pytest.raises(RuntimeError, match="must be called before"):
-        integ.advance(1.0)
-    assert integ.reset(0.0, [math.nan, 0.0]) == 1 and "not finite" in integ.message
-    integ.reset(0.0, [1.0, 0.0])
-    integ.advance(1.0)
-    with pytest.raises(RuntimeError, match="cannot integrate backwards"):
-        integ.advance(0.5)
-    assert lib.mbs_method_index(b"dop853") == DOP853 and lib.mbs_method_index(b"euler") == -1
-
-
-# ------------------------------------------------------------------ auto
-
-def test_auto_switches_on_stiff_van_der_pol(lib):
-    if not lib.have["auto"]:
-        pytest.skip("radau5 not in this build yet")
-    ode = Ode(lib, "vdp", 1000.0)
-    ts = np.linspace(0.1, 3.0, 30)
-    runs = {}
-    for method in ("auto", "dopri5"):
-        # (at rtol 1e-6 Hairer's test keeps h·λ just below 3.25 on this problem and never fires)
-        integ = Integ(lib, method, ode, 2, rtol=1e-5, atol=1e-7)
-        integ.reset(0.0, [2.0, 0.0])
-        runs[method] = run_points(integ, ts), integ.stats
-    (X, s), (_, s_dopri5) = runs["auto"], runs["dopri5"]
-    assert s["switched"] == 1 and 0.0 < s["switched_at"] < 0.1
-    assert s["jac_evaluations"] > 0 and s["lu_decompositions"] > 0
-    assert s["steps"] < 0.2 * s_dopri5["steps"]  # dopri5 alone is held at h·λ ≈ 3.3 throughout
-    from scipy.integrate import solve_ivp
-    ref = solve_ivp(vdp_rhs(1000.0), (0, ts[-1]), [2.0, 0.0], method="Radau", rtol=1e-8, atol=1e-10,
-                    t_eval=ts).y.T
-    assert np.max(np.abs(X[:, 0] - ref[:, 0])) < 1e-4
-
-    nonstiff = Integ(lib, "auto", Ode(lib, "vdp", 1.0), 2)
-    nonstiff.reset(0.0, [2.0, 0.0])
-    nonstiff.advance(20.0)
-    s = nonstiff.stats
-    assert s["switched"] == 0 and s["switched_at"] is None and s["lu_decompositions"] == 0
-
-
-# ------------------------------------------------------------------ snapshots
-
-STIFF = dict(rtol=1e-5, atol=1e-7)  # auto switches on vdp1000 at t ≈ 0.025
-SNAP_CASES = [("rk4", "rigid", dict(h=0.01), 0.37), ("dopri5", "rigid", {}, 0.37), ("dop853", "kepler", {}, 0.37),
-              ("dopri5", "vdp", dict(dense=0), 0.37), ("auto", "vdp", {}, 0.37),
-              ("auto", "vdp1000", STIFF, 0.005), ("auto", "vdp1000", STIFF, 0.37)]
-
-
-def _case(lib, method, problem, kw):
-    if problem == "rigid":
-        return Integ(lib, method, Ode(lib, "rigid", 1.0, 2.0, 3.0), 7, **kw), [1, 0, 0, 0, 0.3, 1.0, 0.2]
-    if problem == "kepler":
-        return Integ(lib, method, Ode(lib, "kepler"), 4, **kw), [0.5, 0, 0, math.sqrt(3)]
-    mu = 1000.0 if problem == "vdp1000" else 1.0
-    return Integ(lib, method, Ode(lib, "vdp", mu), 2, **kw), [2.0, 0.0]
-
-
-@pytest.mark.parametrize("method,problem,kw,dt", SNAP_CASES)
-def test_snapshot_continuation_bit_identical(lib, method, problem, kw, dt):
-    a, x0 = _case(lib, method, problem, kw)
-    a.reset(0.0, x0)
-    for k in range(1, 4):
-        a.advance(k * dt)
-    snap = a.save()
-    tail = [a.advance(k * dt).tobytes() for k in range(4, 12)]
-    stats = a.stats
-    assert a.load(snap) == 0
-    assert [a.advance(k * dt).tobytes() for k in range(4, 12)] == tail
-    b, _ = _case(lib, method, problem, kw)  # a fresh object
-    assert b.load(snap) == 0
-    assert [b.advance(k * dt).tobytes() for k in range(4, 12)] == tail
-    assert b.stats == stats == a.stats
-    if problem == "vdp1000":  # the snapshot is taken before (dt = 0.005) or after the switch
-        assert stats["switched"] == 1
-
-
-def test_snapshot_rejects_other_method_size_and_bad_fields(lib):
-    ode2, ode7 = Ode(lib, "vdp", 1.0), Ode(lib, "rigid", 1.0, 2.0, 3.0)
-    a = Integ(lib, "dopri5", ode2, 2)
-    a.reset(0.0, [2.0, 0.0])
-    a.advance(0.3)
-    snap = a.save()
-    x_before, t_before = a.x, a.t
-    others = [Integ(lib, "dop853", ode2, 2), Integ(lib, "dopri5", ode7, 7), Integ(lib, "dopri5", ode2, 2, dense=0)]
-    for o in others:
-        o.reset(1.0, [1.0] * o.n)
-        keep = o.save()
-        assert o.load(snap) == 1 and o.save() == keep
-    assert a.load(snap[:-1]) == 1 and a.load(snap + b"\0") == 1
-    # out-of-range integer fields: common flags and counters, the method's flags
-    layout = _common_int_fields()
-    fsal = 104 + 8  # dopri5's FsalState after MbsCommon (104 bytes): facold, then has_k1, last_rejected, ...
-    for off, bad in ((layout["started"], 7), (layout["has_ahead"], 2), (layout["nonfinite"], 4),
-                     (layout["last_failure"], -1), (layout["steps"], -5), (fsal, 3), (fsal + 4, -1),
-                     (fsal + 16, 2)):
-        raw = bytearray(snap)
-        raw[24 + off:24 + off + 4] = int(bad).to_bytes(4, "little", signed=True) if off != layout["steps"] \
-            else int(bad).to_bytes(8, "little", signed=True)
-        a.advance(0.5)
-        before = a.save()
-        assert a.load(bytes(raw)) == 1
-        assert a.save() == before
-    assert a.load(snap) == 0 and a.t == t_before and np.array_equal(a.x, x_before)
-
-
-def _common_int_fields():
-    """Byte offsets of MbsCommon's fields (integ_internal.h: 5 doubles, 5 long long, 6 int)."""
-    names = ["steps", "rejected", "rhs_evaluations", "jac_evaluations", "lu_decompositions"]
-    off = {n: 40 + 8 * i for i, n in enumerate(names)}
-    for i, n in enumerate(["started", "has_h", "has_ahead", "has_seg", "nonfinite", "last_failure"]):
-        off[n] = 80 + 4 * i
-    return off
-
-
-@pytest.mark.parametrize("method", ["rk4", "dopri5", "dop853", "radau5", "gen_alpha", "auto"])
-def test_snapshot_random_bytes_never_crash(lib, method):
-    ode = Ode(lib, "vdp", 1.0)
-    kw = dict(h=0.01) if method in ("rk4",) else {}
-    a = Integ(lib, method, ode, 2, max_steps=2000, **kw)
-    a.reset(0.0, [2.0, 0.0])
-    a.advance(0.2)
-    snap = a.save()
-    rng = np.random.default_rng(1)
-    loaded = 0
-    for k in range(1500):
-        if k % 3 == 0:
-            raw = rng.integers(0, 256, len(snap), dtype=np.uint8).tobytes()
-        else:  # a valid snapshot with a few bytes flipped: passes the header, exercises field checks
-            b = bytearray(snap)
-            for i in rng.integers(0, len(snap), 1 + k % 4):
-                b[i] = int(rng.integers(0, 256))
-            raw = bytes(b)
-        if a.load(raw) == 0:
-            loaded += 1
-            try:
-                a.advance(a.t + 0.05 if math.isfinite(a.t) else 1.0)
-            except RuntimeError:
-                pass
-        a.load(snap)
-    assert a.load(snap) == 0 and loaded > 0
-
-
-def test_integrator_memory_is_bounded_by_its_states(lib):
-    """radau5 holds n x n matrices (Jacobian, real and complex LU: 4 n² doubles, twice for rejected steps):
-    for n = 8,000 states that is 4 GiB, refused with its size before any allocation; an explicit method takes
-    the same system (memory linear in n) and integrates it to the closed form x(t) = x0 exp(-t)."""
-    n = 8000
-    ode = Ode(lib, "wide", float(n))
-    with pytest.raises(ValueError) as e:
-        Integ(lib, "radau5", ode, n)
-    said = float(str(e.value).split("radau5 needs ")[1].split(" GiB")[0])
-    assert abs(said / (2 * 4 * n * n * 8 / 2 ** 30) - 1) < 0.01, e.value  # the n² terms dominate
-    assert "8000 states" in str(e.value) and "dopri5" in str(e.value), e.value
-    it = Integ(lib, "dopri5", ode, n, rtol=1e-10, atol=1e-12)
-    x0 = np.linspace(0.5, 1.5, n)
-    it.reset(0.0, x0)
-    assert np.allclose(it.advance(1.0), x0 * np.exp(-1.0), rtol=1e-8, atol=0)
-    assert Integ(lib, "radau5", Ode(lib, "wide", 100.0), 100).ptr  # a small system keeps radau5
+def test_auto_goes_on_with_radau5_where_the_first_explicit_steps_leave_the_domain(lib):
+    """ẋ0 = 1, ẋ1 = −λ(x1 − x0), λ = 1e9, defined only for |x| <= 10: f is small at the start and its Jacobian
+    huge, so dopri5's first trial stages fly out of the domain before its stiffness test can fire (a real robot
+    with a near-massless damped joint does this); auto goes on with radau5 from the start and ends at the closed
+    form x0 = t, x1 = t − (1 − exp(−λt))/λ."""
+    lam = 1e9
+    ode = Ode(lib, "confined", lam)
+    explicit = Integ(lib, "dopri5", ode, 2)
+    explicit.reset(0.0, [0.0, 0.0])
+    with pytest.raises(RuntimeError, match="mass matrix is singular"):
+        explicit.advance(1.0)
+    integ = Integ(lib, "auto", ode, 2, rtol=1e-10, atol=1e-14)
+    integ.reset(0.0, [0.0, 0.0])
+    for t, rtol in ((1e-9, 1e-4), (1.0, 1e-9)):  # in the transient x1 ~ 4e-10: atol 1e-14 is 3e-5 of it
+        x = integ.advance(t)
+        ref = np.array([t, t - (1 - np.exp(-lam * t)) / lam])
+        assert np.allclose(x, ref, rtol=rtol, atol=0), (t, x, ref)
+    assert integ.stats["switched"] == 1 and integ.stats["switched_at"] < 1e-6  # within its first steps

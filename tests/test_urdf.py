@@ -418,11 +418,12 @@ def test_visuals_become_shapes_and_package_uris_stay_in_their_folder(tmp_path):
 @pytest.mark.parametrize("file,base", REAL, ids=[Path(f).stem for f, _ in REAL])
 def test_real_robot_native_fmu_validates_and_matches_the_in_process_run(tmp_path, file, base):
     """Each real robot's native FMU: fmpy's validation is clean and its outputs equal the in-process run
-    (the in-process engine is held to Pinocchio above), falling or swinging under gravity from rest. radau5:
-    some real robots are stiff from the start (iCub's M has λ_min/λ_max ≈ 1e-18 at rest, with joint damping)."""
+    (the in-process engine is held to Pinocchio above), falling or swinging under gravity from rest, with the
+    default method: some real robots are stiff from the first step (iCub's M has λ_min/λ_max ≈ 1e-18 at rest, with
+    joint damping), where auto must hand over to radau5."""
     from fmpy import simulate_fmu
     from fmpy.validation import validate_fmu
-    scene = _scene(file, base, "integrator: {method: radau5}")
+    scene = _scene(file, base)
     fmu = mbsfmu.build_fmu(scene, tmp_path, kind="native")
     assert validate_fmu(str(fmu)) == []
     stop, h = 0.05, 0.01

@@ -14,6 +14,9 @@
  *   "nan_after"  ẋ = −x (n = 2) until t = p[0], NaN afterwards
  *   "fail_after" ẋ = −x (n = 2) until t = p[0], then MBS_F_SINGULAR with a message
  *   "wide"       ẋ_i = −x_i (n = p[0]): as many states as asked, for the integrators' memory bound
+ *   "confined"   ẋ0 = 1, ẋ1 = −λ (x1 − x0) (n = 2), p = {λ}, defined only for |x_i| <= 10 (MBS_F_SINGULAR
+ *                beyond): f is small at x = 0, its Jacobian huge: an explicit method's first trial stages fly
+ *                out of the domain (as a real robot with a near-massless damped joint does)
  */
 #include <math.h>
 #include <stdlib.h>
@@ -21,7 +24,7 @@
 
 #include "mbs_integrator.h"
 
-enum { HARMONIC, VDP, KEPLER, RIGID, DECAY, RAMP, BLOWUP, NAN_AFTER, FAIL_AFTER, WIDE, NKINDS };
+enum { HARMONIC, VDP, KEPLER, RIGID, DECAY, RAMP, BLOWUP, NAN_AFTER, FAIL_AFTER, WIDE, CONFINED, NKINDS };
 
 typedef struct {
     MbsOde ode; /* first member: the pointer handed out is also the block's address */
@@ -132,6 +135,16 @@ static const char *message(void *ctx)
     return "mass matrix is singular (test)";
 }
 
+static int f_confined(void *ctx, double t, const double *x, double *xd)
+{
+    const TestOde *P = (const TestOde *)ctx;
+    (void)t;
+    if (!(fabs(x[0]) <= 10.0 && fabs(x[1]) <= 10.0)) return MBS_F_SINGULAR;
+    xd[0] = 1.0;
+    xd[1] = -P->p[0] * (x[1] - x[0]);
+    return MBS_F_OK;
+}
+
 static int f_wide(void *ctx, double t, const double *x, double *xd)
 {
     const TestOde *P = (const TestOde *)ctx;
@@ -143,7 +156,7 @@ static int f_wide(void *ctx, double t, const double *x, double *xd)
 MbsOde *test_ode_new(const char *name, const double *p, int np)
 {
     static const char *const names[] = {"harmonic", "vdp", "kepler", "rigid", "decay", "ramp", "blowup",
-                                        "nan_after", "fail_after", "wide"};
+                                        "nan_after", "fail_after", "wide", "confined"};
     int kind, i;
     TestOde *P;
     for (kind = 0; kind < NKINDS && strcmp(name, names[kind]) != 0; kind++) {}
@@ -162,6 +175,7 @@ MbsOde *test_ode_new(const char *name, const double *p, int np)
     case KEPLER: P->ode.f = f_kepler; P->ode.n = 4; break;
     case RIGID: P->ode.f = f_rigid; P->ode.n = 7; P->ode.normalize = normalize_rigid; break;
     case DECAY: P->ode.f = f_decay; P->ode.n = np; break;
+    case CONFINED: P->ode.f = f_confined; break;
     case WIDE: P->ode.f = f_wide; P->ode.n = np == 1 && p[0] >= 1 && p[0] <= 1e7 ? (int)p[0] : 1; break;
     case RAMP: P->ode.f = f_ramp; P->ode.n = 1; break;
     case BLOWUP: P->ode.f = f_blowup; P->ode.n = 1; break;

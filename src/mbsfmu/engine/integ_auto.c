@@ -1,4 +1,4 @@
-/* 'auto': DOPRI5 until its stiffness test fires (Hairer's h·|λ| > 3.25, 15 times), then RADAU5 for good.
+/* 'auto': DOPRI5 until its stiffness test fires (Hairer's h·|λ| > 3.25, 15 times) or it fails, then RADAU5 for good.
  * Two child integrators; t, x, h come from the one in charge, stats are summed over both phases. */
 #include <math.h>
 #include <stdlib.h>
@@ -76,9 +76,16 @@ static int auto_advance(MbsIntegrator *it, double t_end)
     mbs_msg_set(it, "");
     if (state(it)->phase == 0) {
         MbsIntegrator *ns = it->sub[0];
-        if (mbs_integ_advance(ns, t_end)) return child_failed(it, ns);
+        if (mbs_integ_advance(ns, t_end)) {
+            /* DOPRI5 gave up before its stiffness test could fire: stages of every step it tried left the
+             * region where the equations are defined (M singular far off, NaN), as on a system stiff from the
+             * first step. RADAU5 goes on from the last accepted state with a step of its own choosing, or says
+             * why it cannot. */
+            if (switch_to_radau5(it)) return 1;
+            it->sub[1]->c->has_h = 0;
+        }
         /* stiffness may be found in a dense-output step past t_end: switch at the visible point */
-        if ((ns->c->t < t_end || mbs_dopri5_stiff(ns)) && switch_to_radau5(it)) return 1;
+        else if ((ns->c->t < t_end || mbs_dopri5_stiff(ns)) && switch_to_radau5(it)) return 1;
     }
     if (state(it)->phase == 1 && mbs_integ_advance(it->sub[1], t_end)) return child_failed(it, it->sub[1]);
     return 0;
