@@ -59,24 +59,16 @@ class Invariants:
 
 
 def invariants(nodal, dynamic_stiffening=True):
-    """The standard FFRF mass invariants from the mass points of `nodal` (once per body)."""
-    p = nodal.points()
-    m, R, J, Phi, Psi = (np.asarray(x, float) for x in (p.m, p.R, p.J, p.Phi, p.Psi))
-    n = Phi.shape[2]
+    """The standard FFRF mass invariants from the mass moments of `nodal` (once per body)."""
+    mo = nodal.points().moments()
     inv = Invariants()
-    inv.n = n
-    inv.m = m.sum()
-    inv.S0 = m @ R
-    inv.C_t = np.einsum("g,gik->ik", m, Phi)
-    inv.A = np.einsum("g,gi,gjk->ijk", m, R, Phi)
-    inv.B = np.einsum("g,gik,gjl->ijkl", m, Phi, Phi)
-    inv.S_RR = np.einsum("g,gi,gj->ij", m, R, R)
-    inv.J_sum = J.sum(axis=0)
-    inv.JPsi = np.einsum("gij,gjk->ik", J, Psi)
+    inv.n = np.shape(mo.C_t)[1]
+    inv.m = float(mo.m)
+    inv.S0, inv.S_RR, inv.C_t, inv.A, inv.B, inv.J_sum, inv.JPsi = (
+        np.asarray(x, float) for x in (mo.S0, mo.S_RR, mo.C_t, mo.A, mo.B, mo.J_sum, mo.JPsi))
     inv.C_r0 = np.einsum("ijl,jlk->ik", EPS, inv.A) + inv.JPsi          # Σ m R̃Φ + Σ JΨ
     inv.G = np.einsum("ijm,jmkl->ikl", EPS, inv.B)                       # Σ m (Φe_k)~ Φ
-    inv.M_ee = np.einsum("iikl->kl", inv.B) + np.einsum("gik,gij,gjl->kl", Psi, J, Psi)
-    inv.M_ee = 0.5 * (inv.M_ee + inv.M_ee.T)
+    inv.M_ee = mo.M_ee
     inv.K = np.asarray(nodal.stiffness, float)
     inv.D = np.asarray(nodal.damping, float)
     st = nodal.stiffening if dynamic_stiffening else None

@@ -7,12 +7,32 @@ vector, R components), so r_RP = R_RP + Φ_P q and S_RP = E + (Ψ_P q)~ (Ŝ_RP =
 `mass_points` is the mass distribution the FFRF invariants integrate over.  For user `nodal:`
 data it is the nodes themselves (lumped masses and node inertias).  The beam generator sets it
 to the Gauss points of its elements, so that the invariants equal the integrals over the
-consistent FE mass matrix exactly (e.g. Σ m ΦᵀΦ + ΨᵀJΨ = Φᵀ M_FE Φ).
+consistent FE mass matrix exactly (e.g. Σ m ΦᵀΦ + ΨᵀJΨ = Φᵀ M_FE Φ).  A body reduced from a solid FE model
+(cms.py) gives the moments themselves (MassMoments), computed as quadratic forms of its consistent mass matrix.
 """
 
 import numpy as np
 
 from ..errors import ModelError
+
+
+class MassMoments:
+    """The mass moments the FFRF invariants are made of (ffrf.py names the symbols):
+    m, S0 = Σ m R, S_RR = Σ m R Rᵀ, C_t = Σ m Φ, A_ijk = Σ m R_i Φ_jk, B_ijkl = Σ m Φ_ik Φ_jl,
+    J_sum = Σ J, JPsi = Σ J Ψ, PsiJPsi = Σ ΨᵀJΨ."""
+
+    def __init__(self, m, S0, S_RR, C_t, A, B, J_sum, JPsi, PsiJPsi):
+        self.m, self.S0, self.S_RR, self.C_t, self.A, self.B = m, S0, S_RR, C_t, A, B
+        self.J_sum, self.JPsi, self.PsiJPsi = J_sum, JPsi, PsiJPsi
+
+    def moments(self):
+        return self
+
+    @property
+    def M_ee(self):
+        """Modal mass Σ m ΦᵀΦ + ΨᵀJΨ (symmetrized)."""
+        M = np.einsum("iikl->kl", self.B) + self.PsiJPsi
+        return 0.5 * (M + M.T)
 
 
 class MassPoints:
@@ -21,13 +41,20 @@ class MassPoints:
     def __init__(self, m, R, J, Phi, Psi):
         self.m, self.R, self.J, self.Phi, self.Psi = m, R, J, Phi, Psi
 
+    def moments(self):
+        """MassMoments as sums over the points."""
+        m, R, J, Phi, Psi = (np.asarray(x, float) for x in (self.m, self.R, self.J, self.Phi, self.Psi))
+        return MassMoments(m.sum(), m @ R, np.einsum("g,gi,gj->ij", m, R, R), np.einsum("g,gik->ik", m, Phi),
+                           np.einsum("g,gi,gjk->ijk", m, R, Phi), np.einsum("g,gik,gjl->ijkl", m, Phi, Phi),
+                           J.sum(axis=0), np.einsum("gij,gjk->ik", J, Psi), np.einsum("gik,gij,gjl->kl", Psi, J, Psi))
+
 
 class NodalData:
     """Nodes of an elastic body and its modal stiffness/damping (the `nodal:` form of the contract).
 
     R_RP (N×3), mass (N), inertia (N×3×3, about the node, R components), Phi, Psi (N×3×n),
-    stiffness, damping (n×n).  Optional: mass_points (MassPoints used by the invariants instead of
-    the nodes), stiffening (dict of unit-load modal geometric stiffness matrices, see beam.py),
+    stiffness, damping (n×n).  Optional: mass_points (MassPoints or MassMoments used by the invariants
+    instead of the nodes), stiffening (dict of unit-load modal geometric stiffness matrices, see beam.py),
     frequencies (rad/s of the retained modes, informative).
     """
 
@@ -181,6 +208,4 @@ def _ratio(value, key):
 
 def modal_mass(nodal):
     """M_ee = Σ m ΦᵀΦ + ΨᵀJΨ over the mass points."""
-    p = nodal.points()
-    return (np.einsum("g,gik,gil->kl", p.m, p.Phi, p.Phi)
-            + np.einsum("gik,gij,gjl->kl", p.Psi, p.J, p.Psi))
+    return nodal.points().moments().M_ee

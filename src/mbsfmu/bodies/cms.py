@@ -1,0 +1,243 @@
+"""Component mode synthesis: an FEModel (fe.py) reduced to a floating-frame body (seed 004) → NodalData.
+
+Methods and their reference frame condition (the body frame R is the FE model's coordinate frame):
+- `craig-bampton` with a reference point coupled rigidly (RBE2) to the interface node set: the frame moves with
+  the reference point, so the interface nodes do not move in R.  Clamping them leaves the fixed-interface
+  normal modes; the static constraint modes of the reference's six DOFs are the frame's rigid motion itself, so
+  the elastic basis is the fixed-interface modes alone ("clamped at the reference").
+- `free`: free-interface normal modes; the six rigid-body modes are found (their count is checked) and removed,
+  and the elastic modes are made exactly M-orthogonal to the rigid fields: ∫Φ dm = 0 and ∫R̃Φ dm = 0, the
+  linearised mean axes (Buckens/Tisserand).
+Modes come from a sparse shift-invert Lanczos (eigsh) on the factor of K − σM (σ < 0, so K positive
+semi-definite makes it positive definite).  That factor is an LDLᵀ (diagonal pivots), so by Sylvester's law
+its negative pivots count the eigenvalues below σ: an indefinite K is refused, and a frequency cut-off is turned
+into an exact number of modes the same way.  Modes are scaled so that the largest node translation is +1.
+
+Invariants: for a solid's consistent mass M = M_s ⊗ E (fe.check), every FFRF moment is a quadratic form of the
+scalar mass matrix M_s over node fields — 1 (rigid translation), the coordinates X_i and the mode components
+Φ_ik: m = 1ᵀM_s1, S0_i = 1ᵀM_sX_i, S_RR_ij = X_iᵀM_sX_j, C_t_ik = 1ᵀM_sΦ_ik, A_ijk = X_iᵀM_sΦ_jk,
+B_ijkl = Φ_ikᵀM_sΦ_jl (so M_ee = ΦᵀMΦ); no node inertias (solid nodes have no rotational DOFs, Ψ = 0).  These
+are the integrals ∫ρ … dV of the FE interpolation exactly (partition of unity; isoparametric geometry).
+Only the kept nodes (the reference point, then the `keep` nodes) reach the compiled scene.
+"""
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator, eigsh, splu
+
+from ..errors import ModelError
+from ..scene import limits
+from .nodal import MassMoments, NodalData, damping_from_ratio
+
+METHODS = ("craig-bampton", "free")
+SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positive semi-definite K, by far more than roundoff
+RIGID = 1e-9      # |λ| < RIGID·λ_scale: a zero-frequency (rigid-body) mode
+CACHE_VERSION = "cms-1"
+
+
+def _lam_scale(K, M):
+    """A scale of the eigenvalues: max over DOFs of K_ii/M_ii (a Rayleigh quotient, so ≤ λ_max)."""
+    return float(np.max(K.diagonal() / M.diagonal()))
+
+
+def _factor(A, source, what):
+    """Sparse LDLᵀ-like LU of a symmetric A with diagonal pivots, and its number of negative pivots."""
+    try:
+        lu = splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+    except RuntimeError as e:
+        raise ModelError(f"{source}: {what} is singular ({e})",
+                         hint="a mechanism or a part without stiffness; check the model's elements") from None
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        raise ModelError(f"{source}: {what} needed off-diagonal pivots (it is not positive definite)",
+                         hint="the stiffness matrix must be positive semi-definite")
+    d = lu.U.diagonal()
+    return lu, int(np.count_nonzero(d < 0))
+
+
+def _lowest(K, M, k, source, scale):
+    """The k lowest eigenpairs of K x = λ M x (shift-invert about σ < 0); refuses an indefinite K."""
+    sigma = -SHIFT * scale
+    lu, negative = _factor(K - sigma * M, source, "the stiffness matrix")
+    if negative:
+        raise ModelError(f"{source}: the stiffness matrix is not positive semi-definite ({negative} eigenvalue(s) "
+                         f"below {sigma:.3g})", hint="a negative stiffness: check the material and the elements")
+    n = K.shape[0]
+    if k >= n:
+        raise ModelError(f"{source}: {k} modes asked, the model has {n} free DOFs", hint="ask for fewer modes")
+    op = LinearOperator((n, n), matvec=lu.solve, dtype=float)
+    lam, V = eigsh(K, k=k, M=M, sigma=sigma, OPinv=op, which="LM", tol=1e-12)
+    order = np.argsort(lam)
+    return lam[order], V[:, order]
+
+
+def _count_below(K, M, lam, source):
+    """Number of eigenvalues below lam (Sylvester: negative pivots of K − lam·M)."""
+    return _factor(K - lam * M, source, "K − λM")[1]
+
+
+def _mode_count(K, M, modes, cutoff_hz, rigid, source, scale):
+    if cutoff_hz is not None:
+        modes = _count_below(K, M, (2 * np.pi * cutoff_hz) ** 2, source) - rigid
+        if modes < 1:
+            raise ModelError(f"{source}: no elastic mode below {cutoff_hz:g} Hz", hint="raise cutoff_hz")
+    if modes > limits.FE_MODES:
+        raise ModelError(f"{source}: {modes} modes, at most {limits.FE_MODES}", hint="lower modes or cutoff_hz")
+    return modes
+
+
+def rigid_fields(X):
+    """The six rigid-body displacement fields (3N×6): translations x, y, z and small rotations about x, y, z."""
+    N = len(X)
+    T = np.zeros((N, 3, 6))
+    T[:, :, :3] = np.eye(3)
+    T[:, 0, 4], T[:, 0, 5] = X[:, 2], -X[:, 1]      # θ × X
+    T[:, 1, 3], T[:, 1, 5] = -X[:, 2], X[:, 0]
+    T[:, 2, 3], T[:, 2, 4] = X[:, 1], -X[:, 0]
+    return T.reshape(3 * N, 6)
+
+
+def craig_bampton(model, interface, modes=None, cutoff_hz=None):
+    """Fixed-interface modes (3N×n, zero at the interface nodes) and their eigenvalues."""
+    fixed = np.zeros(3 * model.n_nodes, bool)
+    fixed[(3 * np.asarray(interface)[:, None] + np.arange(3)).ravel()] = True
+    free = np.flatnonzero(~fixed)
+    K, M = model.K[free][:, free], model.M[free][:, free]
+    scale = _lam_scale(K, M)
+    modes = _mode_count(K, M, modes, cutoff_hz, 0, model.source, scale)
+    lam, V = _lowest(K, M, modes, model.source, scale)
+    if lam[0] < RIGID * scale:
+        raise ModelError(f"{model.source}: the clamped interface does not hold the body: a zero-frequency mode "
+                         "remains", hint="an interface of at least three nodes not on one line, one connected part")
+    Phi = np.zeros((3 * model.n_nodes, modes))
+    Phi[free] = V
+    return lam, Phi
+
+
+def free_modes(model, modes=None, cutoff_hz=None):
+    """Free-interface elastic modes, M-orthogonal to the six rigid-body fields (mean axes), and eigenvalues."""
+    K, M = model.K, model.M
+    scale = _lam_scale(K, M)
+    modes = _mode_count(K, M, modes, cutoff_hz, 6, model.source, scale)
+    lam, V = _lowest(K, M, modes + 6, model.source, scale)
+    rigid = int(np.count_nonzero(np.abs(lam) < RIGID * scale))
+    if rigid != 6:
+        raise ModelError(f"{model.source}: {rigid} rigid-body modes found where a free body has 6",
+                         hint="fewer: the model is supported (remove the supports or use craig-bampton); "
+                              "more: a mechanism or disconnected parts")
+    R = rigid_fields(model.nodes)
+    MR = M @ R
+    Phi = V[:, 6:]
+    Phi = Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi)   # exact mean-axis condition, not only to eigsh's tol
+    return lam[6:], Phi
+
+
+def moments(model, Phi):
+    """MassMoments of the consistent mass for mode fields Phi (N×3×n) (see the module docstring)."""
+    Ms = model.M[0::3, 0::3]
+    X = model.nodes
+    N, _, n = Phi.shape
+    one = np.ones(N)
+    MsX = Ms @ X
+    MsPhi = (Ms @ Phi.reshape(N, 3 * n)).reshape(N, 3, n)
+    return MassMoments(one @ Ms @ one, one @ MsX, X.T @ MsX, np.einsum("g,gik->ik", one, MsPhi),
+                       np.einsum("gi,gjk->ijk", X, MsPhi), np.einsum("gik,gjl->ijkl", Phi, MsPhi),
+                       np.zeros((3, 3)), np.zeros((3, n)), np.zeros((n, n)))
+
+
+def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None):
+    """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
+    Psi, modal stiffness, the mass moments and the frequencies (Hz)."""
+    if method == "craig-bampton":
+        if interface is None or reference is None:
+            raise ModelError("craig-bampton needs an interface: a node set and its reference point",
+                             hint="interface: {node_set: name, reference: [x, y, z]}")
+        lam, Phi = craig_bampton(model, interface, modes, cutoff_hz)
+    elif method == "free":
+        if reference is not None:
+            raise ModelError("free-interface modes with a reference point are not supported yet",
+                             hint="attach at kept nodes (`keep`), or use craig-bampton")
+        lam, Phi = free_modes(model, modes, cutoff_hz)
+    else:
+        raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
+    N, n = model.n_nodes, Phi.shape[1]
+    Phi = Phi.reshape(N, 3, n)
+    Phi = Phi / _largest(Phi)
+    mo = moments(model, Phi)
+    K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
+    keep = list(keep)
+    R_RP = model.nodes[keep]
+    Phi_kept = Phi[keep]
+    if reference is not None:   # the reference point is clamped to the frame: Φ = Ψ = 0 there
+        R_RP = np.vstack([np.asarray(reference, float)[None, :], R_RP])
+        Phi_kept = np.concatenate([np.zeros((1, 3, n)), Phi_kept])
+    return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": np.zeros_like(Phi_kept), "stiffness": 0.5 * (K_ee + K_ee.T),
+            "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "m": np.array(mo.m), "S0": mo.S0,
+            "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
+
+
+def _largest(Phi):
+    """Per mode: its largest node translation component (signed, so that it becomes +1)."""
+    flat = Phi.reshape(-1, Phi.shape[2])
+    return flat[np.argmax(np.abs(flat), axis=0), np.arange(flat.shape[1])]
+
+
+REDUCED = ("R_RP", "Phi", "Psi", "stiffness", "frequencies", "m", "S0", "S_RR", "C_t", "A", "B")
+
+
+def nodal_data(reduced, damping_ratio=0.0):
+    """NodalData of a reduced body (arrays or lists, as the normalized scene holds them)."""
+    r = {k: np.asarray(reduced[k], float) for k in REDUCED}
+    n = r["stiffness"].shape[0]
+    mo = MassMoments(float(r["m"]), r["S0"], r["S_RR"], r["C_t"], r["A"], r["B"],
+                     np.zeros((3, 3)), np.zeros((3, n)), np.zeros((n, n)))
+    D = damping_from_ratio(mo.M_ee, r["stiffness"], damping_ratio) if damping_ratio else None
+    return NodalData(r["R_RP"], np.zeros(len(r["R_RP"])), r["Phi"], r["stiffness"], Psi=r["Psi"], damping=D,
+                     mass_points=mo, frequencies=2 * np.pi * r["frequencies"])
+
+
+# -- cache ---------------------------------------------------------------------------------------------
+def cache_key(files, params):
+    """Hash of the input files' bytes and the reduction's parameters."""
+    h = hashlib.sha256(CACHE_VERSION.encode())
+    for path in files:
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        h.update(b"\0")
+    h.update(json.dumps(params, sort_keys=True, default=_plain).encode())
+    return h.hexdigest()[:32]
+
+
+def _plain(x):
+    return np.asarray(x).tolist()
+
+
+def cache_dir():
+    return Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu") / "fe"
+
+
+def reduce_cached(files, make_model, **params):
+    """reduce(make_model(), **params), or its result from the cache (an .npz keyed by cache_key)."""
+    path = cache_dir() / f"{cache_key(files, params)}.npz"
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            reduced = {k: z[k] for k in REDUCED}
+        nodal_data(reduced)   # a damaged entry fails here and is computed again
+        return reduced
+    except (OSError, KeyError, ValueError, IndexError, TypeError):
+        pass
+    reduced = reduce(make_model(), **params)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, **reduced)
+        os.replace(tmp, path)
+    except OSError:
+        pass   # no writable cache: reduce again next time
+    return reduced
