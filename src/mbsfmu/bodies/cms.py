@@ -222,8 +222,9 @@ def cache_dir():
     return Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu") / "fe"
 
 
-def reduce_cached(files, make_model, **params):
-    """reduce(make_model(), **params), or its result from the cache (an .npz keyed by cache_key)."""
+def reduce_cached(files, params, make_model, interface_nodes):
+    """reduce(make_model(), **params) with the interface resolved by interface_nodes(model), or its result from
+    the cache (an .npz keyed by cache_key of the files and params)."""
     path = cache_dir() / f"{cache_key(files, params)}.npz"
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -232,7 +233,8 @@ def reduce_cached(files, make_model, **params):
         return reduced
     except (OSError, KeyError, ValueError, IndexError, TypeError):
         pass
-    reduced = reduce(make_model(), **params)
+    model = make_model()
+    reduced = reduce(model, **dict(params, interface=interface_nodes(model)))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")

@@ -12,7 +12,8 @@ from ..expr import parse
 from ..kinematics.rotations import cross, skew
 from .beam import beam_from_spec
 from .ffrf import elastic_forces, gravity_forces, invariants, mass_matrix, quadratic_forces
-from .nodal import validate_nodal
+from .cms import nodal_data
+from .nodal import check_damping, validate_nodal
 
 
 def bind_elastic(body, env):
@@ -27,6 +28,10 @@ def bind_elastic(body, env):
                 spec[k] = parse(spec[k])(env)
         spec["EI"] = [parse(x)(env) for x in spec["EI"]]
         nodal = beam_from_spec(spec, key=key + ".beam", damping_ratio=ratio, dynamic_stiffening=e["dynamic_stiffening"])
+    elif "fe" in e:   # reduced when the scene was loaded (cms.py); the normalized scene holds the reduced body
+        nodal = nodal_data(e["fe"], damping_ratio=ratio)
+        if "damping" in e:
+            nodal.damping = check_damping(e["damping"], nodal.n, key)
     else:
         data = dict(e["nodal"])
         if "damping" in e:

@@ -575,9 +575,9 @@ class _Checker:
     # -- elastic bodies ----------------------------------------------------------------------------
     def elastic(self, node, path, name):
         e, path = node["elastic"], path + ".elastic"
-        self.keys(e, path, ("beam", "nodal", "damping_ratio", "damping", "coordinates", "dynamic_stiffening", "initial", "initial_velocity"))
-        if ("beam" in e) == ("nodal" in e):
-            self.fail(node, "elastic", path, "give exactly one of 'beam' or 'nodal'")
+        self.keys(e, path, ("beam", "nodal", "fe", "damping_ratio", "damping", "coordinates", "dynamic_stiffening", "initial", "initial_velocity"))
+        if sum(k in e for k in ("beam", "nodal", "fe")) != 1:
+            self.fail(node, "elastic", path, "give exactly one of 'beam', 'nodal' or 'fe'")
         if "damping" in e and "damping_ratio" in e:
             self.fail(e, "damping", path + ".damping", "give either 'damping' (a matrix) or 'damping_ratio', not both")
         out = {"damping_ratio": self.number(e, "damping_ratio", path + ".damping_ratio", nonneg=True) if "damping_ratio" in e else 0.0,
@@ -610,6 +610,8 @@ class _Checker:
             if beam["clamped"] not in ("start", "none"):
                 self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition {_shown(beam['clamped'])}", _suggest(beam["clamped"], ("start", "none")))
             out["beam"] = beam
+        elif "fe" in e:
+            out["fe"] = self.fe(e, path)
         else:
             out["nodal"] = self.nodal(e, path)
         nodal = self.elastic_data(name, out, path)
@@ -645,6 +647,96 @@ class _Checker:
         else:
             self.fail(e, "nodal", path, "expected a mapping with R_RP, mass, Phi, Psi, stiffness (or file: data.npz)")
         return _plain(data)
+
+    def fe(self, e, path):
+        """`fe:` (an FE model's files and how to reduce it) → the reduced body's arrays as lists (bodies/cms.py)."""
+        from ..bodies import cms
+        node, path = e["fe"], path + ".fe"
+        self.keys(node, path, _FE_KEYS, required=("mass", "stiffness", "nodes"))
+        fmt = node.get("format", "matrix-market")
+        if fmt not in _FE_FORMATS:
+            self.fail(node, "format", path + ".format", f"unknown format {_shown(fmt)}", _suggest(fmt, _FE_FORMATS))
+        method = node.get("method", "craig-bampton")
+        if method not in cms.METHODS:
+            self.fail(node, "method", path + ".method", f"unknown method {_shown(method)}", _suggest(method, cms.METHODS))
+        if "modes" in node and "cutoff_hz" in node:
+            self.fail(node, "cutoff_hz", path + ".cutoff_hz", "give either 'modes' or 'cutoff_hz', not both")
+        files = {k: self.fe_file(node, k, path) for k in ("mass", "stiffness", "nodes")}
+        dof_map = node.get("dof_map", "node-major")
+        if dof_map not in ("node-major", "direction-major"):
+            if fmt == "abaqus":
+                self.fail(node, "dof_map", path + ".dof_map", "Abaqus files name their DOFs; no dof_map")
+            dof_map = files["dof_map"] = self.fe_file(node, "dof_map", path)
+        sets = {}
+        for name in node.get("node_sets") or {}:
+            sets[name] = self.fe_nodes(node["node_sets"], name, f"{path}.node_sets.{name}")
+        params = {"method": method, "keep": self.fe_nodes(node, "keep", path + ".keep") if "keep" in node else [],
+                  "modes": None, "cutoff_hz": None, "interface": None, "reference": None}
+        if "cutoff_hz" in node:
+            params["cutoff_hz"] = self.plain_number(node, "cutoff_hz", path + ".cutoff_hz", positive=True)
+        else:
+            params["modes"] = node.get("modes", 10)
+            if not isinstance(params["modes"], int) or isinstance(params["modes"], bool) or not 1 <= params["modes"] <= limits.FE_MODES:
+                self.fail(node, "modes", path + ".modes", f"must be an integer in 1 … {limits.FE_MODES}, got {_shown(params['modes'])}")
+        if "interface" in node:
+            i, ip = node["interface"], path + ".interface"
+            self.keys(i, ip, ("node_set", "nodes", "reference"))
+            if ("node_set" in i) == ("nodes" in i):
+                self.fail(node, "interface", ip, "give exactly one of 'node_set' or 'nodes'")
+            if "nodes" in i:
+                params["interface"] = self.fe_nodes(i, "nodes", ip + ".nodes")
+            else:
+                params["interface"] = str(i["node_set"])
+            if "reference" in i:
+                if not isinstance(i["reference"], list) or len(i["reference"]) != 3:
+                    self.fail(i, "reference", ip + ".reference", f"a point [x, y, z] was expected, got {_shown(i['reference'])}")
+                params["reference"] = [self.plain_number(i["reference"], k, f"{ip}.reference[{k}]", magnitude=False) for k in range(3)]
+
+        def model():
+            from ..bodies import fe
+            if fmt == "abaqus":
+                m = fe.from_abaqus(files["mass"], files["stiffness"], files["nodes"], sets)
+            else:
+                m = fe.from_matrix_market(files["mass"], files["stiffness"], files["nodes"], dof_map, sets)
+            for key, nodes in (("keep", params["keep"]), ("interface.nodes", params["interface"])):
+                if isinstance(nodes, list) and nodes and max(nodes) >= m.n_nodes:
+                    raise ModelError(f"node {max(nodes)} does not exist: the model has {m.n_nodes} nodes", key=f"{path}.{key}")
+            return m
+
+        def interface_nodes(m):
+            iface = params["interface"]
+            if isinstance(iface, str):
+                if iface not in m.node_sets:
+                    raise ModelError(f"no node set '{iface}' in {m.source}", key=f"{path}.interface.node_set",
+                                     hint=_suggest(iface, sorted(m.node_sets) or ["(none: define node_sets)"]))
+                return m.node_sets[iface]
+            return iface
+
+        try:
+            reduced = cms.reduce_cached(list(files.values()), params, model, interface_nodes)
+        except ModelError as err:
+            self.fail_at(err.key or path, err.message, err.hint)
+        return _plain(reduced)
+
+    def fe_file(self, node, key, path):
+        try:
+            return datafile.resolve(self.base, node[key], self.allow_outside)
+        except ModelError as err:
+            self.fail(node, key, f"{path}.{key}", err.message, err.hint)
+
+    def fe_nodes(self, parent, key, path):
+        """A list of node indices (0-based) of an FE model."""
+        v = parent[key]
+        if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in v):
+            self.fail(parent, key, path, f"a list of node indices (integers ≥ 0) was expected, got {_shown(v)}")
+        return [int(x) for x in v]
+
+    def plain_number(self, parent, key, path, **kw):
+        """A number that feeds build-time work (an FE reduction): no parameters."""
+        v = self.number(parent, key, path, **kw)
+        if isinstance(v, str):
+            self.fail(parent, key, path, f"a plain number was expected, got '{v}'", "the reduction runs once, when the scene is loaded")
+        return v
 
     def elastic_data(self, name, elastic, path):
         """The body's nodal data built as compile builds it, at the parameters' values: bad shapes, stiffness or
@@ -887,6 +979,10 @@ def _default_coordinates(kind, name, param):
              "free": ([f"{b}.x", f"{b}.y", f"{b}.z"] + rot_pos, [f"{b}.x", f"{b}.y", f"{b}.z"] + rot_vel)}
     pos, vel = table[kind]
     return list(pos), list(vel)
+
+
+_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep")
+_FE_FORMATS = ("matrix-market", "abaqus")
 
 
 def _plain(v):
