@@ -32,6 +32,7 @@ from scipy.sparse.linalg import LinearOperator, eigsh, splu
 
 from ..errors import ModelError
 from ..scene import limits
+from . import fe
 from .nodal import MassMoments, NodalData, damping_from_ratio
 
 METHODS = ("craig-bampton", "free")
@@ -71,7 +72,8 @@ def _lowest(K, M, k, source, scale):
     if k >= n:
         raise ModelError(f"{source}: {k} modes asked, the model has {n} free DOFs", hint="ask for fewer modes")
     op = LinearOperator((n, n), matvec=lu.solve, dtype=float)
-    lam, V = eigsh(K, k=k, M=M, sigma=sigma, OPinv=op, which="LM", tol=1e-12)
+    v0 = np.random.default_rng(0).standard_normal(n)   # a fixed start: the same files give the same body
+    lam, V = eigsh(K, k=k, M=M, sigma=sigma, OPinv=op, which="LM", tol=1e-12, v0=v0)
     order = np.argsort(lam)
     return lam[order], V[:, order]
 
@@ -203,10 +205,10 @@ def nodal_data(reduced, damping_ratio=0.0):
 
 # -- cache ---------------------------------------------------------------------------------------------
 def cache_key(files, params):
-    """Hash of the input files' bytes and the reduction's parameters."""
+    """Hash of the input files' bytes and the reduction's parameters (files bounded as the readers bound them)."""
     h = hashlib.sha256(CACHE_VERSION.encode())
     for path in files:
-        with open(path, "rb") as f:
+        with fe.open_bounded(path) as f:
             for chunk in iter(lambda: f.read(1 << 20), b""):
                 h.update(chunk)
         h.update(b"\0")

@@ -40,7 +40,7 @@ class FEModel:
 
 
 # -- bounded files ---------------------------------------------------------------------------------
-def _open(path):
+def open_bounded(path):
     """A regular file of at most FE_BYTES, opened in binary."""
     name = Path(path).name
     try:
@@ -100,7 +100,7 @@ def read_matrix_market(path):
     """A square sparse matrix (CSR) from a Matrix Market file, bounded before it is parsed."""
     import scipy.io
     name = Path(path).name
-    with _open(path) as f:
+    with open_bounded(path) as f:
         _mm_header(f, name)
         f.seek(0)
         try:
@@ -122,7 +122,7 @@ def _finite(A, name):
 def read_nodes(path):
     """Node coordinates (N×3) from a text file: one node per line, x y z separated by commas or blanks."""
     name = Path(path).name
-    with _open(path) as f:
+    with open_bounded(path) as f:
         lines = _text_lines(f, name, limits.FE_DOFS // 3 + 10_000)
     rows = []
     for i, line in enumerate(lines, 1):
@@ -146,7 +146,7 @@ def read_nodes(path):
 def read_dof_map(path, n_nodes):
     """Row → node-major DOF index from a file of `node direction` lines (node 0-based, direction x|y|z or 1|2|3)."""
     name = Path(path).name
-    with _open(path) as f:
+    with open_bounded(path) as f:
         lines = _text_lines(f, name, limits.FE_DOFS + 10_000)
     dofs = []
     for i, line in enumerate(lines, 1):
@@ -210,7 +210,7 @@ def from_matrix_market(mass, stiffness, nodes, dof_map="node-major", node_sets=N
 def read_inp_nodes(path):
     """(labels, coordinates N×3, {set name: labels}) from the *NODE and *NSET blocks of an Abaqus .inp file."""
     name = Path(path).name
-    with _open(path) as f:
+    with open_bounded(path) as f:
         lines = _text_lines(f, name, 10 * limits.FE_DOFS)
     labels, coords, sets = [], [], {}
     block, current = None, None
@@ -250,7 +250,7 @@ def read_inp_nodes(path):
 def read_abaqus_matrix(path, index):
     """A sparse matrix from an Abaqus COORDINATE .mtx file; `index` maps node labels to 0-based node indices."""
     name = Path(path).name
-    with _open(path) as f:
+    with open_bounded(path) as f:
         try:
             rows = np.loadtxt(f, delimiter=",", comments="*", ndmin=2, max_rows=limits.FE_ENTRIES + 1)
         except ValueError as e:

@@ -706,8 +706,9 @@ class _Checker:
         def interface_nodes(m):
             iface = params["interface"]
             if isinstance(iface, str):
+                iface = iface if iface in m.node_sets else iface.lower()   # Abaqus names ignore case
                 if iface not in m.node_sets:
-                    raise ModelError(f"no node set '{iface}' in {m.source}", key=f"{path}.interface.node_set",
+                    raise ModelError(f"no node set '{params['interface']}' in {m.source}", key=f"{path}.interface.node_set",
                                      hint=_suggest(iface, sorted(m.node_sets) or ["(none: define node_sets)"]))
                 return m.node_sets[iface]
             return iface

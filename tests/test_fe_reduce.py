@@ -1,0 +1,300 @@
+"""Elastic bodies from FE models (issue 24): readers, Craig–Bampton and free-interface reduction, consistent-mass
+invariants, the `elastic: fe:` scene key and its cache.  References: the full FE model solved densely by LAPACK
+(scipy.linalg.eigh) with the same boundary condition, closed-form box moments, the lumped-mass sums of the
+nodal path, conservation laws of a free body, and the Matrix Market and Abaqus COORDINATE file formats."""
+
+import time
+
+import numpy as np
+import pytest
+import scipy.io
+import scipy.linalg
+import scipy.sparse as sp
+
+skfem = pytest.importorskip("skfem")
+from skfem.helpers import dot  # noqa: E402
+from skfem.models.elasticity import lame_parameters, linear_elasticity  # noqa: E402
+
+import mbsfmu  # noqa: E402
+from mbsfmu.bodies import cms, fe  # noqa: E402
+from mbsfmu.bodies.ffrf import invariants  # noqa: E402
+from mbsfmu.bodies.nodal import MassPoints  # noqa: E402
+from mbsfmu.errors import ModelError  # noqa: E402
+
+L, H = 1.0, 0.1
+E, NU, RHO = 2.1e11, 0.3, 7850.0
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+
+
+def bar(p2=True, nx=6, n=1, size=(L, H, H)):
+    """(nodes, M, K) of a steel bar meshed with tets by scikit-fem, DOFs node-major x y z."""
+    mesh = skfem.MeshTet.init_tensor(*(np.linspace(0, s, k + 1) for s, k in zip(size, (nx, n, n))))
+    basis = skfem.Basis(mesh, skfem.ElementVector(skfem.ElementTetP2() if p2 else skfem.ElementTetP1()))
+
+    @skfem.BilinearForm
+    def mass(u, v, w):
+        return RHO * dot(u, v)
+
+    dofs = np.vstack([basis.nodal_dofs.T] + ([basis.edge_dofs.T] if p2 else []))
+    order = dofs.ravel()
+    K = linear_elasticity(*lame_parameters(E, NU)).assemble(basis)[order][:, order]
+    M = mass.assemble(basis)[order][:, order]
+    return basis.doflocs[:, dofs[:, 0]].T, sp.csr_matrix(M), sp.csr_matrix(K)
+
+
+def write_mm(folder, X, M, K):
+    scipy.io.mmwrite(folder / "M.mtx", M, symmetry="symmetric", precision=17)
+    scipy.io.mmwrite(folder / "K.mtx", K, symmetry="general", precision=17)
+    np.savetxt(folder / "nodes.csv", X, delimiter=",", fmt="%.17g")
+
+
+def scene(folder, fe_yaml, joint="{type: fixed}", extra=""):
+    text = f"""mbsfmu: 1
+name: fe_test
+gravity: [0, 0, 0]
+bodies:
+  part:
+    parent: world
+    joint: {joint}
+    elastic:
+      fe: {fe_yaml}
+{extra}"""
+    (folder / "s.yaml").write_text(text)
+    return mbsfmu.load(folder / "s.yaml")
+
+
+MM = "mass: M.mtx, stiffness: K.mtx, nodes: nodes.csv"
+
+
+def dense_frequencies(K, M, fixed_nodes=(), skip=0, count=6):
+    """Lowest eigenfrequencies (Hz) of the full model with fixed_nodes clamped (LAPACK, dense)."""
+    fixed = (3 * np.asarray(fixed_nodes, int)[:, None] + np.arange(3)).ravel()
+    free = np.setdiff1d(np.arange(K.shape[0]), fixed)
+    lam = scipy.linalg.eigh(K[free][:, free].toarray(), M[free][:, free].toarray(), eigvals_only=True)
+    return np.sqrt(np.clip(lam[skip:skip + count], 0, None)) / (2 * np.pi)
+
+
+def body_frequencies(nodal):
+    """Eigenfrequencies (Hz) of the reduced body from its modal stiffness and the invariants' modal mass."""
+    inv = invariants(nodal)
+    return np.sqrt(scipy.linalg.eigh(inv.K, inv.M_ee, eigvals_only=True)) / (2 * np.pi)
+
+
+def part(spec):
+    return next(b for b in mbsfmu.compile(spec).model.bodies if b.elastic)
+
+
+# -- reduction against the full model ----------------------------------------------------------------------
+
+def test_craig_bampton_from_files_matches_the_full_clamped_model(tmp_path):
+    """tet10 bar, end face tied (RBE2) to a reference point: 12 CB modes through the scene; the reduced body's
+    K_ee, M_ee (from the consistent-mass invariants) give the full clamped model's first six within 0.5 %."""
+    X, M, K = bar()
+    write_mm(tmp_path, X, M, K)
+    root = np.flatnonzero(X[:, 0] == 0).tolist()
+    spec = scene(tmp_path, f"{{{MM}, node_sets: {{root: {root}}}, interface: {{node_set: root, reference: [0, 0.05, 0.05]}}, modes: 12, keep: [{int(np.argmax(X.sum(1)))}]}}")
+    got = body_frequencies(part(spec).nodal)[:6]
+    ref = dense_frequencies(K, M, root)
+    assert np.abs(got / ref - 1).max() < 0.005
+    assert np.abs(got / ref - 1).max() < 1e-7          # fixed-interface modes of this interface are exact
+    nodal = part(spec).nodal
+    assert nodal.nodes == 2 and np.all(nodal.Phi[0] == 0)   # the reference (clamped), then the kept node
+
+
+def test_free_modes_match_the_full_model_and_satisfy_mean_axes():
+    X, M, K = bar(p2=False, nx=8)
+    model = fe.FEModel(X, M, K, {}, "bar")
+    r = cms.reduce(model, "free", keep=[0, len(X) - 1], modes=8)
+    ref = dense_frequencies(K, M, skip=6, count=8)
+    assert np.allclose(r["frequencies"], ref, rtol=1e-8)
+    inv = invariants(cms.nodal_data(r))
+    assert np.abs(inv.C_t).max() < 1e-12 * inv.m                      # ∫Φ dm = 0
+    assert np.abs(inv.C_r0).max() < 1e-12 * inv.m * L                 # ∫R̃Φ dm = 0 (mean axes)
+    assert np.allclose(body_frequencies(cms.nodal_data(r)), ref, rtol=1e-8)
+
+
+def test_cutoff_gives_exactly_the_modes_below_it():
+    X, M, K = bar(p2=False)
+    root = np.flatnonzero(X[:, 0] == 0)
+    ref = dense_frequencies(K, M, root, count=8)
+    cutoff = 0.5 * (ref[4] + ref[5])
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), interface=root, reference=[0, 0, 0], cutoff_hz=cutoff)
+    assert len(r["frequencies"]) == 5 and np.allclose(r["frequencies"], ref[:5], rtol=1e-8)
+
+
+# -- invariants from the consistent mass ----------------------------------------------------------------
+
+def test_box_moments_are_the_closed_form_integrals():
+    """m = ρabc, S0 = m c, S_RR = ∫ρ x xᵀ dV of a box [0,a]×[0,b]×[0,c] (exact for P1 and P2 interpolation)."""
+    a, b, c = 0.3, 0.2, 0.1
+    for p2 in (False, True):
+        X, M, K = bar(p2=p2, nx=3, n=2, size=(a, b, c))
+        mo = cms.moments(fe.FEModel(X, M, K, {}, "box"), np.zeros((len(X), 3, 1)))
+        m = RHO * a * b * c
+        half = np.array([a, b, c]) / 2
+        second = m * (np.outer(half, half) + np.diag(np.array([a, b, c]) ** 2 / 12))
+        assert np.isclose(mo.m, m, rtol=1e-13)
+        assert np.allclose(mo.S0, m * half, rtol=1e-13)
+        assert np.allclose(mo.S_RR, second, rtol=1e-12)
+
+
+def test_lumped_mass_model_equals_the_nodal_path():
+    """A diagonal (lumped) consistent mass: the FE quadratic forms equal the sums over mass points to 1e-12."""
+    rng = np.random.default_rng(3)
+    N, n = 7, 3
+    X, masses, Phi = rng.normal(size=(N, 3)), rng.uniform(0.5, 2, N), rng.normal(size=(N, 3, n))
+    model = fe.FEModel(X, sp.csr_matrix(sp.kron(sp.diags(masses), sp.eye(3))), sp.csr_matrix((3 * N, 3 * N)), {}, "lumped")
+    got = cms.moments(model, Phi)
+    ref = MassPoints(masses, X, np.zeros((N, 3, 3)), Phi, np.zeros((N, 3, n))).moments()
+    for name in ("m", "S0", "S_RR", "C_t", "A", "B", "M_ee"):
+        assert np.allclose(getattr(got, name), getattr(ref, name), rtol=1e-12, atol=1e-12), name
+
+
+# -- readers -----------------------------------------------------------------------------------------------
+
+def write_abaqus(folder, X, M, K, labels):
+    """The model as Abaqus writes it: *NODE/*NSET in an .inp, lower triangles as COORDINATE .mtx lines."""
+    lines = ["*HEADING", "** written by the test", "*NODE"]
+    lines += [f"{lab}, {float(x)!r}, {float(y)!r}, {float(z)!r}" for lab, (x, y, z) in zip(labels, X)]
+    root = labels[X[:, 0] == 0]
+    lines += ["*NSET, NSET=ROOT"] + [", ".join(map(str, root[i:i + 8])) for i in range(0, len(root), 8)]
+    (folder / "part.inp").write_text("\n".join(lines) + "\n")
+    for A, name in ((M, "M.mtx"), (K, "K.mtx")):
+        low = sp.tril(A).tocoo()
+        rows = [f"{labels[i // 3]}, {i % 3 + 1}, {labels[j // 3]}, {j % 3 + 1}, {float(v)!r}" for i, j, v in zip(low.row, low.col, low.data)]
+        (folder / name).write_text("\n".join(rows) + "\n")
+
+
+def test_abaqus_coordinate_files_give_the_same_body(tmp_path):
+    X, M, K = bar(p2=False)
+    labels = 1000 + 7 * np.arange(len(X))[::-1]           # labels neither 1-based nor in order
+    write_abaqus(tmp_path, X, M, K, labels)
+    spec = scene(tmp_path, "{mass: M.mtx, stiffness: K.mtx, nodes: part.inp, format: abaqus, interface: {node_set: root, reference: [0, 0, 0]}, modes: 6}")
+    ref = dense_frequencies(K, M, np.flatnonzero(X[:, 0] == 0))
+    assert np.allclose(body_frequencies(part(spec).nodal), ref, rtol=1e-8)
+
+
+@pytest.mark.parametrize("layout", ["direction-major", "file"])
+def test_dof_maps_reorder_the_matrices(tmp_path, layout):
+    X, M, K = bar(p2=False)
+    N = len(X)
+    rng = np.random.default_rng(0)
+    perm = (3 * np.arange(N)[None, :] + np.arange(3)[:, None]).ravel() if layout == "direction-major" else rng.permutation(3 * N)
+    write_mm(tmp_path, X, M[perm][:, perm], K[perm][:, perm])          # row r of the files is DOF perm[r]
+    dof_map = layout
+    if layout == "file":
+        (tmp_path / "dofs.txt").write_text("".join(f"{p // 3} {'xyz'[p % 3]}\n" for p in perm))
+        dof_map = "dofs.txt"
+    model = fe.from_matrix_market(tmp_path / "M.mtx", tmp_path / "K.mtx", tmp_path / "nodes.csv", dof_map if layout == "direction-major" else tmp_path / dof_map)
+    assert abs(model.M - M).max() == 0 and abs(model.K - K).max() == 0
+
+
+# -- a free-floating FE body -------------------------------------------------------------------------------
+
+def test_free_floating_fe_body_conserves_energy_and_momentum(tmp_path):
+    X, M, K = bar(p2=False, nx=6)
+    write_mm(tmp_path, X, M, K)
+    spec = scene(tmp_path, f"{{{MM}, method: free, modes: 4, keep: [0]}}",
+                 joint="{type: free, initial_velocity: {velocity: [0.3, -0.2, 0.1], omega: [2, 5, -3]}}",
+                 extra="      coordinates: [part.e1, part.e2, part.e3, part.e4]\n      initial_velocity: {part.e1: 0.5, part.e3: -0.2}\n")
+    ev = mbsfmu.compile(spec)
+    t, Y, YD = mbsfmu.simulate(spec, stop=0.02, step=0.002, method="dopri5", rtol=1e-11, atol=1e-13)
+    energy = np.array([ev.energy(y, yd) for y, yd in zip(Y, YD)])
+    momentum = np.array([(ev.equations(y, yd, 0.0)[0] @ yd)[:3] for y, yd in zip(Y, YD)])  # ∂T/∂ẋ, x cyclic
+    elastic = np.ptp([0.5 * y[-4:] @ part(spec).nodal.stiffness @ y[-4:] for y in Y])
+    assert elastic > 1e-4 * energy[0]                                 # the modes really exchange energy
+    assert np.abs(energy / energy[0] - 1).max() < 1e-8
+    assert np.abs(momentum - momentum[0]).max() < 1e-8 * np.abs(momentum[0]).max()
+
+
+# -- cache -------------------------------------------------------------------------------------------------
+
+def test_reduction_is_cached_by_its_inputs(tmp_path, monkeypatch):
+    X, M, K = bar(p2=False)
+    write_mm(tmp_path, X, M, K)
+    yaml = f"{{{MM}, interface: {{nodes: {np.flatnonzero(X[:, 0] == 0).tolist()}, reference: [0, 0, 0]}}, modes: 3}}"
+    first = part(scene(tmp_path, yaml)).nodal
+    entries = list((tmp_path / "cache" / "fe").glob("*.npz"))
+    assert len(entries) == 1
+    monkeypatch.setattr(cms, "reduce", lambda *a, **k: pytest.fail("reduced again"))
+    assert np.array_equal(part(scene(tmp_path, yaml)).nodal.stiffness, first.stiffness)
+    entries[0].write_bytes(b"not an npz")                               # a damaged entry is computed again
+    monkeypatch.undo()
+    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+    assert np.array_equal(part(scene(tmp_path, yaml)).nodal.stiffness, first.stiffness)
+    K2 = K.copy()
+    K2[3, 3] *= 1.01                                                    # other bytes, another entry
+    write_mm(tmp_path, X, M, K2)
+    part(scene(tmp_path, yaml))
+    assert len(list((tmp_path / "cache" / "fe").glob("*.npz"))) == 2
+
+
+# -- hostile input -----------------------------------------------------------------------------------------
+
+def _break(kind, folder, X, M, K):
+    """Write a broken model of the given kind; return the fe: mapping of the scene."""
+    root = np.flatnonzero(X[:, 0] == 0).tolist()
+    base = f"{MM}, interface: {{nodes: {root}, reference: [0, 0, 0]}}"
+    if kind == "non-symmetric":
+        K = K.tolil()
+        K[0, 5] += 1e3 * abs(K).max()
+        write_mm(folder, X, M, K.tocsr())
+    elif kind == "indefinite":
+        write_mm(folder, X, M, K - 1e-3 * abs(K).max() * sp.eye(K.shape[0]))
+    elif kind == "dof-map-mismatch":
+        write_mm(folder, X[:-1], M, K)
+    elif kind == "mass-couples-directions":
+        M = M.tolil()
+        M[0, 1] = M[1, 0] = 0.1 * M[0, 0]
+        write_mm(folder, X, M.tocsr(), K)
+    elif kind == "missing-node-set":
+        write_mm(folder, X, M, K)
+        base = f"{MM}, interface: {{node_set: flange, reference: [0, 0, 0]}}"
+    elif kind == "huge-header":
+        write_mm(folder, X, M, K)
+        (folder / "K.mtx").write_text("%%MatrixMarket matrix coordinate real general\n1000000 1000000 1000000000000\n1 1 1.0\n")
+    elif kind == "2-GB-file":
+        write_mm(folder, X, M, K)
+        with open(folder / "K.mtx", "r+b") as f:
+            f.truncate(2 * 2**30)
+    elif kind == "no-rigid-modes":                                   # free modes of a supported model
+        write_mm(folder, X, M, K + 1e-2 * abs(K).max() * sp.eye(K.shape[0]))
+        base = f"{MM}, method: free"
+    elif kind == "rotational-dofs":
+        write_abaqus(folder, X, M, K, np.arange(1, len(X) + 1))
+        text = (folder / "K.mtx").read_text().replace(", 3, ", ", 5, ", 1)
+        (folder / "K.mtx").write_text(text)
+        base = "mass: M.mtx, stiffness: K.mtx, nodes: part.inp, format: abaqus, interface: {node_set: root, reference: [0, 0, 0]}"
+    elif kind == "outside-the-folder":
+        write_mm(folder, X, M, K)
+        base = base.replace("M.mtx", "../M.mtx")
+    elif kind == "collinear-interface":
+        write_mm(folder, X, M, K)
+        base = f"{MM}, interface: {{nodes: [{root[0]}], reference: [0, 0, 0]}}"
+    return "{" + base + "}"
+
+
+HOSTILE = {"non-symmetric": "not symmetric", "indefinite": "not positive semi-definite",
+           "dof-map-mismatch": "need", "mass-couples-directions": "consistent mass",
+           "missing-node-set": "no node set 'flange'", "huge-header": "1,000,000,000,000 entries",
+           "2-GB-file": "MiB", "no-rigid-modes": "rigid-body modes", "rotational-dofs": "DOF 5",
+           "outside-the-folder": "outside", "collinear-interface": "does not hold the body"}
+
+
+@pytest.mark.parametrize("kind", sorted(HOSTILE))
+def test_hostile_fe_input_is_one_model_error_line(tmp_path, kind):
+    X, M, K = bar(p2=False, nx=4)
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    fe_yaml = _break(kind, folder, X, M, K)
+    start = time.process_time()
+    with pytest.raises(ModelError) as err:
+        scene(folder, fe_yaml)
+    assert time.process_time() - start < 5
+    text = str(err.value)
+    assert "\n" not in text and "s.yaml:" in text and "bodies.part.elastic.fe" in text, text
+    assert HOSTILE[kind] in text, text
