@@ -5,6 +5,9 @@ Methods and their reference frame condition (the body frame R is the FE model's 
   the reference point, so the interface nodes do not move in R.  Clamping them leaves the fixed-interface
   normal modes; the static constraint modes of the reference's six DOFs are the frame's rigid motion itself, so
   the elastic basis is the fixed-interface modes alone ("clamped at the reference").
+- `craig-bampton` with a node set alone: the frame follows the interface's mean rigid motion (the interface
+  displacements are orthogonal to its six rigid-body fields, equal node weights).  The basis is the
+  fixed-interface modes plus the static constraint modes of the interface's 3·n_I − 6 deformation DOFs.
 - `free`: free-interface normal modes; the six rigid-body modes are found (their count is checked) and removed,
   and the elastic modes are made exactly M-orthogonal to the rigid fields: ∫Φ dm = 0 and ∫R̃Φ dm = 0, the
   linearised mean axes (Buckens/Tisserand).
@@ -27,6 +30,7 @@ import os
 from pathlib import Path
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh, splu
 
@@ -104,10 +108,14 @@ def rigid_fields(X):
     return T.reshape(3 * N, 6)
 
 
+def _dofs(nodes):
+    return (3 * np.asarray(nodes, dtype=np.int64)[:, None] + np.arange(3)).ravel()
+
+
 def craig_bampton(model, interface, modes=None, cutoff_hz=None):
-    """Fixed-interface modes (3N×n, zero at the interface nodes) and their eigenvalues."""
+    """Fixed-interface modes (3N×n, zero at the interface nodes)."""
     fixed = np.zeros(3 * model.n_nodes, bool)
-    fixed[(3 * np.asarray(interface)[:, None] + np.arange(3)).ravel()] = True
+    fixed[_dofs(interface)] = True
     free = np.flatnonzero(~fixed)
     K, M = model.K[free][:, free], model.M[free][:, free]
     scale = _lam_scale(K, M)
@@ -118,7 +126,27 @@ def craig_bampton(model, interface, modes=None, cutoff_hz=None):
                          "remains", hint="an interface of at least three nodes not on one line, one connected part")
     Phi = np.zeros((3 * model.n_nodes, modes))
     Phi[free] = V
-    return lam, Phi
+    return Phi
+
+
+def constraint_modes(model, interface, budget):
+    """Static constraint modes of the interface's deformation: unit interface displacements orthogonal to its
+    six rigid motions (those are the frame's), the inner nodes following statically (K_ii u_i = −K_iI u_I)."""
+    idofs = _dofs(interface)
+    U, sv, _ = np.linalg.svd(rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0)))
+    if len(sv) < 6 or sv[5] < 1e-9 * sv[0]:
+        raise ModelError(f"{model.source}: the interface nodes do not fix a frame (fewer than three, or on one line)",
+                         hint="give at least three interface nodes not on one line, or a reference point")
+    basis = U[:, 6:]
+    if basis.shape[1] > budget:
+        raise ModelError(f"{model.source}: {len(interface)} interface nodes give {basis.shape[1]} constraint modes, "
+                         f"at most {budget} fit", hint="tie a large interface to a reference point (reference: [x, y, z])")
+    inner = np.setdiff1d(np.arange(3 * model.n_nodes), idofs)
+    lu, _ = _factor(model.K[inner][:, inner], model.source, "the stiffness of the inner nodes")
+    Psi = np.zeros((3 * model.n_nodes, basis.shape[1]))
+    Psi[idofs] = basis
+    Psi[inner] = -lu.solve(np.asarray(model.K[inner][:, idofs] @ basis))
+    return Psi
 
 
 def free_modes(model, modes=None, cutoff_hz=None):
@@ -136,7 +164,7 @@ def free_modes(model, modes=None, cutoff_hz=None):
     MR = M @ R
     Phi = V[:, 6:]
     Phi = Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi)   # exact mean-axis condition, not only to eigsh's tol
-    return lam[6:], Phi
+    return Phi
 
 
 def moments(model, Phi):
@@ -156,15 +184,22 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
     Psi, modal stiffness, the mass moments and the frequencies (Hz)."""
     if method == "craig-bampton":
-        if interface is None or reference is None:
-            raise ModelError("craig-bampton needs an interface: a node set and its reference point",
+        if interface is None:
+            raise ModelError("craig-bampton needs an interface: a node set, optionally tied to a reference point",
                              hint="interface: {node_set: name, reference: [x, y, z]}")
-        lam, Phi = craig_bampton(model, interface, modes, cutoff_hz)
+        statics = np.zeros((3 * model.n_nodes, 0))
+        if reference is None:   # the interface moves with the frame on average: its deformation is kept
+            statics = constraint_modes(model, interface, limits.FE_MODES - (modes or 1))
+        Phi = craig_bampton(model, interface, modes, cutoff_hz)
+        if Phi.shape[1] + statics.shape[1] > limits.FE_MODES:
+            raise ModelError(f"{model.source}: {Phi.shape[1]} + {statics.shape[1]} constraint modes, at most "
+                             f"{limits.FE_MODES}", hint="lower cutoff_hz, or tie the interface to a reference point")
+        Phi = np.hstack([Phi, statics])
     elif method == "free":
         if reference is not None:
             raise ModelError("free-interface modes with a reference point are not supported yet",
                              hint="attach at kept nodes (`keep`), or use craig-bampton")
-        lam, Phi = free_modes(model, modes, cutoff_hz)
+        Phi = free_modes(model, modes, cutoff_hz)
     else:
         raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
     N, n = model.n_nodes, Phi.shape[1]
@@ -172,13 +207,15 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     Phi = Phi / _largest(Phi)
     mo = moments(model, Phi)
     K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
+    K_ee = 0.5 * (K_ee + K_ee.T)
+    lam = scipy.linalg.eigvalsh(K_ee, mo.M_ee)   # the reduced body's own frequencies
     keep = list(keep)
     R_RP = model.nodes[keep]
     Phi_kept = Phi[keep]
     if reference is not None:   # the reference point is clamped to the frame: Φ = Ψ = 0 there
         R_RP = np.vstack([np.asarray(reference, float)[None, :], R_RP])
         Phi_kept = np.concatenate([np.zeros((1, 3, n)), Phi_kept])
-    return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": np.zeros_like(Phi_kept), "stiffness": 0.5 * (K_ee + K_ee.T),
+    return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": np.zeros_like(Phi_kept), "stiffness": K_ee,
             "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "m": np.array(mo.m), "S0": mo.S0,
             "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
 
