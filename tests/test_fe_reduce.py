@@ -320,3 +320,22 @@ def test_hostile_fe_input_is_one_model_error_line(tmp_path, kind):
     text = str(err.value)
     assert "\n" not in text and "s.yaml:" in text and "bodies.part.elastic.fe" in text, text
     assert HOSTILE[kind] in text, text
+
+
+# -- the shipped example -----------------------------------------------------------------------------------
+
+def test_check_prints_the_shipped_links_frequencies_of_the_full_model(capsys):
+    """`mbsfmu check models/fe_link.yaml`: the reduced body's frequencies are those of the full link (read with
+    scipy's own Matrix Market reader) clamped at its root face, to the 4 digits printed; one line, no traceback."""
+    from pathlib import Path
+
+    from mbsfmu.cli import main
+    models = Path(__file__).resolve().parents[1] / "models"
+    M, K = (sp.csr_matrix(scipy.io.mmread(models / "fe" / f"link_{w}.mtx")) for w in ("mass", "stiffness"))
+    X = np.loadtxt(models / "fe" / "link_nodes.csv", delimiter=",")
+    ref = dense_frequencies(K, M, np.flatnonzero(X[:, 0] == 0), count=4)
+    main(["check", str(models / "fe_link.yaml")])
+    line = next(x for x in capsys.readouterr().out.splitlines() if "elastic link" in x)
+    shown = [float(f) for f in line.split(" at ")[1].split(" Hz")[0].split(", ")]
+    assert np.allclose(shown, ref, rtol=5e-4), (shown, ref)
+    assert f"mass {RHO * 0.5 * 0.04 * 0.01:g} kg" in line

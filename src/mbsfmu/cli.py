@@ -144,6 +144,20 @@ def _check(args):
     print("  y  = " + ", ".join(ev.coordinates))
     print("  ẏ  = " + ", ".join(ev.velocity_coordinates))
     print("  inputs: " + ", ".join(ev.inputs))
+    for b in ev.model.bodies:
+        if b.elastic:
+            print("  " + _elastic_summary(b))
+
+
+def _elastic_summary(body):
+    """One line on an elastic body: its modes' frequencies (from its modal stiffness and mass), mass, nodes."""
+    import numpy as np
+    from scipy.linalg import eigvalsh
+    inv = body.inv
+    hz = np.sqrt(np.clip(eigvalsh(inv.K, inv.M_ee), 0, None)) / (2 * np.pi)
+    shown = ", ".join(f"{f:.4g}" for f in hz[:8]) + (", …" if len(hz) > 8 else "")
+    return (f"elastic {body.name}: {inv.n} mode{'s' if inv.n != 1 else ''} at {shown} Hz (undamped, frame held), "
+            f"mass {inv.m:.6g} kg, {body.nodal.nodes} node{'s' if body.nodal.nodes != 1 else ''}")
 
 
 def _convert(args):
