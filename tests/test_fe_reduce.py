@@ -135,6 +135,27 @@ def test_free_modes_match_the_full_model_and_satisfy_mean_axes():
     assert np.allclose(body_frequencies(cms.nodal_data(r)), ref, rtol=1e-8)
 
 
+def test_free_modes_with_an_rbe2_reference():
+    """Free modes with the end face tied rigidly to a reference point.  Reference: the full model constrained
+    to a rigid end face (dense LAPACK on the null space of the face's 3n − 6 deformation components); the
+    reference node's Φ, Ψ move the face nodes rigidly (u = Φ_R q + Ψ_R q × (X − X_R)); mean axes."""
+    X, M, K = bar(p2=False, nx=8)
+    root = np.flatnonzero(X[:, 0] == 0)
+    ref_point = np.array([-0.1, 0.05, 0.05])                   # off the body: where a joint would sit
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), "free", interface=root, reference=ref_point, keep=root.tolist(), modes=6)
+    U = np.linalg.svd(cms.rigid_fields(X[root]))[0]
+    C = np.zeros((3 * len(root) - 6, K.shape[0]))
+    C[:, (3 * root[:, None] + np.arange(3)).ravel()] = U[:, 6:].T
+    Z = scipy.linalg.null_space(C)
+    lam = scipy.linalg.eigh(Z.T @ (K @ Z), Z.T @ (M @ Z), eigvals_only=True)[6:12]
+    assert np.allclose(r["frequencies"], np.sqrt(lam) / (2 * np.pi), rtol=1e-8)
+    Phi_R, Psi_R = r["Phi"][0], r["Psi"][0]
+    for P, X_P in zip(r["Phi"][1:], X[root]):
+        assert np.allclose(P, Phi_R + np.cross(Psi_R.T, X_P - ref_point).T, atol=1e-12)
+    inv = invariants(cms.nodal_data(r))
+    assert np.abs(inv.C_t).max() < 1e-12 * inv.m and np.abs(inv.C_r0).max() < 1e-12 * inv.m * L
+
+
 def test_cutoff_gives_exactly_the_modes_below_it():
     X, M, K = bar(p2=False)
     root = np.flatnonzero(X[:, 0] == 0)

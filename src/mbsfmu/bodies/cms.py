@@ -10,7 +10,9 @@ Methods and their reference frame condition (the body frame R is the FE model's 
   fixed-interface modes plus the static constraint modes of the interface's 3·n_I − 6 deformation DOFs.
 - `free`: free-interface normal modes; the six rigid-body modes are found (their count is checked) and removed,
   and the elastic modes are made exactly M-orthogonal to the rigid fields: ∫Φ dm = 0 and ∫R̃Φ dm = 0, the
-  linearised mean axes (Buckens/Tisserand).
+  linearised mean axes (Buckens/Tisserand).  With a reference point the interface is tied to it rigidly (RBE2:
+  the reference gains six DOFs u_R, θ_R, the interface nodes follow them) before the modes are found, and the
+  reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.
 Modes come from a sparse shift-invert Lanczos (eigsh) on the factor of K − σM (σ < 0, so K positive
 semi-definite makes it positive definite).  That factor is an LDLᵀ (diagonal pivots), so by Sylvester's law
 its negative pivots count the eigenvalues below σ: an indefinite K is refused, and a frequency cut-off is turned
@@ -133,11 +135,7 @@ def constraint_modes(model, interface, budget):
     """Static constraint modes of the interface's deformation: unit interface displacements orthogonal to its
     six rigid motions (those are the frame's), the inner nodes following statically (K_ii u_i = −K_iI u_I)."""
     idofs = _dofs(interface)
-    U, sv, _ = np.linalg.svd(rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0)))
-    if len(sv) < 6 or sv[5] < 1e-9 * sv[0]:
-        raise ModelError(f"{model.source}: the interface nodes do not fix a frame (fewer than three, or on one line)",
-                         hint="give at least three interface nodes not on one line, or a reference point")
-    basis = U[:, 6:]
+    basis = _interface_frame(model, interface)[:, 6:]
     if basis.shape[1] > budget:
         raise ModelError(f"{model.source}: {len(interface)} interface nodes give {basis.shape[1]} constraint modes, "
                          f"at most {budget} fit", hint="tie a large interface to a reference point (reference: [x, y, z])")
@@ -149,22 +147,57 @@ def constraint_modes(model, interface, budget):
     return Psi
 
 
-def free_modes(model, modes=None, cutoff_hz=None):
-    """Free-interface elastic modes, M-orthogonal to the six rigid-body fields (mean axes), and eigenvalues."""
-    K, M = model.K, model.M
+def free_modes(K, M, R, source, modes=None, cutoff_hz=None):
+    """Free-interface elastic modes of K, M, M-orthogonal to the rigid-body fields R (n×6): mean axes."""
     scale = _lam_scale(K, M)
-    modes = _mode_count(K, M, modes, cutoff_hz, 6, model.source, scale)
-    lam, V = _lowest(K, M, modes + 6, model.source, scale)
+    modes = _mode_count(K, M, modes, cutoff_hz, 6, source, scale)
+    lam, V = _lowest(K, M, modes + 6, source, scale)
     rigid = int(np.count_nonzero(np.abs(lam) < RIGID * scale))
     if rigid != 6:
-        raise ModelError(f"{model.source}: {rigid} rigid-body modes found where a free body has 6",
+        raise ModelError(f"{source}: {rigid} rigid-body modes found where a free body has 6",
                          hint="fewer: the model is supported (remove the supports or use craig-bampton); "
                               "more: a mechanism or disconnected parts")
-    R = rigid_fields(model.nodes)
     MR = M @ R
     Phi = V[:, 6:]
-    Phi = Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi)   # exact mean-axis condition, not only to eigsh's tol
-    return Phi
+    return Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi)   # exact mean-axis condition, not only to eigsh's tol
+
+
+def rbe2(model, interface, reference):
+    """T (3N × 3(N − n_I) + 6): the interface nodes follow the reference point rigidly, u = u_R + θ_R × (X − X_R);
+    the new DOFs are the other nodes' x y z, then the reference's u_R, θ_R (its last six)."""
+    _interface_frame(model, interface)
+    N = model.n_nodes
+    others = np.setdiff1d(np.arange(N), interface)
+    k = 3 * len(others)
+    rows, cols, vals = list(_dofs(others)), list(range(k)), [1.0] * k
+    arm = rigid_fields(model.nodes[interface] - np.asarray(reference, float)).reshape(len(interface), 3, 6)
+    for n, node in enumerate(interface):
+        for i in range(3):
+            for j in np.flatnonzero(arm[n, i]):
+                rows.append(3 * node + i)
+                cols.append(k + j)
+                vals.append(arm[n, i, j])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(3 * N, k + 6))
+
+
+def free_modes_rbe2(model, interface, reference, modes=None, cutoff_hz=None):
+    """Free modes with the interface tied rigidly to the reference point: the modes (3N×n) and the reference's
+    own motion u_R, θ_R in them (6×n)."""
+    T = rbe2(model, interface, reference)
+    others = np.setdiff1d(np.arange(model.n_nodes), interface)
+    R = np.vstack([rigid_fields(model.nodes[others]), rigid_fields(np.asarray(reference, float)[None, :]),
+                   np.hstack([np.zeros((3, 3)), np.eye(3)])])           # rigid fields in T's DOFs
+    red = free_modes(T.T @ model.K @ T, T.T @ model.M @ T, R, model.source, modes, cutoff_hz)
+    return T @ red, red[-6:]
+
+
+def _interface_frame(model, interface):
+    """An orthonormal basis (U, 3n_I × 3n_I) whose first six columns span the interface's rigid motions."""
+    U, sv, _ = np.linalg.svd(rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0)))
+    if len(sv) < 6 or sv[5] < 1e-9 * sv[0]:
+        raise ModelError(f"{model.source}: the interface nodes do not fix a frame (fewer than three, or on one line)",
+                         hint="give at least three interface nodes not on one line, or a reference point")
+    return U
 
 
 def moments(model, Phi):
@@ -195,16 +228,19 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
             raise ModelError(f"{model.source}: {Phi.shape[1]} + {statics.shape[1]} constraint modes, at most "
                              f"{limits.FE_MODES}", hint="lower cutoff_hz, or tie the interface to a reference point")
         Phi = np.hstack([Phi, statics])
+    elif method == "free" and reference is None:
+        Phi = free_modes(model.K, model.M, rigid_fields(model.nodes), model.source, modes, cutoff_hz)
     elif method == "free":
-        if reference is not None:
-            raise ModelError("free-interface modes with a reference point are not supported yet",
-                             hint="attach at kept nodes (`keep`), or use craig-bampton")
-        Phi = free_modes(model, modes, cutoff_hz)
+        if interface is None:
+            raise ModelError("a reference point needs its interface node set",
+                             hint="interface: {node_set: name, reference: [x, y, z]}")
+        Phi, at_reference = free_modes_rbe2(model, interface, reference, modes, cutoff_hz)
     else:
         raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
     N, n = model.n_nodes, Phi.shape[1]
     Phi = Phi.reshape(N, 3, n)
-    Phi = Phi / _largest(Phi)
+    scale = _largest(Phi)
+    Phi = Phi / scale
     mo = moments(model, Phi)
     K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
     K_ee = 0.5 * (K_ee + K_ee.T)
@@ -212,10 +248,13 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     keep = list(keep)
     R_RP = model.nodes[keep]
     Phi_kept = Phi[keep]
-    if reference is not None:   # the reference point is clamped to the frame: Φ = Ψ = 0 there
+    Psi_kept = np.zeros_like(Phi_kept)
+    if reference is not None:   # craig-bampton: clamped to the frame (Φ = Ψ = 0); free: its u_R, θ_R
+        ref = at_reference.reshape(2, 3, n) / scale if method == "free" else np.zeros((2, 3, n))
         R_RP = np.vstack([np.asarray(reference, float)[None, :], R_RP])
-        Phi_kept = np.concatenate([np.zeros((1, 3, n)), Phi_kept])
-    return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": np.zeros_like(Phi_kept), "stiffness": K_ee,
+        Phi_kept = np.concatenate([ref[:1], Phi_kept])
+        Psi_kept = np.concatenate([ref[1:], Psi_kept])
+    return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": Psi_kept, "stiffness": K_ee,
             "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "m": np.array(mo.m), "S0": mo.S0,
             "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
 
