@@ -3,6 +3,7 @@ invariants, the `elastic: fe:` scene key and its cache.  References: the full FE
 (scipy.linalg.eigh) with the same boundary condition, closed-form box moments, the lumped-mass sums of the
 nodal path, conservation laws of a free body, and the Matrix Market and Abaqus COORDINATE file formats."""
 
+import os
 import time
 
 import numpy as np
@@ -314,6 +315,23 @@ def _break(kind, folder, X, M, K):
     elif kind == "collinear-interface":
         write_mm(folder, X, M, K)
         base = f"{MM}, interface: {{nodes: [{root[0]}], reference: [0, 0, 0]}}"
+    elif kind == "fifo":
+        write_mm(folder, X, M, K)
+        (folder / "K.mtx").unlink()
+        os.mkfifo(folder / "K.mtx")
+    elif kind == "garbage-entries":
+        write_mm(folder, X, M, K)
+        with open(folder / "K.mtx", "ab") as f:
+            f.write(b"17 x 0.5\n\xff\xfe 3\n")
+    elif kind == "entry-out-of-range":
+        write_mm(folder, X, M, K)
+        text = (folder / "K.mtx").read_text().splitlines()
+        text[3] = f"{K.shape[0] + 5} 1 1.0"
+        (folder / "K.mtx").write_text("\n".join(text) + "\n")
+    elif kind == "unknown-node-label":
+        write_abaqus(folder, X, M, K, np.arange(1, len(X) + 1))
+        (folder / "M.mtx").write_text((folder / "M.mtx").read_text() + "99999, 1, 99999, 1, 1.0\n")
+        base = "mass: M.mtx, stiffness: K.mtx, nodes: part.inp, format: abaqus, interface: {node_set: root, reference: [0, 0, 0]}"
     elif kind == "one-node-interface":
         write_mm(folder, X, M, K)
         base = f"{MM}, interface: {{nodes: [{root[0]}]}}"
@@ -325,7 +343,9 @@ HOSTILE = {"non-symmetric": "not symmetric", "indefinite": "not positive semi-de
            "missing-node-set": "no node set 'flange'", "huge-header": "1,000,000,000,000 entries",
            "2-GB-file": "MiB", "no-rigid-modes": "rigid-body modes", "rotational-dofs": "DOF 5",
            "outside-the-folder": "outside", "collinear-interface": "does not hold the body",
-           "one-node-interface": "do not fix a frame"}
+           "one-node-interface": "do not fix a frame", "fifo": "not a regular file",
+           "garbage-entries": "cannot read the matrix", "entry-out-of-range": "cannot read the matrix",
+           "unknown-node-label": "node label 99999"}
 
 
 @pytest.mark.parametrize("kind", sorted(HOSTILE))

@@ -611,6 +611,9 @@ class _Checker:
                 self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition {_shown(beam['clamped'])}", _suggest(beam["clamped"], ("start", "none")))
             out["beam"] = beam
         elif "fe" in e:
+            if e.get("dynamic_stiffening"):
+                self.fail(e, "dynamic_stiffening", path + ".dynamic_stiffening", "dynamic stiffening is not available for FE bodies yet",
+                          "leave it out (false); the beam generator has it")
             out["fe"] = self.fe(e, path)
         else:
             out["nodal"] = self.nodal(e, path)
