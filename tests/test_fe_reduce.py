@@ -112,7 +112,7 @@ def test_craig_bampton_node_set_interface_converges_to_the_full_model():
     constraints (dense LAPACK on their null space).  10 fixed-interface modes: first six within 0.5 %."""
     X, M, K = bar()
     root = np.flatnonzero(X[:, 0] == 0)
-    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), interface=root, modes=10)
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), interface=root, keep=[0], modes=10)
     idofs = (3 * root[:, None] + np.arange(3)).ravel()
     C = np.zeros((6, K.shape[0]))
     C[:, idofs] = cms.rigid_fields(X[root]).T
@@ -303,7 +303,7 @@ def _break(kind, folder, X, M, K):
             f.truncate(2 * 2**30)
     elif kind == "no-rigid-modes":                                   # free modes of a supported model
         write_mm(folder, X, M, K + 1e-2 * abs(K).max() * sp.eye(K.shape[0]))
-        base = f"{MM}, method: free"
+        base = f"{MM}, method: free, keep: [0]"
     elif kind == "rotational-dofs":
         write_abaqus(folder, X, M, K, np.arange(1, len(X) + 1))
         text = (folder / "K.mtx").read_text().replace(", 3, ", ", 5, ", 1)
@@ -332,9 +332,12 @@ def _break(kind, folder, X, M, K):
         write_abaqus(folder, X, M, K, np.arange(1, len(X) + 1))
         (folder / "M.mtx").write_text((folder / "M.mtx").read_text() + "99999, 1, 99999, 1, 1.0\n")
         base = "mass: M.mtx, stiffness: K.mtx, nodes: part.inp, format: abaqus, interface: {node_set: root, reference: [0, 0, 0]}"
+    elif kind == "no-kept-node":
+        write_mm(folder, X, M, K)
+        base = f"{MM}, method: free"
     elif kind == "one-node-interface":
         write_mm(folder, X, M, K)
-        base = f"{MM}, interface: {{nodes: [{root[0]}]}}"
+        base = f"{MM}, interface: {{nodes: [{root[0]}]}}, keep: [0]"
     return "{" + base + "}"
 
 
@@ -345,7 +348,7 @@ HOSTILE = {"non-symmetric": "not symmetric", "indefinite": "not positive semi-de
            "outside-the-folder": "outside", "collinear-interface": "does not hold the body",
            "one-node-interface": "do not fix a frame", "fifo": "not a regular file",
            "garbage-entries": "cannot read the matrix", "entry-out-of-range": "cannot read the matrix",
-           "unknown-node-label": "node label 99999"}
+           "unknown-node-label": "node label 99999", "no-kept-node": "no node is kept"}
 
 
 @pytest.mark.parametrize("kind", sorted(HOSTILE))

@@ -45,6 +45,7 @@ METHODS = ("craig-bampton", "free")
 SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positive semi-definite K, by far more than roundoff
 RIGID = 1e-9      # |λ| < RIGID·λ_scale: a zero-frequency (rigid-body) mode
 CACHE_VERSION = "cms-1"
+DEFAULT_MODES = 10
 
 
 def _lam_scale(K, M):
@@ -90,6 +91,8 @@ def _count_below(K, M, lam, source):
 
 
 def _mode_count(K, M, modes, cutoff_hz, rigid, source, scale):
+    if cutoff_hz is None and modes is None:
+        modes = DEFAULT_MODES
     if cutoff_hz is not None:
         modes = _count_below(K, M, (2 * np.pi * cutoff_hz) ** 2, source) - rigid
         if modes < 1:
@@ -216,6 +219,11 @@ def moments(model, Phi):
 def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None):
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
     Psi, modal stiffness, the mass moments and the frequencies (Hz)."""
+    if interface is not None:
+        interface = np.unique(np.asarray(interface, dtype=np.int64))
+    if reference is None and not len(keep):
+        raise ModelError("no node is kept: a reduced body needs at least one (the engine's nodes carry joints, "
+                         "forces and outputs)", hint="keep: [node indices], or an interface reference point")
     if method == "craig-bampton":
         if interface is None:
             raise ModelError("craig-bampton needs an interface: a node set, optionally tied to a reference point",
@@ -272,6 +280,8 @@ def nodal_data(reduced, damping_ratio=0.0):
     """NodalData of a reduced body (arrays or lists, as the normalized scene holds them)."""
     r = {k: np.asarray(reduced[k], float) for k in REDUCED}
     n = r["stiffness"].shape[0]
+    r["R_RP"] = r["R_RP"].reshape(-1, 3)                 # no kept nodes: JSON holds [] for (0, 3)
+    r["Phi"], r["Psi"] = r["Phi"].reshape(-1, 3, n), r["Psi"].reshape(-1, 3, n)
     mo = MassMoments(float(r["m"]), r["S0"], r["S_RR"], r["C_t"], r["A"], r["B"],
                      np.zeros((3, 3)), np.zeros((3, n)), np.zeros((n, n)))
     D = damping_from_ratio(mo.M_ee, r["stiffness"], damping_ratio) if damping_ratio else None

@@ -678,7 +678,7 @@ class _Checker:
         if "cutoff_hz" in node:
             params["cutoff_hz"] = self.plain_number(node, "cutoff_hz", path + ".cutoff_hz", positive=True)
         else:
-            params["modes"] = node.get("modes", 10)
+            params["modes"] = node.get("modes", cms.DEFAULT_MODES)
             if not isinstance(params["modes"], int) or isinstance(params["modes"], bool) or not 1 <= params["modes"] <= limits.FE_MODES:
                 self.fail(node, "modes", path + ".modes", f"must be an integer in 1 … {limits.FE_MODES}, got {_shown(params['modes'])}")
         if "interface" in node:
