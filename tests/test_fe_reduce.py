@@ -291,6 +291,10 @@ def _break(kind, folder, X, M, K):
         M = M.tolil()
         M[0, 1] = M[1, 0] = 0.1 * M[0, 0]
         write_mm(folder, X, M.tocsr(), K)
+    elif kind == "indefinite-mass":                               # positive diagonal, one negative eigenvalue
+        Ms = M[0::3, 0::3].tolil()
+        Ms[0, 1] = Ms[1, 0] = 3 * max(Ms[0, 0], Ms[1, 1])
+        write_mm(folder, X, sp.csr_matrix(sp.kron(Ms.tocsr(), sp.eye(3))), K)
     elif kind == "missing-node-set":
         write_mm(folder, X, M, K)
         base = f"{MM}, interface: {{node_set: flange, reference: [0, 0, 0]}}"
@@ -348,7 +352,8 @@ HOSTILE = {"non-symmetric": "not symmetric", "indefinite": "not positive semi-de
            "outside-the-folder": "outside", "collinear-interface": "does not hold the body",
            "one-node-interface": "do not fix a frame", "fifo": "not a regular file",
            "garbage-entries": "cannot read the matrix", "entry-out-of-range": "cannot read the matrix",
-           "unknown-node-label": "node label 99999", "no-kept-node": "no node is kept"}
+           "unknown-node-label": "node label 99999", "no-kept-node": "no node is kept",
+           "indefinite-mass": "mass matrix is not positive definite"}
 
 
 @pytest.mark.parametrize("kind", sorted(HOSTILE))

@@ -68,6 +68,13 @@ def _factor(A, source, what):
     return lu, int(np.count_nonzero(d < 0))
 
 
+def _check_mass(model):
+    """M = M_s ⊗ E positive definite: no negative (or zero) pivot in the factor of the scalar M_s."""
+    if _factor(model.M[0::3, 0::3], model.source, "the mass matrix")[1]:
+        raise ModelError(f"{model.source}: the mass matrix is not positive definite",
+                         hint="a consistent or lumped mass of positive density; check the elements and the DOF map")
+
+
 def _lowest(K, M, k, source, scale):
     """The k lowest eigenpairs of K x = λ M x (shift-invert about σ < 0); refuses an indefinite K."""
     sigma = -SHIFT * scale
@@ -219,6 +226,7 @@ def moments(model, Phi):
 def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None):
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
     Psi, modal stiffness, the mass moments and the frequencies (Hz)."""
+    _check_mass(model)
     if interface is not None:
         interface = np.unique(np.asarray(interface, dtype=np.int64))
     if reference is None and not len(keep):
