@@ -388,3 +388,19 @@ def test_check_prints_the_shipped_links_frequencies_of_the_full_model(capsys):
     shown = [float(f) for f in line.split(" at ")[1].split(" Hz")[0].split(", ")]
     assert np.allclose(shown, ref, rtol=5e-4), (shown, ref)
     assert f"mass {RHO * 0.5 * 0.04 * 0.01:g} kg" in line
+
+
+def test_compiled_scene_size_does_not_depend_on_the_fe_model(tmp_path):
+    """Only the reduced body reaches the compiled scene (what both FMU kinds carry): a tet4 and a tet10 mesh of
+    the bar (4× the DOFs) with the same modes and kept nodes compile to the same number of bytes."""
+    from mbsfmu.simulation import compiled
+    sizes = []
+    for p2 in (False, True):
+        folder = tmp_path / f"p2_{p2}"
+        folder.mkdir()
+        X, M, K = bar(p2=p2)
+        write_mm(folder, X, M, K)
+        tip = int(np.argmax(X.sum(1)))
+        spec = scene(folder, f"{{{MM}, interface: {{nodes: {np.flatnonzero(X[:, 0] == 0).tolist()}, reference: [0, 0, 0]}}, modes: 5, keep: [{tip}]}}")
+        sizes.append((K.shape[0], len(compiled(spec.spec)[0])))
+    assert sizes[1][0] > 4 * sizes[0][0] and sizes[0][1] == sizes[1][1], sizes
