@@ -404,3 +404,49 @@ def test_compiled_scene_size_does_not_depend_on_the_fe_model(tmp_path):
         spec = scene(folder, f"{{{MM}, interface: {{nodes: {np.flatnonzero(X[:, 0] == 0).tolist()}, reference: [0, 0, 0]}}, modes: 5, keep: [{tip}]}}")
         sizes.append((K.shape[0], len(compiled(spec.spec)[0])))
     assert sizes[1][0] > 4 * sizes[0][0] and sizes[0][1] == sizes[1][1], sizes
+
+
+def test_exudyn_computes_the_same_accelerations_from_the_full_fe_matrices():
+    """Exudyn's ObjectFFRFreducedOrder, given the full consistent M, K, the nodes and the same Craig–Bampton
+    basis, builds its own invariants from M: its accelerations of the free body at a rotated state with ω, q,
+    q̇ equal ours from the quadratic-form moments (cms.moments) through ffrf's equations."""
+    exu = pytest.importorskip("exudyn")
+    from exudyn.FEM import FEMinterface, ObjectFFRFreducedOrderInterface
+
+    from mbsfmu.bodies.ffrf import elastic_forces, mass_matrix, quadratic_forces
+    from mbsfmu.bodies.nodal import NodalData
+    from mbsfmu.kinematics.rotations import axis_angle
+    X, M, K = bar(p2=True, nx=3)
+    model = fe.FEModel(X, M, K, {}, "bar")
+    Phi = cms.craig_bampton(model, np.flatnonzero(X[:, 0] == 0), modes=3)
+    n = Phi.shape[1]
+    K_ee = Phi.T @ (K @ Phi)
+    inv = invariants(NodalData(X[:1], [0.0], Phi[:3, None, :].reshape(1, 3, n), K_ee,
+                               mass_points=cms.moments(model, Phi.reshape(len(X), 3, n))))
+    S = axis_angle(np.array([1.0, 2.0, 2.0]) / 3.0, 0.7)
+    v, w = np.array([0.3, -0.1, -0.2]), np.array([0.4, 1.3, -0.5])          # R components
+    q, qd = np.array([1e-4, -4e-5, 2e-5]), np.array([0.02, 0.01, -0.03])
+    z = np.linalg.solve(mass_matrix(inv, q), elastic_forces(inv, q, qd) - quadratic_forces(inv, q, qd, w))
+
+    fem = FEMinterface()
+    fem.nodes = {"Position": X}
+    fem.massMatrix, fem.stiffnessMatrix = sp.csr_matrix(M), sp.csr_matrix(K)
+    fem.modeBasis = {"matrix": Phi, "type": "NormalModes"}
+    reduced = ObjectFFRFreducedOrderInterface(fem, rigidBodyNodeType="NodeType.RotationRotationVector")
+    mbs = exu.SystemContainer().AddSystem()
+    obj = reduced.AddObjectFFRFreducedOrder(mbs, initialVelocity=list(S @ v), initialAngularVelocity=list(S @ w),
+                                            rotationMatrixRef=S)
+    mbs.SetNodeParameter(obj["nGenericODE2"], "initialCoordinates", list(q))
+    mbs.SetNodeParameter(obj["nGenericODE2"], "initialCoordinates_t", list(qd))
+    mbs.Assemble()
+    settings = exu.SimulationSettings()
+    settings.timeIntegration.verboseMode = 0
+    settings.solution.file.write = False
+    solver = exu.MainSolverImplicitSecondOrder()
+    solver.InitializeSolver(mbs, settings)
+    solver.ComputeMassMatrix(mbs)
+    solver.ComputeODE2RHS(mbs)
+    k = 6 + n
+    ydd = np.linalg.solve(np.asarray(solver.GetSystemMassMatrix())[:k, :k], np.asarray(solver.GetSystemResidual())[:k])
+    np.testing.assert_allclose(ydd[:3], S @ z[:3], atol=1e-9 * np.abs(z[:3]).max())       # a_IR (world)
+    np.testing.assert_allclose(ydd[6:], z[6:], atol=1e-9 * np.abs(z[6:]).max())          # q̈
