@@ -450,3 +450,16 @@ def test_exudyn_computes_the_same_accelerations_from_the_full_fe_matrices():
     ydd = np.linalg.solve(np.asarray(solver.GetSystemMassMatrix())[:k, :k], np.asarray(solver.GetSystemResidual())[:k])
     np.testing.assert_allclose(ydd[:3], S @ z[:3], atol=1e-9 * np.abs(z[:3]).max())       # a_IR (world)
     np.testing.assert_allclose(ydd[6:], z[6:], atol=1e-9 * np.abs(z[6:]).max())          # q̈
+
+
+def test_cli_prints_one_line_for_a_broken_fe_model(tmp_path):
+    import subprocess
+    import sys
+    X, M, K = bar(p2=False, nx=4)
+    write_mm(tmp_path, X, M, K - 1e-3 * abs(K).max() * sp.eye(K.shape[0]))
+    (tmp_path / "s.yaml").write_text(f"mbsfmu: 1\nname: t\nbodies:\n  part:\n    parent: world\n    joint: {{type: fixed}}\n"
+                                     f"    elastic:\n      fe: {{{MM}, interface: {{nodes: [0, 1, 2], reference: [0, 0, 0]}}}}\n")
+    r = subprocess.run([sys.executable, "-m", "mbsfmu.cli", "check", str(tmp_path / "s.yaml")], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 1 and r.stdout == "" and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "not positive semi-definite" in r.stderr, r.stderr
