@@ -463,3 +463,27 @@ def test_cli_prints_one_line_for_a_broken_fe_model(tmp_path):
                        text=True, timeout=120)
     assert r.returncode == 1 and r.stdout == "" and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "not positive semi-definite" in r.stderr, r.stderr
+
+
+FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep")
+
+
+VALID = {("node_sets", "null"), ("keep", "[1, 2]"), ("cutoff_hz", "99999")}   # no node sets; two nodes; ≤ 100 modes
+
+
+def test_every_fe_key_with_a_wrong_value_is_a_model_error_at_that_key(tmp_path):
+    X, M, K = bar(p2=False, nx=3)
+    write_mm(tmp_path, X, M, K)
+    for key in FE_KEYS + ("interface.node_set", "interface.nodes", "interface.reference"):
+        for value in ("[1, 2]", "{a: 1}", "-1", "1e400", "null", "true", "x", "[[1]]", "99999"):
+            base = {"mass": "M.mtx", "stiffness": "K.mtx", "nodes": "nodes.csv", "keep": "[0]",
+                    "interface": "{nodes: [0, 1, 2], reference: [0, 0, 0]}"}
+            if (key, value) in VALID:
+                continue
+            if key.startswith("interface."):
+                base["interface"] = f"{{{key.split('.')[1]}: {value}}}"
+            else:
+                base[key] = value
+            with pytest.raises(ModelError) as err:
+                scene(tmp_path, "{" + ", ".join(f"{k}: {v}" for k, v in base.items()) + "}")
+            assert (err.value.key or "").startswith("bodies.part.elastic.fe") and "\n" not in str(err.value), (key, value, str(err.value))

@@ -671,6 +671,8 @@ class _Checker:
                 self.fail(node, "dof_map", path + ".dof_map", "Abaqus files name their DOFs; no dof_map")
             dof_map = files["dof_map"] = self.fe_file(node, "dof_map", path)
         sets = {}
+        if not isinstance(node.get("node_sets") or Map(), Map):
+            self.fail(node, "node_sets", path + ".node_sets", "expected a mapping name: [node indices]")
         for name in node.get("node_sets") or {}:
             sets[name] = self.fe_nodes(node["node_sets"], name, f"{path}.node_sets.{name}")
         params = {"method": method, "keep": self.fe_nodes(node, "keep", path + ".keep") if "keep" in node else [],
