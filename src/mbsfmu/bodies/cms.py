@@ -44,7 +44,7 @@ from .nodal import MassMoments, NodalData, damping_from_ratio
 METHODS = ("craig-bampton", "free")
 SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positive semi-definite K, by far more than roundoff
 RIGID = 1e-9      # |λ| < RIGID·λ_scale: a zero-frequency (rigid-body) mode
-CACHE_VERSION = "cms-1"
+CACHE_VERSION = "cms-2"
 DEFAULT_MODES = 10
 
 
@@ -261,10 +261,7 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
     K_ee = 0.5 * (K_ee + K_ee.T)
     lam = scipy.linalg.eigvalsh(K_ee, mo.M_ee)   # the reduced body's own frequencies
-    keep = list(keep)
-    R_RP = model.nodes[keep]
-    Phi_kept = Phi[keep]
-    Psi_kept = np.zeros_like(Phi_kept)
+    R_RP, Phi_kept, Psi_kept = kept_nodes(model, Phi, keep)
     if reference is not None:   # craig-bampton: clamped to the frame (Φ = Ψ = 0); free: its u_R, θ_R
         ref = at_reference.reshape(2, 3, n) / scale if method == "free" else np.zeros((2, 3, n))
         R_RP = np.vstack([np.asarray(reference, float)[None, :], R_RP])
@@ -273,6 +270,27 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": Psi_kept, "stiffness": K_ee,
             "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "m": np.array(mo.m), "S0": mo.S0,
             "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
+
+
+def kept_nodes(model, Phi, keep):
+    """R_RP, Φ, Ψ of the kept nodes: an FE node index as it is (Ψ = 0: solid nodes carry no rotation), a node
+    set (array of indices) as one node at its centroid moving with the set's least-squares rigid motion
+    (equal weights, RBE3-like): Φ its mean translation, Ψ its rotation."""
+    R, Phi_k, Psi_k = [], [], []
+    for k in keep:
+        if np.ndim(k) == 0:
+            R.append(model.nodes[k])
+            Phi_k.append(Phi[k])
+            Psi_k.append(np.zeros_like(Phi[k]))
+            continue
+        X = model.nodes[np.asarray(k)]
+        c = X.mean(axis=0)
+        fit = np.linalg.lstsq(rigid_fields(X - c), Phi[np.asarray(k)].reshape(-1, Phi.shape[2]), rcond=1e-9)[0]
+        R.append(c)
+        Phi_k.append(fit[:3])
+        Psi_k.append(fit[3:])
+    n = Phi.shape[2]
+    return np.reshape(R, (-1, 3)), np.reshape(Phi_k, (-1, 3, n)), np.reshape(Psi_k, (-1, 3, n))
 
 
 def _largest(Phi):
@@ -318,9 +336,9 @@ def cache_dir():
     return Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu") / "fe"
 
 
-def reduce_cached(files, params, make_model, interface_nodes):
-    """reduce(make_model(), **params) with the interface resolved by interface_nodes(model), or its result from
-    the cache (an .npz keyed by cache_key of the files and params)."""
+def reduce_cached(files, params, make_model, resolve):
+    """reduce(make_model(), **params) with the entries of resolve(model) (node set names → node indices), or
+    its result from the cache (an .npz keyed by cache_key of the files and params)."""
     path = cache_dir() / f"{cache_key(files, params)}.npz"
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -330,7 +348,7 @@ def reduce_cached(files, params, make_model, interface_nodes):
     except (OSError, KeyError, ValueError, IndexError, TypeError):
         pass
     model = make_model()
-    reduced = reduce(model, **dict(params, interface=interface_nodes(model)))
+    reduced = reduce(model, **dict(params, **resolve(model)))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")

@@ -164,6 +164,7 @@ class _Checker:
         self.params = {}
         self.root = None
         self.node_count = {}  # elastic body → number of nodes
+        self.node_names = {}  # elastic body → {node set name: node index} (FE bodies)
 
     # -- reporting ---------------------------------------------------------------------------------
     def fail(self, parent, key, path, message, hint=None):
@@ -383,7 +384,7 @@ class _Checker:
         self.massless(node, out)
         for b in out:  # `node:` of a child joint, now that every elastic body knows its nodes
             if b["joint"]["node"] is not None:
-                self.node_index(node[b["name"]]["joint"], "node", f"bodies.{b['name']}.joint.node", b["parent"], b["joint"]["node"])
+                b["joint"]["node"] = self.node_index(node[b["name"]]["joint"], "node", f"bodies.{b['name']}.joint.node", b["parent"], b["joint"]["node"])
         coords = {}
         for b in out:
             for c in b["joint"]["coordinates"] + b["joint"]["velocities"] + (b["elastic"]["coordinates"] if b["elastic"] else []):
@@ -488,8 +489,8 @@ class _Checker:
         out["at"] = self.vector(j, "at", path + ".at") if "at" in j else [0.0] * 3
         out["node"] = None
         if "node" in j:
-            if not isinstance(j["node"], int) or isinstance(j["node"], bool):
-                self.fail(j, "node", path + ".node", "a node index must be an integer (negative counts from the end)")
+            if not isinstance(j["node"], (int, str)) or isinstance(j["node"], bool):
+                self.fail(j, "node", path + ".node", "a node index must be an integer (negative counts from the end) or a kept node set's name")
             parent = node["parent"]
             if parent == "world" or "elastic" not in bodies[parent]:
                 self.fail(j, "node", path + ".node", "'node' needs an elastic parent body", "use 'at' on rigid parents")
@@ -614,7 +615,7 @@ class _Checker:
             if e.get("dynamic_stiffening"):
                 self.fail(e, "dynamic_stiffening", path + ".dynamic_stiffening", "dynamic stiffening is not available for FE bodies yet",
                           "leave it out (false); the beam generator has it")
-            out["fe"] = self.fe(e, path)
+            out["fe"] = self.fe(e, path, name)
         else:
             out["nodal"] = self.nodal(e, path)
         nodal = self.elastic_data(name, out, path)
@@ -651,7 +652,7 @@ class _Checker:
             self.fail(e, "nodal", path, "expected a mapping with R_RP, mass, Phi, Psi, stiffness (or file: data.npz)")
         return _plain(data)
 
-    def fe(self, e, path):
+    def fe(self, e, path, body):
         """`fe:` (an FE model's files and how to reduce it) → the reduced body's arrays as lists (bodies/cms.py)."""
         from ..bodies import cms
         node, path = e["fe"], path + ".fe"
@@ -675,7 +676,7 @@ class _Checker:
             self.fail(node, "node_sets", path + ".node_sets", "expected a mapping name: [node indices]")
         for name in node.get("node_sets") or {}:
             sets[name] = self.fe_nodes(node["node_sets"], name, f"{path}.node_sets.{name}")
-        params = {"method": method, "keep": self.fe_nodes(node, "keep", path + ".keep") if "keep" in node else [],
+        params = {"method": method, "keep": self.fe_keep(node, path + ".keep") if "keep" in node else [],
                   "modes": None, "cutoff_hz": None, "interface": None, "reference": None}
         if "cutoff_hz" in node:
             params["cutoff_hz"] = self.plain_number(node, "cutoff_hz", path + ".cutoff_hz", positive=True)
@@ -703,25 +704,31 @@ class _Checker:
                 m = fe.from_abaqus(files["mass"], files["stiffness"], files["nodes"], sets)
             else:
                 m = fe.from_matrix_market(files["mass"], files["stiffness"], files["nodes"], dof_map, sets)
-            for key, nodes in (("keep", params["keep"]), ("interface.nodes", params["interface"])):
+            for key, nodes in (("keep", [k for k in params["keep"] if isinstance(k, int)]), ("interface.nodes", params["interface"])):
                 if isinstance(nodes, list) and nodes and max(nodes) >= m.n_nodes:
                     raise ModelError(f"node {max(nodes)} does not exist: the model has {m.n_nodes} nodes", key=f"{path}.{key}")
             return m
 
-        def interface_nodes(m):
+        def node_set(m, name, key):
+            found = name if name in m.node_sets else name.lower()   # Abaqus names ignore case
+            if found not in m.node_sets:
+                raise ModelError(f"no node set '{name}' in {m.source}", key=f"{path}.{key}",
+                                 hint=_suggest(name, sorted(m.node_sets) or ["(none: define node_sets)"]))
+            return m.node_sets[found]
+
+        def resolve(m):   # node set names → node indices, once the model (and its file's sets) is read
             iface = params["interface"]
-            if isinstance(iface, str):
-                iface = iface if iface in m.node_sets else iface.lower()   # Abaqus names ignore case
-                if iface not in m.node_sets:
-                    raise ModelError(f"no node set '{params['interface']}' in {m.source}", key=f"{path}.interface.node_set",
-                                     hint=_suggest(iface, sorted(m.node_sets) or ["(none: define node_sets)"]))
-                return m.node_sets[iface]
-            return iface
+            return {"interface": node_set(m, iface, "interface.node_set") if isinstance(iface, str) else iface,
+                    "keep": [node_set(m, k, "keep") if isinstance(k, str) else k for k in params["keep"]]}
 
         try:
-            reduced = cms.reduce_cached(list(files.values()), params, model, interface_nodes)
+            reduced = cms.reduce_cached(list(files.values()), params, model, resolve)
         except ModelError as err:
             self.fail_at(err.key or path, err.message, err.hint)
+        names = {params["interface"]: 0} if isinstance(params["interface"], str) and params["reference"] else {}
+        first = 1 if params["reference"] else 0
+        names.update({k: first + i for i, k in enumerate(params["keep"]) if isinstance(k, str)})
+        self.node_names[body] = names
         return _plain(reduced)
 
     def fe_file(self, node, key, path):
@@ -729,6 +736,13 @@ class _Checker:
             return datafile.resolve(self.base, node[key], self.allow_outside)
         except ModelError as err:
             self.fail(node, key, f"{path}.{key}", err.message, err.hint)
+
+    def fe_keep(self, parent, path):
+        """`keep:` FE node indices and node set names (a set is kept as one node: its average motion)."""
+        v = parent["keep"]
+        if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, (int, str)) or (isinstance(x, int) and x < 0) for x in v):
+            self.fail(parent, "keep", path, f"a list of node indices (integers ≥ 0) and node set names was expected, got {_shown(v)}")
+        return [x if isinstance(x, str) else int(x) for x in v]
 
     def fe_nodes(self, parent, key, path):
         """A list of node indices (0-based) of an FE model."""
@@ -771,6 +785,12 @@ class _Checker:
         N = self.node_count.get(body)
         if N is None:
             self.fail(parent, key, path, f"'{body}' has no nodes: nodes exist only on elastic bodies")
+        names = self.node_names.get(body, {})
+        if isinstance(node, str) and node in names:   # a node set an FE body keeps
+            return names[node]
+        if isinstance(node, str):
+            self.fail(parent, key, path, f"'{body}' keeps no node set '{node}'",
+                      _suggest(node, sorted(names)) if names else "name node sets in the body's fe: keep list")
         if isinstance(node, bool) or not isinstance(node, int):
             self.fail(parent, key, path, f"a node index (an integer) was expected, got {_shown(node)}", f"use 0 … {N - 1}, or -1 … {-N} from the end")
         if not -N <= node < N:
@@ -865,10 +885,7 @@ class _Checker:
         nodes = f["node"] if isinstance(f["node"], list) else [f["node"]]
         if len(nodes) != len(names):
             self.fail(f, "node", path + ".node", f"expected {len(names)} node index(es), null for a rigid body")
-        for n, b in zip(nodes, names):
-            if n is not None:
-                self.node_index(f, "node", path + ".node", b, n)
-        return list(nodes)
+        return [None if n is None else self.node_index(f, "node", path + ".node", b, n) for n, b in zip(nodes, names)]
 
     # -- outputs, integrator, experiment -----------------------------------------------------------
     def outputs(self, root, spec):
