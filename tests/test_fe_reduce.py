@@ -510,3 +510,12 @@ def test_a_kept_node_set_turns_as_the_euler_bernoulli_slope(tmp_path):
         slope = th[2] if lateral == 1 else -th[1]          # v' = θ_z, w' = −θ_y
         assert abs(slope / u[lateral] * L / ratio - 1) < 0.005, (slope / u[lateral] * L, ratio)
     assert [o["node"] for o in spec.spec["outputs"]] == [1, 0]
+
+
+def test_node_names_that_are_not_kept_sets_are_refused(tmp_path):
+    X, M, K = bar(p2=False, nx=3)
+    write_mm(tmp_path, X, M, K)
+    fe_yaml = f"{{{MM}, node_sets: {{tip: {np.flatnonzero(X[:, 0] == L).tolist()}}}, interface: {{nodes: [0, 1, 2], reference: [0, 0, 0]}}, keep: [tip]}}"
+    with pytest.raises(ModelError, match="keeps no node set 'tp'.*tip") as err:
+        scene(tmp_path, fe_yaml, extra="outputs:\n  - {body: part, node: tp}\n")
+    assert err.value.key == "outputs[0].node" and err.value.line == 11
