@@ -271,6 +271,10 @@ def test_reduction_is_cached_by_its_inputs(tmp_path, monkeypatch):
     write_mm(tmp_path, X, M, K2)
     part(scene(tmp_path, yaml))
     assert len(list((tmp_path / "cache" / "fe").glob("*.npz"))) == 2
+    root = np.flatnonzero(X[:, 0] == 0).tolist()
+    for members in (root, root[:3]):                                    # a node set's members are inputs too
+        part(scene(tmp_path, f"{{{MM}, node_sets: {{root: {members}}}, interface: {{node_set: root, reference: [0, 0, 0]}}, modes: 3}}"))
+    assert len(list((tmp_path / "cache" / "fe").glob("*.npz"))) == 4
 
 
 # -- hostile input -----------------------------------------------------------------------------------------

@@ -336,10 +336,35 @@ def cache_dir():
     return Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu") / "fe"
 
 
-def reduce_cached(files, params, make_model, resolve):
-    """reduce(make_model(), **params) with the entries of resolve(model) (node set names → node indices), or
-    its result from the cache (an .npz keyed by cache_key of the files and params)."""
-    path = cache_dir() / f"{cache_key(files, params)}.npz"
+def reduce_files(files, fmt, dof_map, node_sets, **params):
+    """reduce() of the FE model in `files` (mass, stiffness, nodes and an optional dof_map file) with node set
+    names in `interface` and `keep` resolved; cached by the files' bytes and every input.  ModelError keys are
+    relative to the scene's `fe:` mapping."""
+    def build():
+        model = fe.read(fmt, files["mass"], files["stiffness"], files["nodes"], dof_map, node_sets)
+        return reduce(model, **dict(params, **_resolve(model, params)))
+    inputs = dict(params, format=fmt, dof_map=str(dof_map), node_sets=node_sets)
+    return reduce_cached(list(files.values()), inputs, build)
+
+
+def _resolve(model, params):
+    """interface and keep with node set names replaced by node indices, indices checked against the model."""
+    def nodes(value, key):
+        try:
+            idx = fe.node_set(model, value) if isinstance(value, str) else value
+        except ModelError as err:
+            raise ModelError(err.message, key=key, hint=err.hint) from None
+        if np.any(np.asarray(idx) >= model.n_nodes):   # (negative indices never pass the scene's checks)
+            raise ModelError(f"node {np.max(idx)} does not exist: the model has {model.n_nodes} nodes", key=key)
+        return idx
+    iface = params["interface"]
+    return {"interface": None if iface is None else nodes(iface, "interface.node_set" if isinstance(iface, str) else "interface.nodes"),
+            "keep": [nodes(k, "keep") for k in params["keep"]]}
+
+
+def reduce_cached(files, inputs, build):
+    """build() (a reduced body), or its result from the cache: an .npz named by cache_key(files, inputs)."""
+    path = cache_dir() / f"{cache_key(files, inputs)}.npz"
     try:
         with np.load(path, allow_pickle=False) as z:
             reduced = {k: z[k] for k in REDUCED}
@@ -347,8 +372,7 @@ def reduce_cached(files, params, make_model, resolve):
         return reduced
     except (OSError, KeyError, ValueError, IndexError, TypeError):
         pass
-    model = make_model()
-    reduced = reduce(model, **dict(params, **resolve(model)))
+    reduced = build()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")

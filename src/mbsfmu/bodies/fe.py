@@ -302,6 +302,22 @@ def from_abaqus(mass, stiffness, inp, node_sets=None):
     return check(FEModel(X, symmetric(M, Path(mass).name), symmetric(K, Path(stiffness).name), sets, source))
 
 
+def read(fmt, mass, stiffness, nodes, dof_map="node-major", node_sets=None):
+    """FEModel from files in `fmt` ('matrix-market' or 'abaqus', whose `nodes` is the .inp)."""
+    if fmt == "abaqus":
+        return from_abaqus(mass, stiffness, nodes, node_sets)
+    return from_matrix_market(mass, stiffness, nodes, dof_map, node_sets)
+
+
+def node_set(model, name):
+    """The node indices of a named node set (Abaqus names match in any case)."""
+    found = name if name in model.node_sets else name.lower()
+    if found not in model.node_sets:
+        known = ", ".join(sorted(model.node_sets)[:20]) or "none: define node_sets"
+        raise ModelError(f"no node set '{name}' in {model.source}", hint=f"known: {known}")
+    return model.node_sets[found]
+
+
 # -- checks ------------------------------------------------------------------------------------------
 def symmetric(A, name):
     """A mirrored if only one triangle was given; otherwise A, which must be symmetric."""

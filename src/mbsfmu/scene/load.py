@@ -698,33 +698,10 @@ class _Checker:
                     self.fail(i, "reference", ip + ".reference", f"a point [x, y, z] was expected, got {_shown(i['reference'])}")
                 params["reference"] = [self.plain_number(i["reference"], k, f"{ip}.reference[{k}]", magnitude=False) for k in range(3)]
 
-        def model():
-            from ..bodies import fe
-            if fmt == "abaqus":
-                m = fe.from_abaqus(files["mass"], files["stiffness"], files["nodes"], sets)
-            else:
-                m = fe.from_matrix_market(files["mass"], files["stiffness"], files["nodes"], dof_map, sets)
-            for key, nodes in (("keep", [k for k in params["keep"] if isinstance(k, int)]), ("interface.nodes", params["interface"])):
-                if isinstance(nodes, list) and nodes and max(nodes) >= m.n_nodes:
-                    raise ModelError(f"node {max(nodes)} does not exist: the model has {m.n_nodes} nodes", key=f"{path}.{key}")
-            return m
-
-        def node_set(m, name, key):
-            found = name if name in m.node_sets else name.lower()   # Abaqus names ignore case
-            if found not in m.node_sets:
-                raise ModelError(f"no node set '{name}' in {m.source}", key=f"{path}.{key}",
-                                 hint=_suggest(name, sorted(m.node_sets) or ["(none: define node_sets)"]))
-            return m.node_sets[found]
-
-        def resolve(m):   # node set names → node indices, once the model (and its file's sets) is read
-            iface = params["interface"]
-            return {"interface": node_set(m, iface, "interface.node_set") if isinstance(iface, str) else iface,
-                    "keep": [node_set(m, k, "keep") if isinstance(k, str) else k for k in params["keep"]]}
-
         try:
-            reduced = cms.reduce_cached(list(files.values()), params, model, resolve)
+            reduced = cms.reduce_files(files, fmt, dof_map, sets, **params)
         except ModelError as err:
-            self.fail_at(err.key or path, err.message, err.hint)
+            self.fail_at(f"{path}.{err.key}" if err.key else path, err.message, err.hint)
         names = {params["interface"]: 0} if isinstance(params["interface"], str) and params["reference"] else {}
         first = 1 if params["reference"] else 0
         names.update({k: first + i for i, k in enumerate(params["keep"]) if isinstance(k, str)})
