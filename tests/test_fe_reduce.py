@@ -523,3 +523,23 @@ def test_node_names_that_are_not_kept_sets_are_refused(tmp_path):
     with pytest.raises(ModelError, match="keeps no node set 'tp'.*tip") as err:
         scene(tmp_path, fe_yaml, extra="outputs:\n  - {body: part, node: tp}\n")
     assert err.value.key == "outputs[0].node" and err.value.line == 11
+
+
+def test_slender_solid_bar_has_the_beam_generators_invariants():
+    """A tet10 cantilever 1 × 0.1 × 0.05 m (L/h = 20, 16 × 2 × 2 cells) clamped at x = 0 against the built-in Euler–Bernoulli
+    beam generator with the same EI, ρA: mass and ∫x² dm exactly, and for the first (flapwise) mode — both
+    scaled to a unit largest translation — its frequency, modal mass M_ee, C_t = ∫Φ dm and A = ∫x Φ dm within
+    1 % (shear and 3-D effects of the solid)."""
+    from mbsfmu.bodies import beam
+    b, h = 0.1, 0.05
+    X, M, K = bar(nx=16, n=2, size=(L, b, h))
+    root = np.flatnonzero(X[:, 0] == 0)
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), interface=root, reference=[0, b / 2, h / 2], keep=[0], modes=1)
+    solid = invariants(cms.nodal_data(r))
+    generated = beam(L, [E * b * h**3 / 12, E * h * b**3 / 12], RHO * b * h, elements=20, modes=1)
+    ref = invariants(generated, dynamic_stiffening=False)
+    assert np.isclose(solid.m, ref.m, rtol=1e-12) and np.isclose(solid.S_RR[0, 0], ref.S_RR[0, 0], rtol=1e-12)
+    assert np.isclose(r["frequencies"][0], generated.frequencies[0] / (2 * np.pi), rtol=0.01)
+    assert np.isclose(solid.M_ee[0, 0], ref.M_ee[0, 0], rtol=0.01), (solid.M_ee, ref.M_ee)
+    assert np.isclose(solid.C_t[2, 0], ref.C_t[2, 0], rtol=0.01) and abs(solid.C_t[1, 0]) < 1e-3 * abs(ref.C_t[2, 0])
+    assert np.isclose(solid.A[0, 2, 0], ref.A[0, 2, 0], rtol=0.01)
