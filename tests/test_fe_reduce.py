@@ -543,3 +543,25 @@ def test_slender_solid_bar_has_the_beam_generators_invariants():
     assert np.isclose(solid.M_ee[0, 0], ref.M_ee[0, 0], rtol=0.01), (solid.M_ee, ref.M_ee)
     assert np.isclose(solid.C_t[2, 0], ref.C_t[2, 0], rtol=0.01) and abs(solid.C_t[1, 0]) < 1e-3 * abs(ref.C_t[2, 0])
     assert np.isclose(solid.A[0, 2, 0], ref.A[0, 2, 0], rtol=0.01)
+
+
+@pytest.mark.parametrize("damage", ["B shape", "nan", "no mass", "indefinite stiffness", "missing", "200 modes"])
+def test_damaged_reduced_body_data_are_a_model_error(damage):
+    """The reduced body crosses trust boundaries (the cache, an FMU's drawing description): checked on the way in."""
+    X, M, K = bar(p2=False, nx=3)
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), interface=np.flatnonzero(X[:, 0] == 0), reference=[0, 0, 0], modes=2)
+    r = {k: np.asarray(v).tolist() for k, v in r.items()}
+    if damage == "B shape":
+        r["B"] = r["B"][:2]
+    elif damage == "nan":
+        r["A"][0][0][0] = float("nan")
+    elif damage == "no mass":
+        r["m"] = 0.0
+    elif damage == "indefinite stiffness":
+        r["stiffness"][0][0] = -1.0
+    elif damage == "missing":
+        del r["S0"]
+    else:
+        r["stiffness"] = np.eye(200).tolist()
+    with pytest.raises(ModelError, match="bodies.x.elastic.fe"):
+        cms.nodal_data(r, key="bodies.x.elastic.fe")

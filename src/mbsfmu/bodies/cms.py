@@ -39,7 +39,7 @@ from scipy.sparse.linalg import LinearOperator, eigsh, splu
 from ..errors import ModelError
 from ..scene import limits
 from . import fe
-from .nodal import MassMoments, NodalData, damping_from_ratio
+from .nodal import MassMoments, NodalData, _symmetric_psd, damping_from_ratio
 
 METHODS = ("craig-bampton", "free")
 SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positive semi-definite K, by far more than roundoff
@@ -302,14 +302,27 @@ def _largest(Phi):
 REDUCED = ("R_RP", "Phi", "Psi", "stiffness", "frequencies", "m", "S0", "S_RR", "C_t", "A", "B")
 
 
-def nodal_data(reduced, damping_ratio=0.0):
-    """NodalData of a reduced body (arrays or lists, as the normalized scene holds them)."""
-    r = {k: np.asarray(reduced[k], float) for k in REDUCED}
-    n = r["stiffness"].shape[0]
-    r["R_RP"] = r["R_RP"].reshape(-1, 3)                 # no kept nodes: JSON holds [] for (0, 3)
-    r["Phi"], r["Psi"] = r["Phi"].reshape(-1, 3, n), r["Psi"].reshape(-1, 3, n)
+def nodal_data(reduced, damping_ratio=0.0, key="elastic.fe"):
+    """NodalData of a reduced body (arrays or lists, as the normalized scene, an FMU's drawing description or the
+    cache hold them): shapes, finiteness, mass and the modal matrices checked, ModelError otherwise."""
+    try:
+        r = {k: np.asarray(reduced[k], float) for k in REDUCED}
+        n = r["stiffness"].shape[0]
+        r["R_RP"] = r["R_RP"].reshape(-1, 3)             # no kept nodes: JSON holds [] for (0, 3)
+        r["Phi"], r["Psi"] = r["Phi"].reshape(-1, 3, n), r["Psi"].reshape(-1, 3, n)
+        shapes = {"m": (), "S0": (3,), "S_RR": (3, 3), "C_t": (3, n), "A": (3, 3, n), "B": (3, 3, n, n),
+                  "stiffness": (n, n), "frequencies": (n,), "Psi": r["Phi"].shape}
+        bad = next((k for k, shape in shapes.items() if r[k].shape != shape), None)
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise ModelError(f"the reduced body's data are damaged ({e})", key=key) from None
+    if bad or not all(np.all(np.isfinite(a)) for a in r.values()) or not 1 <= n <= limits.FE_MODES or r["m"] <= 0:
+        raise ModelError(f"the reduced body's data are damaged ({bad or 'values'})", key=key,
+                         hint=f"{n} modes, a positive mass and finite numbers expected")
     mo = MassMoments(float(r["m"]), r["S0"], r["S_RR"], r["C_t"], r["A"], r["B"],
                      np.zeros((3, 3)), np.zeros((3, n)), np.zeros((n, n)))
+    _symmetric_psd(r["stiffness"], "stiffness", key, "a stiffness matrix")
+    if np.linalg.eigvalsh(mo.M_ee).min() <= 1e-12 * np.abs(mo.M_ee).max():
+        raise ModelError("the reduced body's modal mass is not positive definite", key=key)
     D = damping_from_ratio(mo.M_ee, r["stiffness"], damping_ratio) if damping_ratio else None
     return NodalData(r["R_RP"], np.zeros(len(r["R_RP"])), r["Phi"], r["stiffness"], Psi=r["Psi"], damping=D,
                      mass_points=mo, frequencies=2 * np.pi * r["frequencies"])

@@ -29,7 +29,7 @@ def bind_elastic(body, env):
         spec["EI"] = [parse(x)(env) for x in spec["EI"]]
         nodal = beam_from_spec(spec, key=key + ".beam", damping_ratio=ratio, dynamic_stiffening=e["dynamic_stiffening"])
     elif "fe" in e:   # reduced when the scene was loaded (cms.py); the normalized scene holds the reduced body
-        nodal = nodal_data(e["fe"], damping_ratio=ratio)
+        nodal = nodal_data(e["fe"], damping_ratio=ratio, key=key + ".fe")
         if "damping" in e:
             nodal.damping = check_damping(e["damping"], nodal.n, key)
     else:
