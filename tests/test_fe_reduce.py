@@ -565,3 +565,22 @@ def test_damaged_reduced_body_data_are_a_model_error(damage):
         r["stiffness"] = np.eye(200).tolist()
     with pytest.raises(ModelError, match="bodies.x.elastic.fe"):
         cms.nodal_data(r, key="bodies.x.elastic.fe")
+
+
+def test_rayleigh_damping_decays_as_the_damped_oscillator(tmp_path):
+    """`rayleigh: [α, β]` (D = α M_ee + β K): a one-mode FE body on a fixed joint follows the damped oscillator
+    q = e^(−ζωt) (q0 cos ω_d t + ζω q0/ω_d sin ω_d t), ζ = α/2ω + βω/2, ω from the reduced K and M_ee."""
+    X, M, K = bar(p2=False, nx=4)
+    write_mm(tmp_path, X, M, K)
+    alpha, beta = 20.0, 2e-5
+    spec = scene(tmp_path, f"{{{MM}, interface: {{nodes: {np.flatnonzero(X[:, 0] == 0).tolist()}, reference: [0, 0, 0]}}, modes: 1}}",
+                 extra=f"      rayleigh: [{alpha}, {beta}]\n      initial: {{part.q1: 1.0e-3}}\n")
+    inv = part(spec).inv
+    omega = np.sqrt(inv.K[0, 0] / inv.M_ee[0, 0])
+    zeta = alpha / (2 * omega) + beta * omega / 2
+    assert np.isclose(inv.D[0, 0], 2 * zeta * omega * inv.M_ee[0, 0], rtol=1e-12)
+    t, Y, _ = mbsfmu.simulate(spec, stop=10 * 2 * np.pi / omega, step=1e-4, method="dop853", rtol=1e-10, atol=1e-14)
+    wd = omega * np.sqrt(1 - zeta**2)
+    exact = np.exp(-zeta * omega * t) * 1e-3 * (np.cos(wd * t) + zeta * omega / wd * np.sin(wd * t))
+    assert 0.01 < zeta < 0.05 and Y[-1, 0] < 0.5e-3
+    assert np.abs(Y[:, 0] - exact).max() < 1e-7 * 1e-3

@@ -13,7 +13,7 @@ from ..kinematics.rotations import cross, skew
 from .beam import beam_from_spec
 from .ffrf import elastic_forces, gravity_forces, invariants, mass_matrix, quadratic_forces
 from .cms import nodal_data
-from .nodal import check_damping, validate_nodal
+from .nodal import check_damping, modal_mass, validate_nodal
 
 
 def bind_elastic(body, env):
@@ -39,6 +39,9 @@ def bind_elastic(body, env):
         nodal = validate_nodal(data, key=key + ".nodal", damping_ratio=ratio if ratio and "damping" not in e else None)
         if not e["dynamic_stiffening"]:
             nodal.stiffening = None
+    if e.get("rayleigh"):   # D = α M_ee + β K (proportional damping of the retained modes)
+        alpha, beta = (parse(x)(env) for x in e["rayleigh"])
+        nodal.damping = alpha * modal_mass(nodal) + beta * nodal.stiffness
     body.nodal = nodal
     body.inv = invariants(nodal, dynamic_stiffening=e["dynamic_stiffening"] and nodal.stiffening is not None)
 

@@ -22,14 +22,14 @@ from . import layout as L
 
 
 def structural_parameters(spec):
-    """Names of the parameters that feed an elastic body's generated data (beam fields, damping_ratio)."""
+    """Names of the parameters that feed an elastic body's generated data (beam fields, damping_ratio, rayleigh)."""
     params = [p["name"] for p in spec["parameters"]]
     used = set()
     for b in spec["bodies"]:
         e = b.get("elastic")
         if not e:
             continue
-        exprs = [e.get("damping_ratio")]
+        exprs = [e.get("damping_ratio")] + list(e.get("rayleigh") or [])
         for v in (e.get("beam") or {}).values():
             exprs += v if isinstance(v, list) else [v]
         for x in exprs:

@@ -576,15 +576,20 @@ class _Checker:
     # -- elastic bodies ----------------------------------------------------------------------------
     def elastic(self, node, path, name):
         e, path = node["elastic"], path + ".elastic"
-        self.keys(e, path, ("beam", "nodal", "fe", "damping_ratio", "damping", "coordinates", "dynamic_stiffening", "initial", "initial_velocity"))
+        self.keys(e, path, ("beam", "nodal", "fe", "damping_ratio", "damping", "rayleigh", "coordinates", "dynamic_stiffening", "initial", "initial_velocity"))
         if sum(k in e for k in ("beam", "nodal", "fe")) != 1:
             self.fail(node, "elastic", path, "give exactly one of 'beam', 'nodal' or 'fe'")
-        if "damping" in e and "damping_ratio" in e:
-            self.fail(e, "damping", path + ".damping", "give either 'damping' (a matrix) or 'damping_ratio', not both")
+        given = [k for k in ("damping", "damping_ratio", "rayleigh") if k in e]
+        if len(given) > 1:
+            self.fail(e, given[1], f"{path}.{given[1]}", f"give one of 'damping' (a matrix), 'damping_ratio' or 'rayleigh', not '{given[0]}' and '{given[1]}'")
         out = {"damping_ratio": self.number(e, "damping_ratio", path + ".damping_ratio", nonneg=True) if "damping_ratio" in e else 0.0,
                "dynamic_stiffening": bool(e.get("dynamic_stiffening", "beam" in e))}
         if "damping" in e:
             out["damping"] = _plain(e["damping"])
+        if "rayleigh" in e:   # D = α M_ee + β K
+            if not isinstance(e["rayleigh"], list) or len(e["rayleigh"]) != 2:
+                self.fail(e, "rayleigh", path + ".rayleigh", f"[alpha, beta] was expected, got {_shown(e['rayleigh'])}", "D = alpha·M + beta·K (1/s and s)")
+            out["rayleigh"] = [self.number(e["rayleigh"], i, f"{path}.rayleigh[{i}]", nonneg=True) for i in range(2)]
         if "beam" in e:
             b, bp = e["beam"], path + ".beam"
             self.keys(b, bp, ("length", "EI", "EA", "GJ", "rhoA", "rhoIp", "elements", "modes", "clamped"), required=("length", "EI", "rhoA"))
