@@ -581,7 +581,7 @@ class _Checker:
             self.fail(node, "elastic", path, "give exactly one of 'beam', 'nodal' or 'fe'")
         given = [k for k in ("damping", "damping_ratio", "rayleigh") if k in e]
         if len(given) > 1:
-            self.fail(e, given[1], f"{path}.{given[1]}", f"give one of 'damping' (a matrix), 'damping_ratio' or 'rayleigh', not '{given[0]}' and '{given[1]}'")
+            self.fail(e, given[0], f"{path}.{given[0]}", f"give one of 'damping' (a matrix), 'damping_ratio' or 'rayleigh', not both '{given[0]}' and '{given[1]}'")
         out = {"damping_ratio": self.number(e, "damping_ratio", path + ".damping_ratio", nonneg=True) if "damping_ratio" in e else 0.0,
                "dynamic_stiffening": bool(e.get("dynamic_stiffening", "beam" in e))}
         if "damping" in e:
