@@ -584,3 +584,22 @@ def test_rayleigh_damping_decays_as_the_damped_oscillator(tmp_path):
     exact = np.exp(-zeta * omega * t) * 1e-3 * (np.cos(wd * t) + zeta * omega / wd * np.sin(wd * t))
     assert 0.01 < zeta < 0.05 and Y[-1, 0] < 0.5e-3
     assert np.abs(Y[:, 0] - exact).max() < 1e-7 * 1e-3
+
+
+def test_a_solid_mesh_is_assembled_and_reduced_like_matrix_files(tmp_path):
+    """`fe: {mesh, material}` (fe_mesh.py assembles it): the reduced tet4 bar has the frequencies of the full
+    model assembled here (dense LAPACK, clamped end face) — mesh reading, assembly and reduction in one scene."""
+    meshio = pytest.importorskip("meshio")
+    X, M, K = bar(p2=False)
+    mesh = skfem.MeshTet.init_tensor(*(np.linspace(0, s, k + 1) for s, k in zip((L, H, H), (6, 1, 1))))
+    P, T = mesh.p.T, mesh.t.T.copy()
+    flip = np.linalg.det(P[T[:, 1:]] - P[T[:, :1]]) < 0                  # VTK order: positive volume
+    T[flip, 1], T[flip, 2] = T[flip, 2], T[flip, 1].copy()
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(P, [("tetra", T)]))
+    root = np.flatnonzero(X[:, 0] == 0).tolist()
+    spec = scene(tmp_path, f"{{mesh: bar.vtu, material: {{E: {E}, nu: {NU}, rho: {RHO}}}, interface: {{nodes: {root}, reference: [0, 0, 0]}}, modes: 6}}")
+    assert np.allclose(body_frequencies(part(spec).nodal), dense_frequencies(K, M, root), rtol=1e-8)
+    with pytest.raises(ModelError, match="material"):
+        scene(tmp_path, f"{{mesh: bar.vtu, interface: {{nodes: {root}, reference: [0, 0, 0]}}}}")
+    with pytest.raises(ModelError, match="not 'mass' beside 'mesh'"):
+        scene(tmp_path, f"{{mesh: bar.vtu, mass: M.mtx, material: {{E: 1, nu: 0.3, rho: 1}}}}")

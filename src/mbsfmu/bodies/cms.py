@@ -349,14 +349,14 @@ def cache_dir():
     return Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu") / "fe"
 
 
-def reduce_files(files, fmt, dof_map, node_sets, **params):
-    """reduce() of the FE model in `files` (mass, stiffness, nodes and an optional dof_map file) with node set
-    names in `interface` and `keep` resolved; cached by the files' bytes and every input.  ModelError keys are
-    relative to the scene's `fe:` mapping."""
+def reduce_files(files, source, node_sets, **params):
+    """reduce() of the FE model in `files` read as `source` says (fe.read) with node set names in `interface`
+    and `keep` resolved; cached by the files' bytes and every input.  ModelError keys are relative to the
+    scene's `fe:` mapping."""
     def build():
-        model = fe.read(fmt, files["mass"], files["stiffness"], files["nodes"], dof_map, node_sets)
+        model = fe.read(files, source, node_sets)
         return reduce(model, **dict(params, **_resolve(model, params)))
-    inputs = dict(params, format=fmt, dof_map=str(dof_map), node_sets=node_sets)
+    inputs = dict(params, source=source, node_sets=node_sets)
     return reduce_cached(list(files.values()), inputs, build)
 
 

@@ -302,11 +302,20 @@ def from_abaqus(mass, stiffness, inp, node_sets=None):
     return check(FEModel(X, symmetric(M, Path(mass).name), symmetric(K, Path(stiffness).name), sets, source))
 
 
-def read(fmt, mass, stiffness, nodes, dof_map="node-major", node_sets=None):
-    """FEModel from files in `fmt` ('matrix-market' or 'abaqus', whose `nodes` is the .inp)."""
-    if fmt == "abaqus":
-        return from_abaqus(mass, stiffness, nodes, node_sets)
-    return from_matrix_market(mass, stiffness, nodes, dof_map, node_sets)
+def read(files, source, node_sets=None):
+    """FEModel from `files` as `source` says: {format: matrix-market, dof_map}, {format: abaqus} (files mass,
+    stiffness, nodes: the .inp) or {format: mesh, material: {E, nu, rho}, element} (file mesh, fe_mesh.py)."""
+    if source["format"] == "mesh":
+        from dataclasses import replace
+
+        from .fe_mesh import assemble_solid
+        mat = source["material"]
+        model = assemble_solid(files["mesh"], mat["E"], mat["nu"], mat["rho"], source.get("element"),
+                               base=Path(files["mesh"]).parent)
+        return check(replace(model, node_sets={**model.node_sets, **(node_sets or {})}))
+    if source["format"] == "abaqus":
+        return from_abaqus(files["mass"], files["stiffness"], files["nodes"], node_sets)
+    return from_matrix_market(files["mass"], files["stiffness"], files["nodes"], files.get("dof_map", source.get("dof_map", "node-major")), node_sets)
 
 
 def node_set(model, name):

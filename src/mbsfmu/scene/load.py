@@ -661,21 +661,13 @@ class _Checker:
         """`fe:` (an FE model's files and how to reduce it) → the reduced body's arrays as lists (bodies/cms.py)."""
         from ..bodies import cms
         node, path = e["fe"], path + ".fe"
-        self.keys(node, path, _FE_KEYS, required=("mass", "stiffness", "nodes"))
-        fmt = node.get("format", "matrix-market")
-        if fmt not in _FE_FORMATS:
-            self.fail(node, "format", path + ".format", f"unknown format {_shown(fmt)}", _suggest(fmt, _FE_FORMATS))
+        self.keys(node, path, _FE_KEYS)
         method = node.get("method", "craig-bampton")
         if method not in cms.METHODS:
             self.fail(node, "method", path + ".method", f"unknown method {_shown(method)}", _suggest(method, cms.METHODS))
         if "modes" in node and "cutoff_hz" in node:
             self.fail(node, "cutoff_hz", path + ".cutoff_hz", "give either 'modes' or 'cutoff_hz', not both")
-        files = {k: self.fe_file(node, k, path) for k in ("mass", "stiffness", "nodes")}
-        dof_map = node.get("dof_map", "node-major")
-        if dof_map not in ("node-major", "direction-major"):
-            if fmt == "abaqus":
-                self.fail(node, "dof_map", path + ".dof_map", "Abaqus files name their DOFs; no dof_map")
-            dof_map = files["dof_map"] = self.fe_file(node, "dof_map", path)
+        source, files = self.fe_mesh(node, path) if "mesh" in node else self.fe_matrices(node, path)
         sets = {}
         if not isinstance(node.get("node_sets") or Map(), Map):
             self.fail(node, "node_sets", path + ".node_sets", "expected a mapping name: [node indices]")
@@ -704,7 +696,7 @@ class _Checker:
                 params["reference"] = [self.plain_number(i["reference"], k, f"{ip}.reference[{k}]", magnitude=False) for k in range(3)]
 
         try:
-            reduced = cms.reduce_files(files, fmt, dof_map, sets, **params)
+            reduced = cms.reduce_files(files, source, sets, **params)
         except ModelError as err:
             self.fail_at(f"{path}.{err.key}" if err.key else path, err.message, err.hint)
         names = {params["interface"]: 0} if isinstance(params["interface"], str) and params["reference"] else {}
@@ -712,6 +704,43 @@ class _Checker:
         names.update({k: first + i for i, k in enumerate(params["keep"]) if isinstance(k, str)})
         self.node_names[body] = names
         return _plain(reduced)
+
+    def fe_matrices(self, node, path):
+        """(source, files) of an FE model given as mass and stiffness matrices (fe.read)."""
+        for k in ("mass", "stiffness", "nodes"):
+            if k not in node:
+                raise ModelError(f"missing required key '{k}'", file=self.file, line=node.line, key=path,
+                                 hint="mass, stiffness and nodes files, or a solid mesh: mesh and material")
+        for k in _FE_MESH_KEYS:
+            if k in node:
+                self.fail(node, k, f"{path}.{k}", f"'{k}' belongs to a solid mesh (mesh:), not to matrix files")
+        fmt = node.get("format", "matrix-market")
+        if fmt not in _FE_FORMATS:
+            self.fail(node, "format", path + ".format", f"unknown format {_shown(fmt)}", _suggest(fmt, _FE_FORMATS))
+        files = {k: self.fe_file(node, k, path) for k in ("mass", "stiffness", "nodes")}
+        dof_map = node.get("dof_map", "node-major")
+        if dof_map not in ("node-major", "direction-major"):
+            if fmt == "abaqus":
+                self.fail(node, "dof_map", path + ".dof_map", "Abaqus files name their DOFs; no dof_map")
+            files["dof_map"] = self.fe_file(node, "dof_map", path)
+            dof_map = "file"
+        return {"format": fmt, "dof_map": dof_map}, files
+
+    def fe_mesh(self, node, path):
+        """(source, files) of an FE model given as a solid mesh and its material (fe_mesh.py assembles it)."""
+        for k in ("mass", "stiffness", "nodes", "format", "dof_map"):
+            if k in node:
+                self.fail(node, k, f"{path}.{k}", f"give either a solid mesh (mesh:) or matrix files, not '{k}' beside 'mesh'")
+        if "material" not in node:
+            self.fail(node, "mesh", path + ".material", "a solid mesh needs its material", "material: {E: 2.1e11, nu: 0.3, rho: 7850}")
+        m, mp = node["material"], path + ".material"
+        self.keys(m, mp, ("E", "nu", "rho"), required=("E", "nu", "rho"))
+        material = {k: self.plain_number(m, k, f"{mp}.{k}", positive=k != "nu", magnitude=k != "nu") for k in ("E", "nu", "rho")}
+        from ..bodies.fe_mesh import ELEMENTS
+        element = node.get("element")
+        if element is not None and element not in ELEMENTS:
+            self.fail(node, "element", path + ".element", f"unknown element {_shown(element)}", _suggest(element, ELEMENTS))
+        return {"format": "mesh", "material": material, "element": element}, {"mesh": self.fe_file(node, "mesh", path)}
 
     def fe_file(self, node, key, path):
         try:
@@ -986,7 +1015,8 @@ def _default_coordinates(kind, name, param):
     return list(pos), list(vel)
 
 
-_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep")
+_FE_MESH_KEYS = ("mesh", "material", "element")
+_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep") + _FE_MESH_KEYS
 _FE_FORMATS = ("matrix-market", "abaqus")
 
 
