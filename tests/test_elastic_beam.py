@@ -5,7 +5,7 @@ import pytest
 from scipy.linalg import eigh
 
 from mbsfmu.bodies import beam, elastic_forces, invariants, mass_matrix, quadratic_forces
-from mbsfmu.bodies.beam import fe_model, retained_dofs
+from mbsfmu.bodies.beam import beam_from_spec, fe_model, retained_dofs
 
 CANTILEVER = [3.5160, 22.0345, 61.6972]      # (β_n L)², clamped–free
 FREE_FREE = [22.3733, 61.6728, 120.9034]     # (β_n L)², free–free
@@ -129,3 +129,83 @@ def test_stiffening_switch():
     flap = [k for k in range(b.n) if np.abs(b.Phi[:, 2, k]).max() > 0.5]
     lam = eigh(Kt[np.ix_(flap, flap)], M[np.ix_(flap, flap)], eigvals_only=True)
     np.testing.assert_allclose(np.sqrt(lam[0]), 3.5160, rtol=1e-3)   # no stiffening: no rise
+
+
+# ---- `axis`: the beam generated along x, turned onto another body axis ------------------------------------
+TURNED = """
+mbsfmu: 1
+name: turned_beam
+gravity: [0, 0, -9.81]
+bodies:
+  hub:
+    parent: world
+    joint: {{type: revolute, axis: [0.3, 1, 0.2], initial_velocity: {{hub.angle: 1.5}}, coordinates: [hub.angle]}}
+    mass: 1.0
+    inertia: {{xx: 0.02, yy: 0.03, zz: 0.04}}
+  beam:
+    parent: hub
+    joint: {{type: fixed, at: [0.05, 0.02, 0]{rotation}}}
+    elastic:
+      beam: {{length: 0.8, EI: [3.0, 7.0], rhoA: 0.5, elements: 8, modes: 4{axis}}}
+      dynamic_stiffening: false
+outputs:
+  - {{body: beam, node: -1, quantities: [position, velocity], name: tip}}
+integrator: {{method: dop853, rtol: 1e-11, atol: 1e-12}}
+experiment: {{start: 0, stop: 0.6, step: 0.05}}
+"""
+
+
+def _tip_run(rotation="", axis=""):
+    import mbsfmu
+    from mbsfmu.simulation import Simulation
+    scene = mbsfmu.loads(TURNED.format(rotation=rotation, axis=axis))
+    t, Y, YD = mbsfmu.simulate(scene)
+    sim = Simulation(scene.spec)
+    tips = [list(sim.output_values(np.concatenate([y, yd])).values()) for y, yd in zip(Y, YD)]
+    return Y, np.array(tips)
+
+
+@pytest.mark.parametrize("axis, turn", [([0, 0, 1], "{axis: [0, -1, 0], angle: 1.5707963267948966}"),
+                                        ([1, 2, -2], None),   # x × axis, by the angle between them
+                                        ([-1, 0, 0], "{axis: [0, 0, 1], angle: 3.141592653589793}")])
+def test_beam_axis_is_the_beam_along_x_in_a_frame_turned_onto_it(axis, turn):
+    """A beam with `axis: a` moves exactly as the beam along x on a joint frame turned by the shortest rotation
+    taking x onto a (the scene's own `rotation:`, an independent path): same hub angle and modal coordinates,
+    same tip motion; its frequencies from the invariants are still the cantilever's closed form in both planes."""
+    a = np.array(axis, float) / np.linalg.norm(axis)
+    if turn is None:
+        c = np.cross([1, 0, 0], a)
+        turn = f"{{axis: {(c / np.linalg.norm(c)).tolist()}, angle: {float(np.arccos(a[0]))!r}}}"
+    Y_x, tip_x = _tip_run(rotation=f", rotation: {turn}")
+    Y_a, tip_a = _tip_run(axis=f", axis: {axis}")
+    assert np.ptp(Y_x[:, 1:], axis=0).max() > 1e-3           # the beam does bend
+    np.testing.assert_allclose(Y_a, Y_x, atol=1e-9)
+    np.testing.assert_allclose(tip_a, tip_x, atol=1e-9)
+    nodal = beam_from_spec({"length": 0.8, "EI": [3.0, 7.0], "rhoA": 0.5, "elements": 8, "modes": 4, "axis": axis},
+                           dynamic_stiffening=False)
+    inv = invariants(nodal)
+    np.testing.assert_allclose(nodal.R_RP[-1], 0.8 * a, atol=1e-14)   # the nodes lie along the axis
+    omega = np.sort(np.sqrt(eigh(nodal.stiffness, inv.M_ee, eigvals_only=True)))
+    flap_chord = np.sort(np.outer(np.sqrt([3.0, 7.0]), CANTILEVER[:2]).ravel())[:4] / np.sqrt(0.5 * 0.8**4)
+    np.testing.assert_allclose(omega, flap_chord, rtol=2e-3)
+
+
+@pytest.mark.parametrize("axis, message", [("[0, 0, 0]", "not all zero"), ("[1, 0]", "not all zero"),
+                                           ("[1, 0, x]", "three numbers"), ("5", "three numbers")])
+def test_beam_axis_refused_in_one_line(axis, message):
+    import mbsfmu
+    from mbsfmu.errors import ModelError
+    with pytest.raises(ModelError, match=message) as e:
+        mbsfmu.loads(TURNED.format(rotation="", axis=f", axis: {axis}"))
+    assert e.value.key == "bodies.beam.elastic.beam.axis" and e.value.line == 15   # the `beam:` line
+
+
+def test_beam_axis_other_than_x_refuses_dynamic_stiffening():
+    """Dynamic stiffening is written for a beam along x: asked for on another axis, refused; off by default there."""
+    import mbsfmu
+    from mbsfmu.errors import ModelError
+    text = TURNED.format(rotation="", axis=", axis: [0, 0, 1]")
+    assert mbsfmu.loads(text.replace("      dynamic_stiffening: false\n", "")).spec["bodies"][1]["elastic"]["dynamic_stiffening"] is False
+    with pytest.raises(ModelError, match="along x") as e:
+        mbsfmu.loads(text.replace("dynamic_stiffening: false", "dynamic_stiffening: true"))
+    assert e.value.key == "bodies.beam.elastic.beam.axis"

@@ -16,6 +16,11 @@ of node 0 fixed).  `clamped: none` – free–free; the rigid-body modes (4 bend
 +1 torsion with GJ) are dropped, so the kept modes are M-orthogonal to them: ∫Φ dm = 0 and
 ∫(R̃Φ + JΨ) dm = 0, i.e. linearised mean axes (Buckens/Tisserand) – R is the mean-axis frame.
 
+Orientation: `axis` (default [1, 0, 0]) turns the beam generated along x by the shortest rotation taking x
+onto the axis (about x × axis; half a turn about z for −x): node positions, Φ, Ψ, node inertias and the mass
+points are turned before the invariants are computed, so EI's y and z are the images of body y and z.
+Dynamic stiffening below is written for a beam along x; another axis needs it off.
+
 Modes are scaled so that the largest nodal translation component is +1 (q in metres of
 deflection; pure torsion modes: largest rotation +1 rad).
 
@@ -34,7 +39,7 @@ from scipy.linalg import eigh
 
 from ..errors import ModelError
 from ..scene import limits
-from .nodal import MassPoints, NodalData, damping_from_ratio
+from .nodal import MassPoints, NodalData, damping_from_ratio, skew
 
 GAUSS_XI, GAUSS_W = np.polynomial.legendre.leggauss(4)   # exact for the degree-6 mass integrands
 GAUSS_XI, GAUSS_W = 0.5 * (GAUSS_XI + 1.0), 0.5 * GAUSS_W  # on [0, 1]
@@ -156,7 +161,7 @@ def beam(length, EI, rhoA, elements=10, modes=4, EA=None, GJ=None, rhoIp=None, c
 
 def beam_from_spec(spec, key="elastic.beam", damping_ratio=0.0, dynamic_stiffening=True):
     """The `beam:` mapping of the contract (numbers already evaluated) → NodalData."""
-    known = {"length", "EI", "EA", "GJ", "rhoA", "rhoIp", "elements", "modes", "clamped"}
+    known = {"length", "EI", "EA", "GJ", "rhoA", "rhoIp", "elements", "modes", "clamped", "axis"}
     for name in spec:
         if name not in known:
             raise ModelError(f"unknown key `{name}`", key=f"{key}.{name}",
@@ -179,6 +184,11 @@ def beam_from_spec(spec, key="elastic.beam", damping_ratio=0.0, dynamic_stiffeni
     clamped = spec.get("clamped", "start")
     if clamped not in ("start", "none"):
         raise ModelError(f"`clamped` must be `start` or `none`, got {clamped!r}", key=f"{key}.clamped")
+
+    turn = axis_rotation(spec.get("axis", X_AXIS), f"{key}.axis")
+    if dynamic_stiffening and not np.allclose(turn, np.eye(3)):
+        raise ModelError("dynamic stiffening is written for a beam along x", key=f"{key}.axis",
+                         hint="leave `axis` out, or set `dynamic_stiffening: false`")
 
     N = elements + 1
     M, K, KGa, KGw, pts = fe_model(L, EIy, EIz, rhoA, elements, EA, GJ, rhoIp)
@@ -206,9 +216,39 @@ def beam_from_spec(spec, key="elastic.beam", damping_ratio=0.0, dynamic_stiffeni
         stiffening = {"K_a": _sym(X.T @ KGa @ X), "K_omega": _sym(X.T @ KGw @ X)}
     D = damping_from_ratio(Mm, Km, damping_ratio) if damping_ratio else None
     R_RP = np.column_stack([np.linspace(0.0, L, N), np.zeros(N), np.zeros(N)])
-    return NodalData(R_RP, lumped, nodes[:, :3, :], Km, Psi=nodes[:, 3:, :], inertia=inertia,
-                     damping=D, mass_points=points, stiffening=stiffening,
-                     frequencies=np.sqrt(np.clip(lam, 0.0, None)))
+    return _turned(NodalData(R_RP, lumped, nodes[:, :3, :], Km, Psi=nodes[:, 3:, :], inertia=inertia,
+                             damping=D, mass_points=points, stiffening=stiffening,
+                             frequencies=np.sqrt(np.clip(lam, 0.0, None))), turn)
+
+
+X_AXIS = (1.0, 0.0, 0.0)
+
+
+def axis_rotation(axis, key):
+    """The shortest rotation taking body x onto `axis` (three finite numbers, not all zero)."""
+    try:
+        a = np.array(axis, float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (3,) or not (np.all(np.isfinite(a)) and np.linalg.norm(a) > 0):
+        raise ModelError(f"`axis` must be three numbers, not all zero, got {axis!r}", key=key, hint="e.g. [0, 0, 1]: the beam along body z")
+    a /= np.linalg.norm(a)
+    if a[0] < -1.0 + 1e-12:   # x × axis vanishes: half a turn about z
+        return np.diag([-1.0, -1.0, 1.0])
+    V = skew(np.cross(X_AXIS, a))
+    return np.eye(3) + V + V @ V / (1.0 + a[0])   # Rodrigues with cos = a_x, sin = |v|
+
+
+def _turned(nodal, T):
+    """Nodal data of a beam turned by T: every body-frame vector (positions, Φ, Ψ) and inertia."""
+    if np.allclose(T, np.eye(3)):
+        return nodal
+    p = nodal.mass_points
+    nodal.R_RP = nodal.R_RP @ T.T
+    nodal.Phi, nodal.Psi = T @ nodal.Phi, T @ nodal.Psi
+    nodal.inertia = T @ nodal.inertia @ T.T
+    nodal.mass_points = MassPoints(p.m, p.R @ T.T, T @ p.J @ T.T, T @ p.Phi, T @ p.Psi)
+    return nodal
 
 
 PLANES = ((1, 5), (2, 4), (0,), (3,))   # v–θ_z, w–θ_y, axial, torsion: uncoupled for a straight beam

@@ -582,8 +582,9 @@ class _Checker:
         given = [k for k in ("damping", "damping_ratio", "rayleigh") if k in e]
         if len(given) > 1:
             self.fail(e, given[0], f"{path}.{given[0]}", f"give one of 'damping' (a matrix), 'damping_ratio' or 'rayleigh', not both '{given[0]}' and '{given[1]}'")
+        along_x = "beam" in e and self.beam_along_x(e["beam"], path + ".beam")
         out = {"damping_ratio": self.number(e, "damping_ratio", path + ".damping_ratio", nonneg=True) if "damping_ratio" in e else 0.0,
-               "dynamic_stiffening": bool(e.get("dynamic_stiffening", "beam" in e))}
+               "dynamic_stiffening": bool(e.get("dynamic_stiffening", along_x))}
         if "damping" in e:
             out["damping"] = _plain(e["damping"])
         if "rayleigh" in e:   # D = α M_ee + β K
@@ -592,7 +593,7 @@ class _Checker:
             out["rayleigh"] = [self.number(e["rayleigh"], i, f"{path}.rayleigh[{i}]", nonneg=True) for i in range(2)]
         if "beam" in e:
             b, bp = e["beam"], path + ".beam"
-            self.keys(b, bp, ("length", "EI", "EA", "GJ", "rhoA", "rhoIp", "elements", "modes", "clamped"), required=("length", "EI", "rhoA"))
+            self.keys(b, bp, ("length", "EI", "EA", "GJ", "rhoA", "rhoIp", "elements", "modes", "clamped", "axis"), required=("length", "EI", "rhoA"))
             beam = {"length": self.number(b, "length", bp + ".length", positive=True), "rhoA": self.number(b, "rhoA", bp + ".rhoA", positive=True)}
             EI = b["EI"]
             if not isinstance(EI, list):  # one value for both planes, reported at its own line
@@ -615,6 +616,8 @@ class _Checker:
             beam["clamped"] = b.get("clamped", "start")
             if beam["clamped"] not in ("start", "none"):
                 self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition {_shown(beam['clamped'])}", _suggest(beam["clamped"], ("start", "none")))
+            if "axis" in b:
+                beam["axis"] = [float(x) for x in b["axis"]]
             out["beam"] = beam
         elif "fe" in e:
             if e.get("dynamic_stiffening"):
@@ -768,6 +771,20 @@ class _Checker:
         if isinstance(v, str):
             self.fail(parent, key, path, f"a plain number was expected, got '{v}'", "the reduction runs once, when the scene is loaded")
         return v
+
+    def beam_along_x(self, b, path):
+        """Whether a `beam:` lies along body x (its `axis`, checked here: plain numbers, since dynamic
+        stiffening, on by default, exists only along x)."""
+        from ..bodies.beam import axis_rotation
+        if not isinstance(b, Map) or "axis" not in b:
+            return True
+        axis = b["axis"]
+        if not (isinstance(axis, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in axis)):
+            self.fail(b, "axis", path + ".axis", f"three numbers were expected, got {_shown(axis)}", "e.g. [0, 0, 1]: the beam along body z")
+        try:
+            return bool(np.allclose(axis_rotation(axis, path + ".axis"), np.eye(3)))
+        except ModelError as err:
+            self.fail(b, "axis", path + ".axis", err.message, err.hint)
 
     def elastic_data(self, name, elastic, path):
         """The body's nodal data built as compile builds it, at the parameters' values: bad shapes, stiffness or
