@@ -509,9 +509,30 @@ def include(root, file, base, allow_outside=False, repair=False):
         raise ModelError("expected true or false", file=file, line=spec.lines.get("repair", line), key="urdf.repair")
     doc, repairs = read(path, _package_dirs(spec, file, line, base, allow_outside), kind, repair, line, base)
     merged = _merge(doc, Map({k: v for k, v in root.items() if k != "urdf"}), ("forces", "outputs"))
+    if isinstance(root.get("bodies"), Map) and isinstance(merged.get("bodies"), Map):
+        _overlay_replaces(merged["bodies"], root["bodies"], doc["bodies"])
     merged.lines = {**doc.lines, **{k: v for k, v in root.lines.items() if k != "urdf"}}
     merged.line = root.line
     return merged, repairs
+
+
+INERTIAL = ("mass", "center_of_mass", "inertia")
+
+
+def _overlay_replaces(bodies, overlay, urdf_bodies):
+    """What an overlay replaces rather than merges key by key: a link it makes elastic loses the URDF's
+    inertial (the elastic body has its own mass; the overlay's own mass, center_of_mass, inertia stay, as
+    extra rigid mass on the frame), and a joint it attaches at a `node` loses the URDF origin's `at`."""
+    for name, body in overlay.items():
+        if name not in urdf_bodies or not isinstance(body, Map):
+            continue
+        if "elastic" in body:
+            for k in INERTIAL:
+                if k not in body:
+                    bodies[name].pop(k, None)
+        joint = body.get("joint")
+        if isinstance(joint, Map) and "node" in joint and "at" not in joint:
+            bodies[name]["joint"].pop("at", None)
 
 
 def _package_dirs(spec, file, line, base, allow_outside):
