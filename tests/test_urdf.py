@@ -436,3 +436,105 @@ def test_real_robot_native_fmu_validates_and_matches_the_in_process_run(tmp_path
     scale = np.maximum(np.abs(X).max(axis=0), 1.0)
     assert F.shape == X.shape and np.all(np.abs(F - X) <= 1e-12 * scale), np.abs(F - X).max()
     assert np.ptp(YD, axis=0).max() > 1e-3  # it moved
+
+
+# ---- an elastic link through the overlay: UR5's forearm as a beam along its z axis ----------------------------
+FOREARM_L, FOREARM_M, FOREARM_IZZ = 0.39225, 2.275, 0.004095   # the URDF's wrist_1_joint origin z, forearm mass, izz
+
+
+def _elastic_ur5(EI, extra=""):
+    """UR5 with its forearm a beam of the URDF forearm's mass along forearm z, the wrist at the beam's tip."""
+    L = FOREARM_L
+    return _scene(UR5, extra=f"""bodies:
+  upper_arm_link: {{joint: {{initial: {{shoulder_lift_joint: -1.0}}, initial_velocity: {{shoulder_lift_joint: 0.5}}}}}}
+  forearm_link:
+    joint: {{initial: {{elbow_joint: 0.8}}}}
+    elastic: {{beam: {{length: {L}, EI: {EI}, rhoA: {FOREARM_M / L!r}, rhoIp: {FOREARM_IZZ / L!r}, axis: [0, 0, 1], elements: 8, modes: 4}}}}
+  wrist_1_link: {{joint: {{node: -1}}}}
+outputs:
+  - {{body: forearm_link, node: -1, quantities: [position], name: tip}}
+integrator: {{method: dop853, rtol: 1e-10, atol: 1e-12}}
+experiment: {{stop: 0.2, step: 0.01}}
+{extra}""")
+
+
+def _rigid_beam_ur5():
+    """Pinocchio's UR5 with the forearm's inertia replaced by the rigid beam's: a rod of the forearm's mass
+    along z from 0 to L (m L²/12 about its centre across; izz as rhoIp gives)."""
+    pm = _pinocchio(UR5, "fixed")
+    m, L = FOREARM_M, FOREARM_L
+    pm.inertias[pm.getJointId("elbow_joint")] = pin.Inertia(m, np.array([0.0, 0.0, L / 2]), np.diag([m * L**2 / 12, m * L**2 / 12, FOREARM_IZZ]))
+    return pm
+
+
+def test_elastic_forearm_replaces_the_urdf_inertial_or_keeps_the_overlays():
+    """Made elastic, the forearm's URDF inertial goes (the beam carries the mass); a mass the overlay gives stays."""
+    forearm = lambda s: next(b for b in s.spec["bodies"] if b["name"] == "forearm_link")
+    assert forearm(_elastic_ur5(1e3))["mass"] == 0.0
+    text = "bodies: {forearm_link: {mass: 0.5, center_of_mass: [0, 0, 0.1], elastic: {beam: {length: 0.39, EI: 100, rhoA: 5, axis: [0, 0, 1]}}}}"
+    body = forearm(_scene(UR5, extra=text))
+    assert body["mass"] == 0.5 and body["center_of_mass"] == [0, 0, 0.1] and not np.any(body["inertia"])
+
+
+def test_stiff_elastic_forearm_approaches_the_rigid_robot_of_the_beams_inertia():
+    """As EI grows tenfold, the joint motion of the UR5 with an elastic forearm approaches Pinocchio's ABA run of
+    the rigid robot whose forearm has the beam's mass and inertia about tenfold (the gravity sag ∝ 1/EI)."""
+    from scipy.integrate import solve_ivp
+    pm = _rigid_beam_ur5()
+    pd = pm.createData()
+    names = [pm.names[j] for j in range(1, pm.njoints)]
+    q0, v0 = np.zeros(pm.nq), np.zeros(pm.nv)
+    q0[names.index("shoulder_lift_joint")], q0[names.index("elbow_joint")] = -1.0, 0.8
+    v0[names.index("shoulder_lift_joint")] = 0.5
+    sol = solve_ivp(lambda t, x: np.concatenate([x[6:], pin.aba(pm, pd, x[:6], x[6:], np.zeros(6))]), (0, 0.2),
+                    np.concatenate([q0, v0]), method="DOP853", rtol=1e-12, atol=1e-12, dense_output=True)
+    errors = []
+    for EI in (1e3, 1e4, 1e5):
+        scene = _elastic_ur5(EI)
+        t, Y, _ = mbsfmu.simulate(scene)
+        coords = mbsfmu.compile(scene).coordinates
+        joints = [coords.index(n) for n in names]
+        errors.append(np.abs(Y[:, joints] - sol.sol(t)[:6].T).max())
+    assert errors[0] > 1e-4                               # soft enough to differ visibly
+    ratios = np.array(errors[:-1]) / errors[1:]
+    assert np.all((ratios > 7) & (ratios < 13)) and errors[-1] < 5e-6, errors   # ∝ 1/EI: no plateau, so → 0
+
+
+def _static_elastic_coordinates(scene):
+    """The state at rest under gravity, the joints held at zero: Newton on the elastic rows of k − q."""
+    sim = Simulation(scene.spec)
+    e = [i for i, c in enumerate(sim.coordinates) if c.startswith("forearm_link.q")]
+    y = np.zeros(sim.npos)
+    residual = lambda y: (lambda M, k, q: (k - q)[e])(*sim.engine.equations(0.0, np.concatenate([y, np.zeros(sim.nvel)])))
+    for _ in range(3):
+        J = np.column_stack([(residual(y + 1e-7 * np.eye(len(y))[i]) - residual(y)) / 1e-7 for i in e])
+        y[e] -= np.linalg.solve(J, residual(y))
+    return sim, np.zeros(sim.npos), y
+
+
+def test_soft_forearm_sags_as_a_cantilever_under_its_weight_and_the_wrists():
+    """UR5 at its zero configuration (arm horizontal): the static tip deflection of the soft forearm is the
+    cantilever's w L⁴/8EI (own weight) + P L³/3EI (the wrist subtree's weight, at the tip) + P d L²/2EI (its moment
+    about the tip, d = the subtree's centre of mass beyond the tip), mass and centre of mass from Pinocchio."""
+    EI, g = 2e3, 9.81
+    scene = _elastic_ur5(EI)
+    sim, y, ys = _static_elastic_coordinates(scene)
+    tip0, tip = (np.array([sim.output_values(np.concatenate([v, np.zeros(sim.nvel)]))[f"tip.r.{a}"] for a in "xyz"]) for v in (y, ys))
+    pm = _pinocchio(UR5, "fixed")
+    pd = pm.createData()
+    pin.centerOfMass(pm, pd, np.zeros(pm.nq))
+    wrist, elbow = pm.getJointId("wrist_1_joint"), pm.getJointId("elbow_joint")
+    np.testing.assert_allclose(tip0, pd.oMi[wrist].translation, atol=1e-12)   # undeformed, the tip is the wrist joint
+    along = (tip0 - pd.oMi[elbow].translation) / FOREARM_L
+    assert abs(along[2]) < 1e-9 and abs(np.linalg.norm(along) - 1) < 1e-12  # a horizontal forearm of length L (the URDF rounds π/2)
+    P, d = pd.mass[wrist] * g, (pd.oMi[wrist].act(pd.com[wrist]) - tip0) @ along   # com[i]: in joint i's frame
+    L, w = FOREARM_L, FOREARM_M / FOREARM_L * g
+    sag = w * L**4 / (8 * EI) + P * L**3 / (3 * EI) + P * d * L**2 / (2 * EI)
+    np.testing.assert_allclose(tip0[2] - tip[2], sag, rtol=0.01)   # 4 modes of 8 elements: 0.4 % here
+    assert abs((tip - tip0) @ along) < 1e-3 * sag   # inextensible axis: the tip moves across it only
+
+
+def test_elastic_ur5_native_fmu_builds_and_validates(tmp_path):
+    from fmpy.validation import validate_fmu
+    fmu = mbsfmu.build_fmu(_elastic_ur5(1e3), tmp_path, kind="native")
+    assert validate_fmu(str(fmu)) == []
