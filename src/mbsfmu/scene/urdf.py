@@ -527,12 +527,16 @@ def _overlay_replaces(bodies, overlay, urdf_bodies):
         if name not in urdf_bodies or not isinstance(body, Map):
             continue
         if "elastic" in body:
-            for k in INERTIAL:
-                if k not in body:
-                    bodies[name].pop(k, None)
+            _drop(bodies[name], [k for k in INERTIAL if k not in body])
         joint = body.get("joint")
         if isinstance(joint, Map) and "node" in joint and "at" not in joint:
-            bodies[name]["joint"].pop("at", None)
+            _drop(bodies[name]["joint"], ["at"])
+
+
+def _drop(node, keys):
+    for k in keys:
+        node.pop(k, None)
+        node.lines.pop(k, None)
 
 
 def _package_dirs(spec, file, line, base, allow_outside):
