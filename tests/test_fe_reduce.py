@@ -603,3 +603,17 @@ def test_a_solid_mesh_is_assembled_and_reduced_like_matrix_files(tmp_path):
         scene(tmp_path, f"{{mesh: bar.vtu, interface: {{nodes: {root}, reference: [0, 0, 0]}}}}")
     with pytest.raises(ModelError, match="not 'mass' beside 'mesh'"):
         scene(tmp_path, f"{{mesh: bar.vtu, mass: M.mtx, material: {{E: 1, nu: 0.3, rho: 1}}}}")
+
+
+def test_explicit_method_recovers_from_an_unstable_first_trial_step(tmp_path):
+    """A free FE body's stiff modes: HINIT's first step for dop853 (rtol 1e-8) lies outside its stability region,
+    the trial stages grow until M is indefinite there; the first step is tried again shorter instead of the run
+    failing at t = 0, and the run agrees with radau5 at tight tolerance."""
+    X, M, K = bar(p2=False, nx=6)
+    write_mm(tmp_path, X, M, K)
+    spec = scene(tmp_path, f"{{{MM}, method: free, modes: 4, keep: [0]}}",
+                 joint="{type: free, initial_velocity: {velocity: [0.3, -0.2, 0.1], omega: [2, 5, -3]}}",
+                 extra="      coordinates: [part.e1, part.e2, part.e3, part.e4]\n      initial_velocity: {part.e1: 0.5, part.e3: -0.2}\n")
+    _, Y, _ = mbsfmu.simulate(spec, stop=0.02, step=0.002, method="dop853", rtol=1e-8, atol=1e-10)
+    _, R, _ = mbsfmu.simulate(spec, stop=0.02, step=0.002, method="radau5", rtol=1e-12, atol=1e-14)
+    assert np.abs(Y - R).max() < 1e-9, np.abs(Y - R).max()

@@ -148,6 +148,14 @@ int mbs_integ_trial_nonfinite(MbsIntegrator *it, double h, const char *what)
     return MBS_REJECT;
 }
 
+int mbs_integ_stage_failed(MbsIntegrator *it, double h)
+{
+    MbsCommon *c = it->c;
+    if (c->steps > 0 || ++c->nonfinite > MBS_MAX_NONFINITE_TRIALS) return MBS_FAIL;  /* the ODE's message is set */
+    c->h = 0.25 * h;
+    return MBS_REJECT;
+}
+
 /* HINIT: h from ‖x‖/‖f‖ and a difference quotient of f for the second derivative (Hairer I, II.4). */
 int mbs_integ_initial_step(MbsIntegrator *it, const double *f0, int order, double t_end)
 {

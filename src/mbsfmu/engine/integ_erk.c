@@ -247,7 +247,8 @@ static int dopri5_attempt(MbsIntegrator *it, double t_new, double h, double *x_n
     double err, fac11, fac, h_new;
     memcpy(v->K, v->k1, (size_t)n * sizeof(double));
     /* row 6 = b: x_new, and its stage is the FSAL stage f(t_new, x_new); arg keeps stage 6's argument */
-    if (erk_stages(it, &A5[0][0], 7, C5, v->K, 1, 7, h, x, it->c->t, t_new, v->acc, v->arg, x_new)) return MBS_FAIL;
+    if (erk_stages(it, &A5[0][0], 7, C5, v->K, 1, 7, h, x, it->c->t, t_new, v->acc, v->arg, x_new))
+        return mbs_integ_stage_failed(it, h);
     stage_sum(n, 7, E5, h, v->K, v->acc);
     err = mbs_err_norm(n, v->acc, x, x_new, it->atol, it->rtol);
     if (!isfinite(err)) return mbs_integ_trial_nonfinite(it, h, "right-hand side");
@@ -324,7 +325,7 @@ static int dop853_attempt(MbsIntegrator *it, double t_new, double h, double *x_n
     double n5 = 0.0, n3 = 0.0, err, fac11, fac, h_new;
     memcpy(v->K, v->k1, (size_t)n * sizeof(double));
     if (erk_stages(it, &A8[0][0], S8X, C8, v->K, 1, S8 + 1, h, x, it->c->t, t_new, v->acc, v->arg, x_new))
-        return MBS_FAIL;
+        return mbs_integ_stage_failed(it, h);
     /* Hairer's estimate |h|·‖e5‖² / sqrt(‖e5‖² + 0.01‖e3‖²) in the RMS sense (robust for large h) */
     stage_sum(n, S8 + 1, E8_5, 1.0, v->K, v->acc);
     stage_sum(n, S8 + 1, E8_3, 1.0, v->K, v->e3);

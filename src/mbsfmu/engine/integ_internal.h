@@ -193,6 +193,11 @@ int mbs_integ_check_start(MbsIntegrator *it, const double *f0);
 /* A trial produced NaN/Inf: c->h = h/4 and MBS_REJECT, or MBS_FAIL after MBS_MAX_NONFINITE_TRIALS. what:
  * "right-hand side" or "accelerations". */
 int mbs_integ_trial_nonfinite(MbsIntegrator *it, double h, const char *what);
+/* The right-hand side failed (singular M, gimbal lock) at a trial stage. Before the first accepted step the
+ * step size is HINIT's guess, which can overshoot an explicit method's stability on a stiff scene and throw the
+ * stages out of the region where the equations hold: c->h = h/4 and MBS_REJECT, counted with the non-finite
+ * trials. Later (or after MBS_MAX_NONFINITE_TRIALS) MBS_FAIL with the ODE's message: no step size cures it. */
+int mbs_integ_stage_failed(MbsIntegrator *it, double h);
 /* The adaptive driver from (c->t, x) to t_end; 0 or 1. */
 int mbs_integ_adaptive(MbsIntegrator *it, double t_end);
 /* The fixed-step substep count of rk4 / gen_alpha: equal steps <= h_max over span (max_steps checked,
