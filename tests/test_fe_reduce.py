@@ -157,6 +157,31 @@ def test_free_modes_with_an_rbe2_reference():
     assert np.abs(inv.C_t).max() < 1e-12 * inv.m and np.abs(inv.C_r0).max() < 1e-12 * inv.m * L
 
 
+def eigenvalues_below(K, M, lam):
+    """Number of eigenvalues of the full K x = λ M x below lam: Sylvester's inertia of K − lam·M (dense LDLᵀ)."""
+    _, D, _ = scipy.linalg.ldl((K - lam * M).toarray())    # D: 1×1 and 2×2 blocks, so tridiagonal
+    return int(np.count_nonzero(scipy.linalg.eigvalsh_tridiagonal(np.diag(D), np.diag(D, 1)) < 0))
+
+
+def test_a_slender_parts_low_modes_are_not_taken_for_rigid_ones():
+    """A 2 m × 40 mm × 5 mm strip in 8 tet10 cells: its first free and clamped eigenvalues lie below 1e-9 of the
+    scale max K_ii/M_ii (which grows with mesh refinement) yet are elastic: free modes find exactly the six rigid
+    ones, Craig–Bampton accepts the clamped face, and the reduced eigenvalues bracket the full model's within
+    1e-4 by Sylvester's law (any dense factorization's roundoff here is ~ε·max(K_ii/M_ii)/λ ≈ 1e-5)."""
+    X, M, K = bar(nx=8, n=1, size=(2.0, 0.04, 0.005))
+    model = fe.FEModel(X, M, K, {}, "strip")
+    root = np.flatnonzero(X[:, 0] == 0)
+    keep = np.setdiff1d(np.arange(K.shape[0]), (3 * root[:, None] + np.arange(3)).ravel())
+    scale = float(np.max(K.diagonal() / M.diagonal()))
+    for Phi, rigid, dofs in ((cms.free_modes(K, M, cms.rigid_fields(X), "strip", modes=3), 6, slice(None)),
+                             (cms.craig_bampton(model, root, modes=3), 0, keep)):
+        Kf, Mf, V = K[dofs][:, dofs], M[dofs][:, dofs], Phi[dofs]
+        lam = scipy.linalg.eigvalsh(V.T @ (Kf @ V), V.T @ (Mf @ V))
+        assert lam[0] < 1e-9 * scale                                     # the premise: below the old bound
+        for k, lk in enumerate(lam):     # the k-th elastic eigenvalue of the full model lies within 1e-4 of lk
+            assert [eigenvalues_below(Kf, Mf, lk * f) for f in (1 - 1e-4, 1 + 1e-4)] == [rigid + k, rigid + k + 1]
+
+
 def test_cutoff_gives_exactly_the_modes_below_it():
     X, M, K = bar(p2=False)
     root = np.flatnonzero(X[:, 0] == 0)

@@ -43,7 +43,10 @@ from .nodal import MassMoments, NodalData, _symmetric_psd, damping_from_ratio
 
 METHODS = ("craig-bampton", "free")
 SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positive semi-definite K, by far more than roundoff
-RIGID = 1e-9      # |λ| < RIGID·λ_scale: a zero-frequency (rigid-body) mode
+# |λ| < RIGID·λ_scale: a zero-frequency (rigid-body) mode.  Rigid modes come out at ~1e-17·λ_scale (roundoff);
+# λ_scale grows as 1/element size² while a slender part's first mode falls as (thickness/length²)²: a 2 m strip
+# 10 mm thick in 16 tet10 cells has its first free mode at 4e-10·λ_scale, so the bound sits near roundoff
+RIGID = 1e-13
 CACHE_VERSION = "cms-2"
 DEFAULT_MODES = 10
 
