@@ -66,7 +66,8 @@ bodies:
     ev = mbsfmu.compile(spec)
     t, Y, YD = mbsfmu.simulate(spec, stop=T_END, step=0.01, method="dop853", rtol=rtol, atol=rtol * 1e-2)
     body = ev.model.index["strip"]
-    return t, Y[:, 0], np.array([node_point(ev.model, ev.kinematics(y, yd, tt), body, -1)[0] for y, yd, tt in zip(Y, YD, t)])
+    tip_path = [node_point(ev.model, ev.kinematics(y, yd, tt), body, -1)[0] for y, yd, tt in zip(Y, YD, t)]
+    return t, Y[:, 0], np.array(tip_path)
 
 
 def exudyn_tip(fe, root, tip, ts, h):
@@ -114,8 +115,9 @@ def rigid_path(X, theta):
 
 
 def test_fe_pendulum_tip_matches_exudyn_up_to_its_step_error(tmp_path):
-    """The tip difference falls as Exudyn's O(h²) step error: ≥ 2.8× per halved step (measured 4.0× and 3.2×, not the
-    asymptotic 4×: the sixth mode, 572 Hz, has ωh = 0.7 at h = 2e-4), to 0.3 % of the elastic deflection."""
+    """The tip difference falls as Exudyn's O(h²) step error: ≥ 2.8× per halved step (measured 4.0× and 3.2×,
+    not yet the asymptotic 4×: the sixth mode, 572 Hz, has ωh = 0.7 at h = 2e-4), to 0.3 % of the elastic
+    deflection."""
     path = strip_mesh(tmp_path)
     fe = assemble_solid(path.name, E, NU, RHO, element="tet10", base=tmp_path)
     root = np.flatnonzero(np.abs(fe.nodes[:, 0]) < 1e-12)
