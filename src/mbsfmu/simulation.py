@@ -1,4 +1,5 @@
-"""One simulated scene on the engine: the FMU's variables, parameters and inputs held over a step.
+"""One simulated scene on the engine: the FMU's variables (fmu/variables.py), parameters and inputs held
+over a step.
 
 In-process runs, the pythonfmu FMU and the native FMU all run the same C engine (mbsfmu.engine), so all
 three give the same numbers. Python compiles the scene once (engine/compile.py); every step runs in C.
@@ -13,61 +14,10 @@ import numpy as np
 
 from .engine import Instance
 from .engine.compile import compile_scene
-from .engine.elastic_tables import structural_parameters
 from .equations.model import Model
 from .errors import IntegrationError
 from .scene import domains
-from .engine.layout import METHODS  # the engine's integrators (mbs_layout.h: MBS_METHODS)
-
-
-class Variable:
-    """An FMU variable: name, causality, variability, type, unit, description, start."""
-
-    __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start")
-
-    def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0):
-        self.name, self.causality, self.variability, self.type = name, causality, variability, type
-        self.unit, self.description, self.start = unit, description, start
-
-    def __repr__(self):
-        return f"Variable({self.name!r}, {self.causality}, {self.unit})"
-
-
-def variables(spec, model):
-    """The FMU variables of a scene, in value-reference order (the same for both FMU kinds)."""
-    units_pos, units_vel = model.coordinate_units()
-    fixed = set(structural_parameters(spec))  # they feed generated elastic data, which the engine cannot redo
-    out = [Variable(p["name"], "parameter", "fixed" if p["name"] in fixed else "tunable", unit=p.get("unit"),
-                    description=(p["description"] or f"scene parameter {p['name']}")
-                    + (" (structural: feeds an elastic body's generated data; fixed)" if p["name"] in fixed else ""),
-                    start=p["value"])
-           for p in spec["parameters"]]
-    ii = spec["integrator"]
-    out.append(Variable("integrator.method", "parameter", "fixed", "String", None, "integration method: " + ", ".join(METHODS), ii["method"]))
-    out.append(Variable("integrator.rtol", "parameter", "fixed", unit="1", description="relative tolerance of the adaptive integrators", start=ii["rtol"]))
-    out.append(Variable("integrator.atol", "parameter", "fixed", unit="1", description="absolute tolerance of the adaptive integrators", start=ii["atol"]))
-    out.append(Variable("integrator.max_step", "parameter", "fixed", unit="s", description="largest internal step (0: no limit)", start=ii["max_step"]))
-    out.append(Variable("integrator.step", "parameter", "fixed", unit="s", description="fixed step of rk4 and gen_alpha (0: one step per communication interval for rk4, adaptive for gen_alpha)", start=ii["step"]))
-    for c, u in zip(model.velocity_coordinates, units_vel):
-        unit = {"m/s": "N", "rad/s": "N.m"}.get(u, "1")
-        out.append(Variable(f"q.{c}", "input", "continuous", unit=unit, description=f"generalized force on velocity coordinate {c}"))
-    for f in spec["forces"]:
-        if "input" in f:
-            unit = "N" if f["type"] == "force" else "N.m"
-            for ax in "xyz":
-                out.append(Variable(f"{f['input']}.{ax}", "input", "continuous", unit=unit,
-                                    description=f"{f['type']} on {f['body']}, {f['frame']} frame, {ax} component"))
-    for c, u in zip(model.coordinates, units_pos):
-        out.append(Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}"))
-    for c, u in zip(model.velocity_coordinates, units_vel):
-        out.append(Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}"))
-    for o in spec["outputs"]:
-        for qty, sym, unit in (("position", "r", "m"), ("velocity", "v", "m/s")):
-            if qty in o["quantities"]:
-                for ax in "xyz":
-                    out.append(Variable(f"{o['name']}.{sym}.{ax}", "output", "continuous", unit=unit,
-                                        description=f"world-frame {qty} of a point on {o['body']}, {ax} component"))
-    return out
+from .fmu.variables import Variable, variables
 
 
 def compiled(spec, guid=None):

@@ -27,7 +27,8 @@ def fmu_spec(path):
     scene the FMU runs (its compiled scene, GUID included) and its shapes (drawing only, not compiled) pass
     the scene file's shape rules."""
     from fmpy import read_model_description
-    from ..fmu.build import DRAWING_FILE, SCENE_FILE
+    from ..fmu.build import SCENE_FILE
+    from ..fmu.common import DRAWING_FILE
     from ..fmu.native import SCENE_FILE as NATIVE_SCENE_FILE
     from ..scene.load import check_shapes_again
     from ..simulation import compiled

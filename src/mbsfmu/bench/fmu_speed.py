@@ -49,10 +49,10 @@ def compile_host(dest: Path) -> Path:
 
 def build_trivial_fmu(outdir: Path, n: int = 1) -> Path:
     """A native FMU of n states x_i' = -a x_i + u: fmi2.c over fmu_trivial.c, packaged like a scene's native FMU."""
-    from ..fmu.build import _version, model_description
+    from ..fmu.common import mbsfmu_version, model_description
     from ..engine.build import linked_sources
     from ..fmu.native import FMI_LAYER, COSIMULATION, c_names, collect_sources, package
-    from ..simulation import Variable
+    from ..fmu.variables import Variable
     # the FMI layer's calls that fmu_trivial.c does not answer (resource locations) reach the engine's files
     sources = collect_sources(linked_sources([FMI_LAYER, TRIVIAL_SOURCE], []))
     guid = "{" + str(uuid.uuid4()) + "}"
@@ -61,7 +61,7 @@ def build_trivial_fmu(outdir: Path, n: int = 1) -> Path:
     variables += [Variable(f"y.x{i + 1}", "output", "continuous", unit="1", description="state") for i in range(n)]
     spec = {"name": f"trivial{n}", "description": f"x_i' = -a x_i + u, i = 1..{n} (rk4, 1 ms)",
             "experiment": {"start": 0.0}, "integrator": {}, "parameters": []}
-    xml = model_description(spec, f"trivial{n}", variables, _version(), guid=guid, cosimulation=COSIMULATION,
+    xml = model_description(spec, f"trivial{n}", variables, mbsfmu_version(), guid=guid, cosimulation=COSIMULATION,
                             source_files=c_names(sources))
     dest = Path(outdir) / f"trivial{n}.fmu"
     package(dest, f"trivial{n}", sources, f"{guid}\n{n}".encode(), xml)

@@ -114,8 +114,8 @@ class _Rules:
 
 
 def compile_scene(spec, variables, guid=""):
-    """The compiled scene of a normalized spec, with the FMU variables (list of simulation.Variable, in
-    value-reference order). Returns bytes."""
+    """The compiled scene of a normalized spec, with the FMU variables (fmu.variables.variables(spec): in
+    value-reference order, each with its engine table row). Returns bytes."""
     model = Model(spec)
     m, env = model, dict(model.env)
     # the engine keeps per body dense Jacobian rows (6 f doubles): refuse what it could not allocate
@@ -291,7 +291,7 @@ def compile_scene(spec, variables, guid=""):
                     dtype=np.int32).reshape(-1, 4)
     quat = np.array([np.r_[p, w] for p, w in zip(m.quaternions, m.quat_vel)], dtype=np.int32).reshape(-1, 7)
     plain = np.concatenate([m.plain_pos, m.plain_vel]).astype(np.int32)
-    vars_ = np.array([_variable(v, params, m, inputs) for v in variables], dtype=np.int32).reshape(-1, 2)
+    vars_ = np.array([(v.kind, v.index) for v in variables], dtype=np.int32).reshape(-1, 2)
     # the domain of each settable kind, rows MBS_V_PARAM .. MBS_V_STEP (every parameter's is the same)
     kinds = [e[1] for e in L.LISTS["MBS_VAR_KINDS"][L.MBS_V_PARAM:L.MBS_V_STEP + 1]]
     vdom = np.array([_domain_row(domains.variable_domain(name, spec)) for name in kinds])
@@ -385,24 +385,3 @@ def _node_index(model, body, node):
     """Node P of an elastic body as a non-negative index (node: -1 is the last)."""
     N = model.bodies[body].nodal.nodes
     return node % N
-
-
-def _variable(v, params, m, inputs):
-    """(kind, index) of an FMU variable for the engine's variable table."""
-    name = v.name
-    if v.causality == "parameter":
-        if name in params:
-            return L.MBS_V_PARAM, params.index(name)
-        return VAR_KINDS[name], 0
-    if name.startswith("q.") and name[2:] in m.velocity_coordinates and v.causality == "input":
-        return L.MBS_V_QIN, m.velocity_coordinates.index(name[2:])
-    if v.causality == "input":
-        base, _, ax = name.rpartition(".")
-        return L.MBS_V_FIN, 3 * inputs.index(base) + "xyz".index(ax)
-    if name.startswith("y.") and name[2:] in m.coordinates:
-        return L.MBS_V_Y, m.coordinates.index(name[2:])
-    if name.startswith("yd.") and name[3:] in m.velocity_coordinates:
-        return L.MBS_V_YD, m.velocity_coordinates.index(name[3:])
-    base, sym, ax = name.rsplit(".", 2)
-    o = [x["name"] for x in m.outputs].index(base)
-    return L.MBS_V_OUT, 6 * o + 3 * (sym == "v") + "xyz".index(ax)

@@ -7,10 +7,10 @@ An FMU holds
 * ``binaries/linux64/<id>.so`` (``cc``) and ``binaries/win64/<id>.dll`` when a MinGW-w64 cross compiler
   (``x86_64-w64-mingw32-gcc``) is installed,
 * ``resources/scene.bin``: the compiled scene (``engine.compile.compile_scene``) with the FMU's GUID,
-* ``resources/mbsfmu_drawing.json``: the scene for ``mbsfmu animate`` (``build.drawing_resource``),
+* ``resources/mbsfmu_drawing.json``: the scene for ``mbsfmu animate`` (``common.drawing_resource``),
 * ``sources/``: exactly the C files compiled into the binaries (the engine parts the scene needs, fmi2.c,
   the headers they include), listed in ``<SourceFiles>``, plus a CMakeLists.txt and a README,
-* ``modelDescription.xml`` from the same writer as the pythonfmu kind (``build.model_description``).
+* ``modelDescription.xml`` from the same writer as the pythonfmu kind (``common.model_description``).
 """
 from __future__ import annotations
 
@@ -26,6 +26,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from .. import files
+from .common import drawing_resource, mbsfmu_version, model_description, write_zip
+from .variables import variables as fmu_variables
 
 ENGINE = Path(__file__).resolve().parent.parent / "engine"
 FMI_LAYER = ENGINE / "fmi2.c"
@@ -155,14 +157,12 @@ def build_native(scene, dest: Path) -> Path:
     """Write the FMU ``dest`` (``build.fmu_path``: ``<outdir>/<name>.fmu``, native kind) for a loaded scene;
     returns its path."""
     from ..engine.compile import compile_scene
-    from ..simulation import Simulation
-    from .build import _version, drawing_resource, model_description
 
     spec = json.loads(json.dumps(scene.spec if hasattr(scene, "spec") else scene))
     name = dest.stem
-    version = _version()
+    version = mbsfmu_version()
     guid = guid_for(spec, version)
-    variables = Simulation(spec).variables  # value reference = row of the engine's variable table
+    variables = fmu_variables(spec)
     blob = compile_scene(spec, variables, guid)
     sources = source_files(blob)
     xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
@@ -200,7 +200,6 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
         members.update({f"sources/{f}": d for f, d in sorted(sources.items())})
         members["sources/CMakeLists.txt"] = cmake_lists(identifier, names).encode()
         members["sources/README"] = readme(identifier, names, notes).encode()
-    from .build import write_zip
     with files.replacing(dest) as tmp:  # a build that fails or is killed leaves the previous FMU intact
         write_zip(tmp, members)
     return notes

@@ -1,0 +1,99 @@
+"""The FMU variables of a scene: their one owner.
+
+Listed from the normalized scene alone (no engine library, no Simulation), in value-reference order, the same
+for both FMU kinds and in-process runs. Each variable also carries the row of the engine's variable table it
+becomes (``kind``: an ``MBS_V_*`` code of mbs_layout.h, ``index`` within that kind), so the compiler writes the
+table from here and never reads a name back. Contract: docs/fmu.md, "Variables".
+"""
+
+from ..engine import layout as L
+from ..engine.elastic_tables import structural_parameters
+from ..equations.model import Model
+
+INTEGRATOR_DESCRIPTIONS = {
+    "integrator.rtol": ("1", "relative tolerance of the adaptive integrators"),
+    "integrator.atol": ("1", "absolute tolerance of the adaptive integrators"),
+    "integrator.max_step": ("s", "largest internal step (0: no limit)"),
+    "integrator.step": ("s", "fixed step of rk4 and gen_alpha (0: one step per communication interval for rk4, "
+                             "adaptive for gen_alpha)"),
+}
+INPUT_UNITS = {"m/s": "N", "rad/s": "N.m"}  # the generalized force that does work on a velocity of this unit
+
+
+class Variable:
+    """An FMU variable: name, causality, variability, type, unit, description, start; value reference ``vr``;
+    the engine's variable-table row (``kind``, ``index``)."""
+
+    __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start", "vr", "kind", "index")
+
+    def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0,
+                 kind=None, index=0):
+        self.name, self.causality, self.variability, self.type = name, causality, variability, type
+        self.unit, self.description, self.start = unit, description, start
+        self.kind, self.index, self.vr = kind, index, None
+
+    def __repr__(self):
+        return f"Variable({self.name!r}, {self.causality}, {self.unit})"
+
+
+def variables(spec, model=None):
+    """The FMU variables of a normalized spec, in value-reference order (``model``: its equations.Model, if
+    already built)."""
+    model = Model(spec) if model is None else model
+    out = _parameters(spec) + _settings(spec["integrator"]) + _inputs(spec, model) + _outputs(spec, model)
+    for vr, v in enumerate(out):
+        v.vr = vr
+    return out
+
+
+def _parameters(spec):
+    fixed = set(structural_parameters(spec))  # they feed generated elastic data, which the engine cannot redo
+    return [Variable(p["name"], "parameter", "fixed" if p["name"] in fixed else "tunable", unit=p.get("unit"),
+                     description=(p["description"] or f"scene parameter {p['name']}")
+                     + (" (structural: feeds an elastic body's generated data; fixed)" if p["name"] in fixed else ""),
+                     start=p["value"], kind=L.MBS_V_PARAM, index=i)
+            for i, p in enumerate(spec["parameters"])]
+
+
+def _settings(integrator):
+    kinds = L.names("MBS_VAR_KINDS")  # the integrator.* settings by name
+    out = [Variable("integrator.method", "parameter", "fixed", "String", None,
+                    "integration method: " + ", ".join(L.METHODS), integrator["method"],
+                    kind=L.MBS_V_METHOD)]
+    for name, (unit, description) in INTEGRATOR_DESCRIPTIONS.items():
+        out.append(Variable(name, "parameter", "fixed", unit=unit, description=description,
+                            start=integrator[name.split(".")[1]], kind=kinds[name]))
+    return out
+
+
+def _inputs(spec, model):
+    _, units_vel = model.coordinate_units()
+    out = [Variable(f"q.{c}", "input", "continuous", unit=INPUT_UNITS.get(u, "1"),
+                    description=f"generalized force on velocity coordinate {c}", kind=L.MBS_V_QIN, index=i)
+           for i, (c, u) in enumerate(zip(model.velocity_coordinates, units_vel))]
+    inputs = [f for f in spec["forces"] if "input" in f]  # the engine's force inputs, in scene order
+    for i, f in enumerate(inputs):
+        unit = "N" if f["type"] == "force" else "N.m"
+        out += [Variable(f"{f['input']}.{ax}", "input", "continuous", unit=unit,
+                         description=f"{f['type']} on {f['body']}, {f['frame']} frame, {ax} component",
+                         kind=L.MBS_V_FIN, index=3 * i + k)
+                for k, ax in enumerate("xyz")]
+    return out
+
+
+def _outputs(spec, model):
+    units_pos, units_vel = model.coordinate_units()
+    out = [Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}",
+                    kind=L.MBS_V_Y, index=i)
+           for i, (c, u) in enumerate(zip(model.coordinates, units_pos))]
+    out += [Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}",
+                     kind=L.MBS_V_YD, index=i)
+            for i, (c, u) in enumerate(zip(model.velocity_coordinates, units_vel))]
+    for i, o in enumerate(spec["outputs"]):  # each output point: 6 engine values, r then v
+        for s, (qty, sym, unit) in enumerate((("position", "r", "m"), ("velocity", "v", "m/s"))):
+            if qty in o["quantities"]:
+                out += [Variable(f"{o['name']}.{sym}.{ax}", "output", "continuous", unit=unit,
+                                 description=f"world-frame {qty} of a point on {o['body']}, {ax} component",
+                                 kind=L.MBS_V_OUT, index=6 * i + 3 * s + k)
+                        for k, ax in enumerate("xyz")]
+    return out
