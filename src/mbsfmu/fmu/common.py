@@ -78,7 +78,7 @@ def _fmt(x) -> str:
 
 def model_description(spec: dict, name: str, variables, version: str, guid: str | None = None,
                       cosimulation: dict | None = None, source_files=()) -> bytes:
-    """The complete FMI 2.0 modelDescription.xml for the given Simulation variables (value reference = index).
+    """The complete FMI 2.0 modelDescription.xml for the given variables (variables.py; value reference = index).
 
     ``cosimulation`` overrides ``<CoSimulation>`` attributes, ``source_files`` fills its ``<SourceFiles>``
     (native FMUs); everything else is the same for both kinds."""
@@ -115,14 +115,9 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         for f in source_files:
             SubElement(sf, "File", {"name": f})
 
-    param_units = {p["name"]: p.get("unit") for p in spec.get("parameters") or () if isinstance(p, dict)}  # `unit:`
-
-    def unit_of(v):
-        return getattr(v, "unit", None) or (param_units.get(v.name) if v.causality == "parameter" else None)
-
     used_units = []
     for v in variables:
-        u = unit_of(v)
+        u = v.unit
         if getattr(v, "type", "Real") == "Real" and u and u not in used_units:
             used_units.append(u)
     if used_units:
@@ -172,8 +167,8 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
                 tattr["start"] = "" if v.start is None else str(v.start)
             SubElement(node, "String", tattr)
         else:
-            if unit_of(v):
-                tattr["unit"] = unit_of(v)
+            if v.unit:
+                tattr["unit"] = v.unit
             if v.causality != "output":
                 tattr["start"] = _fmt(0.0 if v.start is None else v.start)
             SubElement(node, "Real", tattr)
