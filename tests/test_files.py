@@ -192,8 +192,8 @@ WRITES = re.compile(r"(?<!files)\.(?:write_text|write_bytes|savefig|savetxt|to_c
 # Writes that need no mbsfmu.files: into private temporary folders (fmu/build.py: the staged slave resources,
 # the shim's C source; fmu/native.py: the sources it compiles; sweep/runner.py: a worker's copy of an FMU;
 # bodies/fe_mesh.py: the copy of a mesh file its parser process reads) and into the temporary file of
-# files.replacing (fmu/build.py: write_zip, _rewrite_zip when the shim goes in).
-PRIVATE = {"fmu/build.py": 4, "fmu/native.py": 1, "sweep/runner.py": 1, "bodies/fe_mesh.py": 1}
+# files.replacing (fmu/common.py: write_zip; fmu/build.py: _rewrite_zip when the shim goes in).
+PRIVATE = {"fmu/build.py": 3, "fmu/common.py": 1, "fmu/native.py": 1, "sweep/runner.py": 1, "bodies/fe_mesh.py": 1}
 
 
 def test_every_output_goes_through_mbsfmu_files():
