@@ -19,7 +19,6 @@ from .elastic_tables import elastic_sections
 # every section id, field, type code and size comes from mbs_layout.h (layout.py); these are views of it
 JOINT_TYPES = {(e[1], e[2] or None): L.CONSTANTS[e[0]] for e in L.LISTS["MBS_JOINTS"]}  # (joint, parametrization)
 FORCE_TYPES, FN1, FN2 = L.names("MBS_FORCES"), L.names("MBS_FN1"), L.names("MBS_FN2")
-VAR_KINDS = L.names("MBS_VAR_KINDS")  # integrator.* settings by name
 BINARY = {"+": L.OP_ADD, "-": L.OP_SUB, "*": L.OP_MUL, "/": L.OP_DIV, "^": L.OP_POW}
 
 
