@@ -1,6 +1,7 @@
 """Mesh files for `shape: {type: mesh}` → triangle corner positions (T × 3 × 3, float32).
 
-STL (binary or ASCII) and OBJ (`v` and `f` lines; polygons split into fans). Read as data only; the work and
+STL (binary or ASCII), OBJ (`v` and `f` lines; polygons split into fans) and COLLADA (.dae: screened by
+defusedxml, then read by pycollada; see _dae). Read as data only; the work and
 memory are bounded by counts (limits.MESH_TRIANGLES, MESH_VERTICES) checked as the file is read, before
 anything is expanded: a polygon's triangles are counted before its fan is built, a binary STL's header count is
 held against the file's size. Any problem is a ModelError naming the file.
@@ -9,6 +10,7 @@ held against the file's size. Any problem is a ModelError naming the file.
 import io
 import re
 import struct
+import warnings
 from array import array
 from pathlib import Path
 
@@ -38,6 +40,8 @@ def read_mesh(path):
     try:
         if path.suffix.lower() == ".obj":
             tris = _obj(data)
+        elif path.suffix.lower() == ".dae":
+            tris = _dae(data)
         elif _is_binary_stl(data):
             tris = _binary_stl(data)
         else:
@@ -51,6 +55,68 @@ def read_mesh(path):
     if not np.isfinite(tris).all():
         raise ModelError("the mesh has non-finite coordinates", file=str(path))
     return tris.astype(np.float32)
+
+
+def _dae(data):
+    """Every geometry instanced in the COLLADA scene, node transforms applied (pycollada's bound primitives),
+    in metres (<unit meter>) with z up (<up_axis>). Triangles and vertices are counted instance by instance
+    before each is expanded: nested <instance_node>s can repeat one geometry exponentially often."""
+    import collada
+    from defusedxml import ElementTree as safe_xml
+    try:  # no DTD at all: neither entity bombs nor external entities reach pycollada's parser (lxml)
+        safe_xml.fromstring(data, forbid_dtd=True, forbid_entities=True, forbid_external=True)
+    except safe_xml.ParseError as e:
+        raise ValueError(f"not XML: {e}") from None
+    except ValueError as e:  # defusedxml's DTDForbidden, EntitiesForbidden, ExternalReferenceForbidden
+        raise ValueError(f"refused XML: {e}") from None
+    try:
+        doc = collada.Collada(io.BytesIO(data), aux_file_loader=_no_aux_files)
+    except (collada.DaeError, KeyError, TypeError, AttributeError) as e:  # pycollada's own checks, and what it trips on
+        raise ValueError(f"not COLLADA: {str(e)[:200]}") from None
+    if doc.scene is None:
+        raise ValueError("the COLLADA file has no <scene>")
+    with warnings.catch_warnings():  # pycollada's numpy.matrix warns once per instance
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        try:
+            tris = _bound_triangles(collada, doc.scene)
+        except RecursionError:  # a node that instances itself
+            raise ValueError("the COLLADA scene's nodes instance one another in a cycle") from None
+    return tris @ _UP_TO_Z[doc.assetInfo.upaxis].T * float(doc.assetInfo.unitmeter or 1.0)
+
+
+def _bound_triangles(collada, scene):
+    """The triangles (T × 3 × 3) of every geometry instance in the scene graph, counted before each is built."""
+    parts, n_tri, n_vert = [], 0, 0
+    for n_inst, geometry in enumerate(scene.objects("geometry"), 1):
+        _count(n_inst, limits.MESH_INSTANCES, "geometry instances")  # empty ones too: binding each is work
+        for prim in geometry.primitives():
+            if isinstance(prim, collada.polylist.BoundPolylist):  # polylists and polygons: fans
+                sizes = np.diff(np.asarray(prim.polyindex).reshape(-1, 2), axis=1).ravel()
+                n_tri += int(np.maximum(sizes - 2, 0).sum())
+            elif isinstance(prim, collada.triangleset.BoundTriangleSet):
+                n_tri += len(prim.vertex_index) if prim.vertex_index is not None else 0
+            else:
+                continue  # lines: nothing to draw as a surface
+            n_vert += 0 if prim.vertex is None else len(prim.vertex)
+            _count(n_tri, limits.MESH_TRIANGLES, "triangles")
+            _count(n_vert, limits.MESH_VERTICES, "vertices")
+            if isinstance(prim, collada.polylist.BoundPolylist):
+                prim = prim.triangleset()
+            if prim.vertex is not None and prim.vertex_index is not None and len(prim.vertex_index):
+                parts.append(np.asarray(prim.vertex, dtype=float)[np.asarray(prim.vertex_index)])
+    return np.concatenate(parts) if parts else np.zeros((0, 3, 3))
+
+
+_UP_TO_Z = {  # COLLADA <up_axis> → the rotation taking that axis to +z (right-handed)
+    "Z_UP": np.eye(3),
+    "Y_UP": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),   # (x, y, z) → (x, -z, y)
+    "X_UP": np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]]),   # (x, y, z) → (-z, y, x)
+}
+
+
+def _no_aux_files(name):
+    """pycollada asks for files a COLLADA document names (textures): a drawing needs none, none are opened."""
+    return None
 
 
 def _count(n, limit, what):

@@ -17,9 +17,10 @@ URDF_ELEMENTS = 100_000         # XML elements of a URDF (Talos, 1,939 with visu
 MESSAGE_CHARS = 400             # an error message (quoted input is shortened)
 
 NPZ_BYTES = 64 * 2**20          # an .npz file, and the arrays read from it (declared uncompressed sizes)
-MESH_BYTES = 64 * 2**20         # a mesh file (STL, OBJ) of a shape: checked at load, bounded again when read
-MESH_TRIANGLES = 2_000_000      # triangles of one mesh (STL; OBJ polygons counted as their fans), counted as read
-MESH_VERTICES = 2_000_000       # vertices of one OBJ mesh ('v' lines), counted as read
+MESH_BYTES = 64 * 2**20         # a mesh file (STL, OBJ, DAE) of a shape: checked at load, bounded again when read
+MESH_TRIANGLES = 2_000_000      # triangles of one mesh (STL; OBJ and DAE polygons counted as their fans; DAE: per instance), counted as read
+MESH_VERTICES = 2_000_000       # vertices of one OBJ mesh ('v' lines) or DAE mesh (per instance), counted as read
+MESH_INSTANCES = 4096           # geometry instances of one DAE mesh (nested <instance_node>s multiply them), counted as bound
 NPZ_ENTRIES = 64                # members of an .npz (zip) file
 DRAWING_BYTES = 16 * 2**20      # an FMU's drawing description (the normalized scene as JSON, nodal data inline)
 BEAM_ELEMENTS = 200             # the beam generator's dense FE matrices grow as elements²

@@ -3,7 +3,7 @@
     shape: {type: box, size: [a, b, c], at: [x, y, z], rotation: {axis: [..], angle: ..}, color: "#c03030"}
     shape: [{type: cylinder, radius: r, length: L, at: [0, 0, -L/2]}, {type: sphere, radius: r_bob, at: [0, 0, -L]}]
 
-Cylinders and capsules lie along the body z axis; a mesh file (STL or OBJ) must sit in the scene's folder.
+Cylinders and capsules lie along the body z axis; a mesh file (STL, OBJ or COLLADA .dae) must sit in the scene's folder.
 Numbers may be expressions over parameters. Nothing here is used by the equations of motion.
 """
 
@@ -15,7 +15,7 @@ from . import datafile, limits
 from .yaml_lines import Map, Seq
 
 SHAPE_TYPES = ("box", "sphere", "cylinder", "capsule", "mesh")
-MESH_SUFFIXES = (".stl", ".obj")
+MESH_SUFFIXES = (".stl", ".obj", ".dae")
 _SIZE_KEYS = {"box": ("size",), "sphere": ("radius",), "cylinder": ("radius", "length"),
               "capsule": ("radius", "length"), "mesh": ("file",)}
 _COMMON = ("type", "at", "rotation", "color", "opacity")
@@ -85,7 +85,7 @@ def _scale(ck, s, path):
 
 
 def _mesh_file(ck, s, path):
-    """A mesh file inside the scene's folder (no absolute paths, no '..' out of it), STL or OBJ, bounded size."""
+    """A mesh file inside the scene's folder (no absolute paths, no '..' out of it), STL, OBJ or DAE, bounded size."""
     name = s["file"]
     try:  # always confined, even when nodal data may come from elsewhere: the drawing never needs more
         f = datafile.resolve(ck.base, name)
@@ -93,7 +93,7 @@ def _mesh_file(ck, s, path):
         ck.fail(s, "file", path + ".file", e.message.replace("data file", "mesh file"), "mesh files must sit in the scene's folder or below it")
     base = ck.base.resolve()
     if f.suffix.lower() not in MESH_SUFFIXES:
-        ck.fail(s, "file", path + ".file", f"'{name}' is not a supported mesh file", "formats: STL (binary or ASCII), OBJ")
+        ck.fail(s, "file", path + ".file", f"'{name}' is not a supported mesh file", "formats: STL (binary or ASCII), OBJ, COLLADA (.dae)")
     if not f.is_file():
         ck.fail(s, "file", path + ".file", f"no such mesh file '{name}' (looked in {base})")
     if f.stat().st_size > limits.MESH_BYTES:

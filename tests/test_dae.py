@@ -1,0 +1,146 @@
+"""COLLADA (.dae) visual meshes (issue 25): triangles of every instanced geometry in world units (node
+transforms, <unit meter>, <up_axis>) against closed forms; a real robot's DAE against its collision STL; hostile
+XML (entity bombs, external entities, instancing that multiplies triangles) refused with one ModelError quickly."""
+from __future__ import annotations
+
+import sysconfig
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mbsfmu.animation.mesh import read_mesh
+from mbsfmu.errors import ModelError
+from mbsfmu.scene import limits
+
+ROBOTS = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
+
+# a unit cube [0, 1]^3: 8 corners, 6 quads as a <polylist> (fanned into 12 triangles)
+CUBE_V = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+CUBE_QUADS = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+
+
+def dae(node_xml, unit=1.0, up="Z_UP", library_nodes="", primitive="polylist"):
+    coords = " ".join(f"{c:g}" for v in CUBE_V for c in v)
+    if primitive == "polylist":
+        prim = (f'<polylist count="6"><input semantic="VERTEX" source="#v" offset="0"/>'
+                f'<vcount>{" ".join("4" for _ in CUBE_QUADS)}</vcount>'
+                f'<p>{" ".join(str(i) for q in CUBE_QUADS for i in q)}</p></polylist>')
+    else:
+        tris = [(q[0], q[k], q[k + 1]) for q in CUBE_QUADS for k in (1, 2)]
+        prim = (f'<triangles count="12"><input semantic="VERTEX" source="#v" offset="0"/>'
+                f'<p>{" ".join(str(i) for t in tris for i in t)}</p></triangles>')
+    return f"""<?xml version="1.0" encoding="utf-8"?>
+<COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">
+<asset><unit meter="{unit}" name="u"/><up_axis>{up}</up_axis></asset>
+<library_geometries><geometry id="cube"><mesh>
+<source id="p"><float_array id="pa" count="24">{coords}</float_array>
+<technique_common><accessor source="#pa" count="8" stride="3"><param name="X" type="float"/><param name="Y" type="float"/><param name="Z" type="float"/></accessor></technique_common></source>
+<vertices id="v"><input semantic="POSITION" source="#p"/></vertices>
+{prim}
+</mesh></geometry></library_geometries>
+{library_nodes}
+<library_visual_scenes><visual_scene id="s">{node_xml}</visual_scene></library_visual_scenes>
+<scene><instance_visual_scene url="#s"/></scene>
+</COLLADA>"""
+
+
+CUBE_NODE = '<node id="n"><translate>10 20 30</translate><rotate>0 0 1 90</rotate><scale>2 2 2</scale><instance_geometry url="#cube"/></node>'
+
+
+def corners(tris):
+    return {tuple(np.round(p, 6) + 0.0) for p in tris.reshape(-1, 3)}
+
+
+def expected(transform):
+    return {tuple(np.round(transform(np.array(v, float)), 6) + 0.0) for v in CUBE_V}
+
+
+def write(tmp_path, text, name="m.dae"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("primitive", ["polylist", "triangles"])
+def test_cube_node_transform_and_unit_give_world_corners(tmp_path, primitive):
+    """translate · rotate(z, 90°) · scale(2), then millimetres → metres: the 8 corners in closed form, 12
+    triangles, each a right isosceles triangle of legs 2 mm (area 2e-6 m²: none degenerate)."""
+    tris = read_mesh(write(tmp_path, dae(CUBE_NODE, unit=0.001, primitive=primitive)))
+    Rz = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]])
+    assert tris.shape == (12, 3, 3)
+    assert corners(tris.astype(float)) == expected(lambda v: 0.001 * (np.array([10, 20, 30]) + Rz @ (2 * v)))
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+    assert np.allclose(area, 0.5 * 0.002**2, rtol=1e-5)
+
+
+def test_y_up_turns_to_z_up(tmp_path):
+    """Y_UP: the file's +y is up, so (x, y, z) is drawn at (x, -z, y) (a right-handed turn about x)."""
+    node = '<node id="n"><translate>0 5 0</translate><instance_geometry url="#cube"/></node>'
+    tris = read_mesh(write(tmp_path, dae(node, up="Y_UP")))
+    assert corners(tris.astype(float)) == expected(lambda v: np.array([v[0], -v[2], v[1] + 5]))
+
+
+def test_nested_instance_nodes_compose(tmp_path):
+    """A geometry reached through <instance_node> twice, under two translated parents: two cubes."""
+    lib = '<library_nodes><node id="leaf"><translate>1 0 0</translate><instance_geometry url="#cube"/></node></library_nodes>'
+    node = ('<node id="a"><translate>0 0 0</translate><instance_node url="#leaf"/></node>'
+            '<node id="b"><translate>0 0 7</translate><instance_node url="#leaf"/></node>')
+    tris = read_mesh(write(tmp_path, dae(node, library_nodes=lib)))
+    assert len(tris) == 24
+    assert corners(tris.astype(float)) == expected(lambda v: v + [1, 0, 0]) | expected(lambda v: v + [1, 0, 7])
+
+
+@pytest.mark.skipif(not ROBOTS.is_dir(), reason="example-robot-data is not installed")
+@pytest.mark.parametrize("link", ["forearm", "upperarm", "shoulder"])
+def test_ur5_visual_dae_matches_its_collision_stl(link):
+    """The UR5's visual DAE (Y_UP or Z_UP, unit as written) against the collision STL of the same link: the
+    two are drawn from one CAD model, so their bounding boxes agree to a few millimetres."""
+    meshes = ROBOTS / "ur_description/meshes/ur5"
+    visual, collision = read_mesh(meshes / f"visual/{link}.dae"), read_mesh(meshes / f"collision/{link}.stl")
+    lo_v, hi_v = visual.reshape(-1, 3).min(0), visual.reshape(-1, 3).max(0)
+    lo_c, hi_c = collision.reshape(-1, 3).min(0), collision.reshape(-1, 3).max(0)
+    assert np.allclose(lo_v, lo_c, atol=0.01) and np.allclose(hi_v, hi_c, atol=0.01), (lo_v, hi_v, lo_c, hi_c)
+
+
+LAUGHS = ('<?xml version="1.0"?><!DOCTYPE COLLADA [<!ENTITY a "aaaaaaaaaa">'
+          + "".join(f'<!ENTITY {chr(98 + i)} "{("&" + chr(97 + i) + ";") * 10}">' for i in range(9))
+          + ']><COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1"><asset><contributor><author>&j;</author></contributor></asset></COLLADA>')
+EXTERNAL = ('<?xml version="1.0"?><!DOCTYPE COLLADA [<!ENTITY x SYSTEM "file:///etc/passwd">]>'
+            '<COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1"><asset><contributor><author>&x;</author></contributor></asset></COLLADA>')
+
+
+def doubling(levels):
+    """Node i instances node i-1 twice: 2**levels cubes of 12 triangles from a file of a few kB."""
+    lib = '<library_nodes><node id="n0"><instance_geometry url="#cube"/></node>' + "".join(
+        f'<node id="n{i}"><instance_node url="#n{i - 1}"/><instance_node url="#n{i - 1}"/></node>' for i in range(1, levels + 1))
+    return dae(f'<node id="top"><instance_node url="#n{levels}"/></node>', library_nodes=lib + "</library_nodes>")
+
+
+@pytest.mark.parametrize("name, text, words", [
+    ("laughs", LAUGHS, "refused XML"),
+    ("external", EXTERNAL, "refused XML"),
+    ("doubling", doubling(20), "more than 4,096 geometry instances"),   # a million cubes asked for
+    ("cycle", dae('<node id="top"><instance_node url="#c"/></node>',
+                  library_nodes='<library_nodes><node id="c"><instance_node url="#d"/></node><node id="d"><instance_node url="#c"/></node></library_nodes>'), "COLLADA"),
+    ("broken", "<COLLADA><asset>", "not XML"),
+])
+def test_hostile_dae_is_one_model_error_within_a_second(tmp_path, name, text, words):
+    p = write(tmp_path, text)
+    t0 = time.process_time()
+    with pytest.raises(ModelError) as e:
+        read_mesh(p)
+    assert time.process_time() - t0 < 1.0
+    assert words in str(e.value) and str(p) in str(e.value) and "\n" not in str(e.value)
+
+
+def test_over_the_triangle_limit_is_refused(tmp_path, monkeypatch):
+    """Two instanced cubes are 24 triangles: under a limit of 20 refused before the second is built, at 24 read."""
+    lib = '<library_nodes><node id="leaf"><instance_geometry url="#cube"/></node></library_nodes>'
+    p = write(tmp_path, dae('<node id="a"><instance_node url="#leaf"/><instance_node url="#leaf"/></node>', library_nodes=lib))
+    monkeypatch.setattr(limits, "MESH_TRIANGLES", 24)
+    assert len(read_mesh(p)) == 24
+    monkeypatch.setattr(limits, "MESH_TRIANGLES", 20)
+    with pytest.raises(ModelError, match="more than 20 triangles"):
+        read_mesh(p)
