@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import mbsfmu
 from mbsfmu.animation.mesh import read_mesh
 from mbsfmu.errors import ModelError
 from mbsfmu.scene import limits
@@ -144,3 +145,50 @@ def test_over_the_triangle_limit_is_refused(tmp_path, monkeypatch):
     monkeypatch.setattr(limits, "MESH_TRIANGLES", 20)
     with pytest.raises(ModelError, match="more than 20 triangles"):
         read_mesh(p)
+
+
+def _robot_with_package_meshes(folder, dae_text):
+    """folder/robot.urdf: a pendulum link drawn by package://arm/meshes/link.dae, the mesh in folder/pkgs/arm."""
+    mesh = folder / "pkgs/arm/meshes/link.dae"
+    mesh.parent.mkdir(parents=True)
+    mesh.write_text(dae_text)
+    (folder / "robot.urdf").write_text(
+        '<?xml version="1.0"?>\n<robot name="r"><link name="world"/><joint name="j" type="revolute"><parent link="world"/>'
+        '<child link="arm"/><axis xyz="1 0 0"/></joint><link name="arm"><inertial><origin xyz="0 0 -0.5"/><mass value="1"/>'
+        '<inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial>'
+        '<visual><geometry><mesh filename="package://arm/meshes/link.dae" scale="2 2 2"/></geometry></visual></link></robot>\n')
+    return folder / "robot.urdf"
+
+
+def test_direct_urdf_load_draws_package_meshes_in_the_named_folders(tmp_path):
+    """mbsfmu.load(robot.urdf, package_dirs=[...]): the package:// DAE becomes a mesh shape read as the cube it
+    is; without the folder it is skipped with the note; a folder outside the URDF's is refused."""
+    urdf = _robot_with_package_meshes(tmp_path / "robot", dae(CUBE_NODE, unit=0.001))
+    scene = mbsfmu.load(urdf, package_dirs=["pkgs"])
+    (shape,) = scene.spec["bodies"][0]["shape"]
+    assert shape["type"] == "mesh" and shape["file"] == "pkgs/arm/meshes/link.dae" and shape["scale"] == [2, 2, 2]
+    assert len(read_mesh(urdf.parent / shape["file"])) == 12
+    page = Path(mbsfmu.animate(scene, str(tmp_path / "anim.html"), stop=0.05))
+    assert page.stat().st_size > 0
+    with pytest.warns(UserWarning, match="1 in no named package folder"):
+        assert not mbsfmu.load(urdf).spec["bodies"][0].get("shape")
+    (tmp_path / "elsewhere").mkdir()
+    with pytest.raises(ModelError, match=r"robot\.urdf: package_dirs\[0\]: the package folder '\.\./elsewhere' lies outside"):
+        mbsfmu.load(urdf, package_dirs=["../elsewhere"])
+    with pytest.raises(ModelError, match="expected a list"):
+        mbsfmu.load(urdf, package_dirs="pkgs")
+    (tmp_path / "scene.yaml").write_text("mbsfmu: 1\n")
+    with pytest.raises(ModelError, match="for a URDF loaded directly"):
+        mbsfmu.load(tmp_path / "scene.yaml", package_dirs=["pkgs"])
+
+
+@pytest.mark.skipif(not ROBOTS.is_dir(), reason="example-robot-data is not installed")
+def test_cli_package_dir_draws_a_real_dae(tmp_path, capsys):
+    """`mbsfmu animate robot.urdf --package-dir pkgs`: the UR5 forearm's real DAE drawn through the command."""
+    from mbsfmu import cli
+    urdf = _robot_with_package_meshes(tmp_path, (ROBOTS / "ur_description/meshes/ur5/visual/forearm.dae").read_text())
+    assert cli.main(["animate", str(urdf), "--package-dir", "pkgs", "--stop", "0.05", "-o", str(tmp_path / "a.html")]) in (0, None)
+    assert (tmp_path / "a.html").stat().st_size > 1000
+    assert cli.main(["check", str(urdf), "--package-dir", "../x"]) not in (0, None)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lies outside" in err[0], err

@@ -392,7 +392,7 @@ def test_visuals_become_shapes_and_package_uris_stay_in_their_folder(tmp_path):
     (tmp_path / "robot").mkdir()
     _urdf(tmp_path / "robot", visual)
     (tmp_path / "scene.yaml").write_text("mbsfmu: 1\nurdf: {file: robot/robot.urdf, package_dirs: [pkgs], base: free}\n")
-    with pytest.warns(UserWarning, match=r"visual meshes not drawn: 1 \.dae files"):
+    with pytest.warns(UserWarning, match=r"visual meshes not drawn: 1 not found"):
         scene = mbsfmu.load(tmp_path / "scene.yaml")
     box, mesh, cyl = scene.spec["bodies"][0]["shape"]
     assert box["size"] == [0.2, 0.3, 0.4] and box["at"] == [0, 0, 0.1] and box["color"] == "#0000ff"

@@ -10,12 +10,13 @@ __version__ = "0.1.0"
 __all__ = ["load", "loads", "compile", "simulate", "animate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
 
 
-def load(path, allow_outside=False, repair=False):
+def load(path, allow_outside=False, repair=False, package_dirs=()):
     """Read and validate a scene file or a URDF (`.urdf`); raises ModelError (only) with file:line, key and a
     hint. Data files must lie in the scene's folder unless allow_outside=True. repair=True fixes a URDF's
-    massless moving links and unphysical inertias instead of refusing them (listed in `scene.repairs`)."""
+    massless moving links and unphysical inertias instead of refusing them (listed in `scene.repairs`).
+    package_dirs: for a URDF, the folders of its `package://NAME/...` meshes, relative to the URDF's folder."""
     from .scene import load as _load
-    return _load(path, allow_outside=allow_outside, repair=repair)
+    return _load(path, allow_outside=allow_outside, repair=repair, package_dirs=package_dirs)
 
 
 def loads(text, file="<string>", base=None, allow_outside=False, repair=False):

@@ -73,14 +73,16 @@ def _dae(data):
         doc = collada.Collada(io.BytesIO(data), aux_file_loader=_no_aux_files)
     except (collada.DaeError, KeyError, TypeError, AttributeError) as e:  # pycollada's own checks, and what it trips on
         raise ValueError(f"not COLLADA: {str(e)[:200]}") from None
+    except RecursionError:
+        raise ValueError("the COLLADA nodes are nested too deeply") from None
     if doc.scene is None:
         raise ValueError("the COLLADA file has no <scene>")
     with warnings.catch_warnings():  # pycollada's numpy.matrix warns once per instance
         warnings.simplefilter("ignore", PendingDeprecationWarning)
         try:
             tris = _bound_triangles(collada, doc.scene)
-        except RecursionError:  # a node that instances itself
-            raise ValueError("the COLLADA scene's nodes instance one another in a cycle") from None
+        except RecursionError:
+            raise ValueError("the COLLADA nodes are nested too deeply") from None
     return tris @ _UP_TO_Z[doc.assetInfo.upaxis].T * float(doc.assetInfo.unitmeter or 1.0)
 
 

@@ -41,16 +41,22 @@ class Scene:
         return f"<Scene {self.name} ({len(self.spec['bodies'])} bodies)>"
 
 
-def load(path, allow_outside=False, repair=False):
+def load(path, allow_outside=False, repair=False, package_dirs=()):
     """Read and validate a scene file or a URDF (format: docs/scene-format.md); raises ModelError and nothing else.
 
     Data files (`nodal: {file: ...}`, `urdf: {file: ...}`) must lie inside the scene's folder unless
     `allow_outside` is true. `repair`: fix a URDF's massless moving links and unphysical inertias (reported
-    in `Scene.repairs`) instead of refusing them.
+    in `Scene.repairs`) instead of refusing them. `package_dirs`: for a URDF, the folders its `package://NAME/...`
+    meshes are looked up in, relative to the URDF's folder and inside it unless `allow_outside` (a YAML scene
+    names them in its `urdf:` entry).
     """
     path = Path(path)
     if path.suffix.lower() in (".urdf", ".xacro"):
-        return _checked(lambda: urdf.read(path, repair=repair), str(path), path.parent, allow_outside)
+        return _checked(lambda: urdf.read(path, urdf.package_folders(package_dirs, path.parent, allow_outside, str(path)), repair=repair),
+                        str(path), path.parent, allow_outside)
+    if package_dirs:
+        raise ModelError("package folders are given for a URDF loaded directly", file=str(path), key="package_dirs",
+                         hint="a YAML scene names them in its urdf: entry (urdf: {file: robot.urdf, package_dirs: [...]})")
     try:
         with limits.open_regular(path) as f:
             raw = f.read(limits.DOCUMENT_BYTES + 1)  # bounded

@@ -10,6 +10,7 @@ usable for outputs, forces and drawing).
 
 import io
 import math
+import os
 import re
 import xml.sax
 from pathlib import Path
@@ -383,7 +384,7 @@ def _entries(I):
 class _Meshes:
     """Mesh file names of <mesh filename=...> → names relative to the scene's folder: `package://NAME/rest` in
     the named package folders, other names relative to the URDF's folder; a name that leaves its folder is
-    refused. Meshes the drawing cannot show (DAE, outside the scene's folder, not found) are counted and
+    refused. Meshes the drawing cannot show (other formats, outside the scene's folder, not found) are counted and
     reported in one note."""
 
     def __init__(self, urdf_dir, package_dirs, scene_dir, fail):
@@ -541,16 +542,20 @@ def _drop(node, keys):
 
 def _package_dirs(spec, file, line, base, allow_outside):
     """`urdf.package_dirs`: folders relative to the scene's, inside it unless allow_outside."""
-    dirs = spec.get("package_dirs", [])
-    if not isinstance(dirs, list) or len(dirs) > 64:
-        raise ModelError("expected a list of folders", file=file, line=spec.lines.get("package_dirs", line), key="urdf.package_dirs")
+    return package_folders(spec.get("package_dirs", []), base, allow_outside, file, spec.lines.get("package_dirs", line), "urdf.package_dirs")
+
+
+def package_folders(dirs, base, allow_outside, file, line=None, key="package_dirs"):
+    """Package folders (`package://NAME/...`) relative to `base`, inside it unless allow_outside → resolved paths."""
+    if isinstance(dirs, (str, Path)) or not isinstance(dirs, (list, tuple)) or len(dirs) > 64:
+        raise ModelError("expected a list of at most 64 folders", file=file, line=line, key=key)
     out = []
     for i, d in enumerate(dirs):
         try:
-            out.append(datafile.resolve(base, d, allow_outside))
+            out.append(datafile.resolve(base, os.fspath(d) if isinstance(d, os.PathLike) else d, allow_outside))
         except ModelError as e:
-            raise ModelError(e.message.replace("data file", "package folder"), file=file, line=spec.lines.get("package_dirs", line),
-                             key=f"urdf.package_dirs[{i}]", hint=e.hint) from None
+            raise ModelError(e.message.replace("data file", "package folder"), file=file, line=line,
+                             key=f"{key}[{i}]", hint=e.hint) from None
     return out
 
 
