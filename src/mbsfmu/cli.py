@@ -101,7 +101,8 @@ def _need_scene(path):
 
 def _animate(args):
     from .animation import animate
-    out = animate(args.model, args.output, stop=args.stop, input_csv=args.input, result_csv=args.result, fps=args.fps,
+    model = args.model if _is_fmu(args.model) else _load(args.model, args)
+    out = animate(model, args.output, stop=args.stop, input_csv=args.input, result_csv=args.result, fps=args.fps,
                   scene=args.scene)
     print(f"wrote {out}")
 
@@ -112,16 +113,22 @@ def _need_fmu(path):
 
 
 # -- commands ----------------------------------------------------------------------------------------
+def _load(path, args):
+    """A scene file or URDF as the options of _allow_outside say (every command that loads one)."""
+    from . import load
+    return load(path, allow_outside=args.allow_outside, repair=args.repair, package_dirs=args.package_dir)
+
+
 def _build(args):
     """Every scene is loaded and every FMU's path checked against the scenes and the other FMUs before the
     first build: two scenes with one model name would write one FMU."""
     import time
-    from . import build_fmu, load
+    from . import build_fmu
     from .fmu.build import fmu_path
     scenes = []
     for path in args.scene:
         _need_scene(path)
-        scenes.append(load(path, allow_outside=args.allow_outside, repair=args.repair))
+        scenes.append(_load(path, args))
     files.check({f"the FMU of {path}": fmu_path(s, args.output) for path, s in zip(args.scene, scenes)},
                 {f"the scene {path}": path for path in args.scene},
                 hint="give the models different names (name:) or build them into different folders")
@@ -135,9 +142,9 @@ def _build(args):
 
 
 def _check(args):
-    from . import compile, load
+    from . import compile
     _need_scene(args.scene)
-    scene = load(args.scene, allow_outside=args.allow_outside, repair=args.repair)
+    scene = _load(args.scene, args)
     ev = compile(scene)
     nb, nf = len(scene.spec["bodies"]), len(ev.velocity_coordinates)
     print(f"{scene.name}: {nb} bod{'y' if nb == 1 else 'ies'}, {nf} degree{'' if nf == 1 else 's'} of freedom")
@@ -165,7 +172,7 @@ def _convert(args):
 
     from .scene.urdf import to_yaml
     files.check({"--output": args.output}, {"the URDF": args.urdf})
-    text = to_yaml(args.urdf, base=args.base, repair=args.repair, scene_dir=Path(args.output).parent)
+    text = to_yaml(args.urdf, base=args.base, repair=args.repair, scene_dir=Path(args.output).parent, package_dirs=args.package_dir)
     print(files.write_text(args.output, text))
 
 
@@ -182,9 +189,9 @@ def _simulate(args):
     is_fmu = _is_fmu(args.model)
     files.check({"--csv": args.csv, "--plot": args.plot}, {"the model": args.model, "--input": args.input})
     if args.input and not is_fmu:  # inputs from a CSV go through an FMU built in a temporary folder
-        from . import build_fmu, load
+        from . import build_fmu
         with tempfile.TemporaryDirectory(prefix="mbsfmu_sim_") as tmp:
-            result = _run_fmu(str(build_fmu(load(args.model, allow_outside=args.allow_outside, repair=args.repair), tmp)), args)
+            result = _run_fmu(str(build_fmu(_load(args.model, args), tmp)), args)
     else:
         result = _run_fmu(args.model, args) if is_fmu else _run_scene(args.model, args)
     title, t, cols, names, units = result
@@ -216,9 +223,9 @@ def _check_times(start, stop, step):
 def _run_scene(path, args):
     """In-process run of a scene → (title, t, columns, names, units): the FMU's outputs, `outputs:` points included."""
     import numpy as np
-    from . import load, simulate
+    from . import simulate
     from .simulation import Simulation
-    scene = load(path, allow_outside=args.allow_outside, repair=args.repair)
+    scene = _load(path, args)
     spec, e = scene.spec, scene.spec["experiment"]
     stop, step = args.stop or e["stop"], args.step or e["step"]
     _check_times(e["start"], stop, step)
@@ -374,6 +381,9 @@ def _allow_outside(p):
                         "(default: refused)")
     p.add_argument("--allow-outside", action="store_true",
                    help="read data files (nodal .npz) outside the scene's folder too (default: refused)")
+    p.add_argument("--package-dir", action="append", default=[], metavar="DIR",
+                   help="a URDF given directly: a folder its package://NAME/... meshes are looked up in, relative "
+                        "to the URDF's folder (repeatable; a YAML scene names them in urdf: package_dirs)")
 
 
 def parser():
@@ -419,6 +429,8 @@ def parser():
     p.add_argument("--base", choices=("fixed", "free"), default="fixed",
                    help="the root link fixed in the world (default) or on a free joint (a floating base)")
     p.add_argument("--repair", action="store_true", help="repair massless moving links and unphysical inertias")
+    p.add_argument("--package-dir", action="append", default=[], metavar="DIR",
+                   help="a folder the URDF's package://NAME/... meshes are looked up in, relative to the URDF's folder (repeatable)")
     p.set_defaults(run=_convert)
     p = sub.add_parser("animate", help="write a self-contained HTML page that plays the motion in 3-D")
     p.add_argument("model", help="scene .yaml or mbsfmu .fmu")
@@ -428,6 +440,7 @@ def parser():
     p.add_argument("--result", help="draw this result CSV (from 'mbsfmu simulate --csv') instead of simulating")
     p.add_argument("--fps", type=float, default=60, help="frames kept per simulated second (default: 60)")
     p.add_argument("--scene", help="for an FMU: draw from this scene (default: the drawing description the FMU carries)")
+    _allow_outside(p)
     p.set_defaults(run=_animate)
     p = sub.add_parser("crosscheck", help="write the FMI cross-check files (<model>.fmu, _ref.csv, _ref.opt, _in.csv)")
     p.add_argument("scene", help="scene file (.yaml)")

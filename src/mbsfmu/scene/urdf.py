@@ -576,13 +576,14 @@ def _merge(a, b, appended=()):
     return out
 
 
-def to_yaml(path, base="fixed", repair=False, scene_dir=None):
+def to_yaml(path, base="fixed", repair=False, scene_dir=None, package_dirs=()):
     """The URDF at `path` as the text of an equivalent scene YAML to be written into `scene_dir` (default the
-    URDF's folder: mesh files are named relative to it), what `mbsfmu convert` writes."""
+    URDF's folder: mesh files are named relative to it), what `mbsfmu convert` writes. package_dirs: as for
+    mbsfmu.load of a URDF (relative to its folder, inside it)."""
     import json
 
     import yaml
-    doc, repairs = read(path, base=base, repair=repair, scene_dir=scene_dir)
+    doc, repairs = read(path, package_folders(package_dirs, Path(path).parent, False, str(path)), base, repair, scene_dir=scene_dir)
     plain = json.loads(json.dumps(doc))  # Map/Seq → plain data; floats keep every digit (repr)
     head = [f"# {Path(path).name} converted by mbsfmu convert (base: {base}); joint limits and friction are not modelled"]
     head += [f"# repaired: {r}" for r in repairs]
