@@ -94,15 +94,15 @@ def test_nested_instance_nodes_compose(tmp_path):
 
 
 @pytest.mark.skipif(not ROBOTS.is_dir(), reason="example-robot-data is not installed")
-@pytest.mark.parametrize("link", ["forearm", "upperarm", "shoulder"])
+@pytest.mark.parametrize("link", ["base", "shoulder", "upperarm", "forearm", "wrist1", "wrist2", "wrist3"])
 def test_ur5_visual_dae_matches_its_collision_stl(link):
     """The UR5's visual DAE (Y_UP or Z_UP, unit as written) against the collision STL of the same link: the
-    two are drawn from one CAD model, so their bounding boxes agree to a few millimetres."""
+    two are drawn from one CAD model, so their bounding boxes agree to 2 mm (measured: 0.02–0.53 mm)."""
     meshes = ROBOTS / "ur_description/meshes/ur5"
     visual, collision = read_mesh(meshes / f"visual/{link}.dae"), read_mesh(meshes / f"collision/{link}.stl")
     lo_v, hi_v = visual.reshape(-1, 3).min(0), visual.reshape(-1, 3).max(0)
     lo_c, hi_c = collision.reshape(-1, 3).min(0), collision.reshape(-1, 3).max(0)
-    assert np.allclose(lo_v, lo_c, atol=0.01) and np.allclose(hi_v, hi_c, atol=0.01), (lo_v, hi_v, lo_c, hi_c)
+    assert np.allclose(lo_v, lo_c, atol=0.002) and np.allclose(hi_v, hi_c, atol=0.002), (lo_v, hi_v, lo_c, hi_c)
 
 
 LAUGHS = ('<?xml version="1.0"?><!DOCTYPE COLLADA [<!ENTITY a "aaaaaaaaaa">'
@@ -126,7 +126,7 @@ def doubling(levels):
     ("cycle", dae('<node id="top"><instance_node url="#c"/></node>',
                   library_nodes='<library_nodes><node id="c"><instance_node url="#d"/></node><node id="d"><instance_node url="#c"/></node></library_nodes>'), "COLLADA"),
     ("broken", "<COLLADA><asset>", "not XML"),
-])
+], ids=lambda v: v if isinstance(v, str) and len(v) < 12 else "")
 def test_hostile_dae_is_one_model_error_within_a_second(tmp_path, name, text, words):
     p = write(tmp_path, text)
     t0 = time.process_time()
