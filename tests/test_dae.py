@@ -192,3 +192,14 @@ def test_cli_package_dir_draws_a_real_dae(tmp_path, capsys):
     assert cli.main(["check", str(urdf), "--package-dir", "../x"]) not in (0, None)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "lies outside" in err[0], err
+
+
+def test_convert_package_dir_names_the_mesh_and_the_yaml_loads(tmp_path):
+    """`mbsfmu convert robot.urdf --package-dir pkgs`: the written scene names the DAE relative to itself and
+    loads to the same mesh shape as the URDF loaded with package_dirs."""
+    from mbsfmu import cli
+    urdf = _robot_with_package_meshes(tmp_path, dae(CUBE_NODE))
+    assert cli.main(["convert", str(urdf), "--package-dir", "pkgs", "-o", str(tmp_path / "robot.yaml")]) in (0, None)
+    converted, direct = mbsfmu.load(tmp_path / "robot.yaml"), mbsfmu.load(urdf, package_dirs=["pkgs"])
+    assert converted.spec["bodies"][0]["shape"] == direct.spec["bodies"][0]["shape"]
+    assert direct.spec["bodies"][0]["shape"][0]["file"] == "pkgs/arm/meshes/link.dae"
