@@ -154,6 +154,27 @@ def _check(args):
     for b in ev.model.bodies:
         if b.elastic:
             print("  " + _elastic_summary(b))
+            if "fe" in b.elastic:
+                _reduction_check(b.name, b.elastic["fe"])
+
+
+def _reduction_check(name, fe):
+    """The reduced body's frequencies against the full FE model's (same boundary condition); a note when any
+    retained one is off by more than the scene's check_tolerance (the scene is still valid: status 0)."""
+    import warnings
+    from .bodies.cms import frequency_deviation
+    full, off = fe["full_frequencies"], frequency_deviation(fe)
+    print(f"    full model: {_hz(full)} Hz (reduced off by at most {off.max():.2%})")
+    bad = [i + 1 for i in range(len(off)) if off[i] > fe["check_tolerance"]]
+    if bad:
+        warnings.warn(f"{name}: mode{'s' if len(bad) > 1 else ''} {', '.join(map(str, bad[:8]))}"
+                      f"{', …' if len(bad) > 8 else ''} of the reduction differ from the full model's by more than "
+                      f"{fe['check_tolerance']:.3g} (up to {off.max():.2%}): retain more modes (modes, cutoff_hz)",
+                      stacklevel=2)
+
+
+def _hz(values):
+    return ", ".join(f"{f:.4g}" for f in values[:8]) + (", …" if len(values) > 8 else "")
 
 
 def _elastic_summary(body):
@@ -162,8 +183,7 @@ def _elastic_summary(body):
     from scipy.linalg import eigvalsh
     inv = body.inv
     hz = np.sqrt(np.clip(eigvalsh(inv.K, inv.M_ee), 0, None)) / (2 * np.pi)
-    shown = ", ".join(f"{f:.4g}" for f in hz[:8]) + (", …" if len(hz) > 8 else "")
-    return (f"elastic {body.name}: {inv.n} mode{'s' if inv.n != 1 else ''} at {shown} Hz (undamped, frame held), "
+    return (f"elastic {body.name}: {inv.n} mode{'s' if inv.n != 1 else ''} at {_hz(hz)} Hz (undamped, frame held), "
             f"mass {inv.m:.6g} kg, {body.nodal.nodes} node{'s' if body.nodal.nodes != 1 else ''}")
 
 

@@ -47,8 +47,9 @@ SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positiv
 # λ_scale grows as 1/element size² while a slender part's first mode falls as (thickness/length²)²: a 2 m strip
 # 10 mm thick in 16 tet10 cells has its first free mode at 4e-10·λ_scale, so the bound sits near roundoff
 RIGID = 1e-13
-CACHE_VERSION = "cms-2"
+CACHE_VERSION = "cms-3"
 DEFAULT_MODES = 10
+CHECK_TOLERANCE = 0.01   # `mbsfmu check` warns when a retained frequency is off the full model's by more
 
 
 def _lam_scale(K, M):
@@ -204,6 +205,37 @@ def free_modes_rbe2(model, interface, reference, modes=None, cutoff_hz=None):
     return T @ red, red[-6:]
 
 
+def _craig_bampton_space(model, interface, reference):
+    """T (3N × m): the displacements a Craig–Bampton basis spans, the interface held by the frame: inner DOFs
+    free; interface DOFs zero (a reference point) or its deformation alone (a node set, see the docstring)."""
+    idofs = _dofs(interface)
+    inner = np.setdiff1d(np.arange(3 * model.n_nodes), idofs)
+    T = sp.csr_matrix((np.ones(len(inner)), (inner, np.arange(len(inner)))), shape=(3 * model.n_nodes, len(inner)))
+    if reference is not None:
+        return T
+    basis = np.zeros((3 * model.n_nodes, 3 * len(interface) - 6))
+    basis[idofs] = _interface_frame(model, interface)[:, 6:]
+    return sp.hstack([T, sp.csr_matrix(basis)]).tocsr()
+
+
+def full_frequencies(model, method, interface, reference, n):
+    """The full model's n lowest elastic frequencies (Hz) under the reduced basis's boundary condition: what
+    the retained modes approximate (Rayleigh–Ritz: each reduced frequency is an upper bound of its own)."""
+    if method == "free":
+        T = None if reference is None else rbe2(model, interface, reference)
+    else:
+        T = _craig_bampton_space(model, interface, reference)
+    K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
+    rigid = 6 if method == "free" else 0   # their count was checked when the modes were found
+    lam = _lowest(K, M, n + rigid, model.source, _lam_scale(K, M))[0][rigid:]
+    return np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi)
+
+
+def frequency_deviation(fe):
+    """Per retained mode: |f_reduced / f_full − 1| of a reduced body (as the normalized scene holds it)."""
+    return np.abs(np.asarray(fe["frequencies"], float) / np.asarray(fe["full_frequencies"], float) - 1)
+
+
 def _interface_frame(model, interface):
     """An orthonormal basis (U, 3n_I × 3n_I) whose first six columns span the interface's rigid motions."""
     U, sv, _ = np.linalg.svd(rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0)))
@@ -264,6 +296,7 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
     K_ee = 0.5 * (K_ee + K_ee.T)
     lam = scipy.linalg.eigvalsh(K_ee, mo.M_ee)   # the reduced body's own frequencies
+    full = full_frequencies(model, method, interface, reference, n)
     R_RP, Phi_kept, Psi_kept = kept_nodes(model, Phi, keep)
     if reference is not None:   # craig-bampton: clamped to the frame (Φ = Ψ = 0); free: its u_R, θ_R
         ref = at_reference.reshape(2, 3, n) / scale if method == "free" else np.zeros((2, 3, n))
@@ -271,7 +304,8 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         Phi_kept = np.concatenate([ref[:1], Phi_kept])
         Psi_kept = np.concatenate([ref[1:], Psi_kept])
     return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": Psi_kept, "stiffness": K_ee,
-            "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "m": np.array(mo.m), "S0": mo.S0,
+            "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "full_frequencies": full,
+            "m": np.array(mo.m), "S0": mo.S0,
             "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
 
 
@@ -303,6 +337,7 @@ def _largest(Phi):
 
 
 REDUCED = ("R_RP", "Phi", "Psi", "stiffness", "frequencies", "m", "S0", "S_RR", "C_t", "A", "B")
+CACHED = REDUCED + ("full_frequencies",)   # the full model's frequencies: for `mbsfmu check`, not the body
 
 
 def nodal_data(reduced, damping_ratio=0.0, key="elastic.fe"):
@@ -383,8 +418,10 @@ def reduce_cached(files, inputs, build):
     path = cache_dir() / f"{cache_key(files, inputs)}.npz"
     try:
         with np.load(path, allow_pickle=False) as z:
-            reduced = {k: z[k] for k in REDUCED}
+            reduced = {k: z[k] for k in CACHED}
         nodal_data(reduced)   # a damaged entry fails here and is computed again
+        if reduced["full_frequencies"].shape != reduced["frequencies"].shape:
+            raise ValueError("damaged")
         return reduced
     except (OSError, KeyError, ValueError, IndexError, TypeError):
         pass

@@ -703,7 +703,9 @@ class _Checker:
                 if not isinstance(i["reference"], list) or len(i["reference"]) != 3:
                     self.fail(i, "reference", ip + ".reference", f"a point [x, y, z] was expected, got {_shown(i['reference'])}")
                 params["reference"] = [self.plain_number(i["reference"], k, f"{ip}.reference[{k}]", magnitude=False) for k in range(3)]
-
+        # judges the reduction (mbsfmu check), does not change it: not an input of reduce_files
+        tolerance = (self.plain_number(node, "check_tolerance", path + ".check_tolerance", positive=True)
+                     if "check_tolerance" in node else cms.CHECK_TOLERANCE)
         try:
             reduced = cms.reduce_files(files, source, sets, **params)
         except ModelError as err:
@@ -712,7 +714,7 @@ class _Checker:
         first = 1 if params["reference"] else 0
         names.update({k: first + i for i, k in enumerate(params["keep"]) if isinstance(k, str)})
         self.node_names[body] = names
-        return _plain(reduced)
+        return dict(_plain(reduced), check_tolerance=tolerance)
 
     def fe_matrices(self, node, path):
         """(source, files) of an FE model given as mass and stiffness matrices (fe.read)."""
@@ -1039,7 +1041,7 @@ def _default_coordinates(kind, name, param):
 
 
 _FE_MESH_KEYS = ("mesh", "material", "element")
-_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep") + _FE_MESH_KEYS
+_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep", "check_tolerance") + _FE_MESH_KEYS
 _FE_FORMATS = ("matrix-market", "abaqus")
 
 
