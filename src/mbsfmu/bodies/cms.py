@@ -231,9 +231,18 @@ def full_frequencies(model, method, interface, reference, n):
     return np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi)
 
 
+def _band_top(model, normal):
+    """The band a reduction claims: up to its highest normal mode's frequency (Hz).  Those modes are
+    eigenvectors, so their Rayleigh quotients are their eigenvalues; static constraint modes claim none."""
+    lam = np.sum(normal * (model.K @ normal), axis=0) / np.sum(normal * (model.M @ normal), axis=0)
+    return np.sqrt(max(lam.max(), 0)) / (2 * np.pi)
+
+
 def frequency_deviation(fe):
-    """Per retained mode: |f_reduced / f_full − 1| of a reduced body (as the normalized scene holds it)."""
-    return np.abs(np.asarray(fe["frequencies"], float) / np.asarray(fe["full_frequencies"], float) - 1)
+    """|f_reduced / f_full − 1| of a reduced body (as the normalized scene holds it) for each full-model mode in
+    the band it claims: a mode the reduction misses shows as its next frequency far above the full model's."""
+    full = np.asarray(fe["full_frequencies"], float)
+    return np.abs(np.asarray(fe["frequencies"], float)[:len(full)] / full - 1)
 
 
 def _interface_frame(model, interface):
@@ -260,7 +269,8 @@ def moments(model, Phi):
 
 def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None):
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
-    Psi, modal stiffness, the mass moments and the frequencies (Hz)."""
+    Psi, modal stiffness, the mass moments, the frequencies (Hz) and the full model's in the band the reduction
+    claims (full_frequencies: `mbsfmu check` compares them)."""
     _check_mass(model)
     if interface is not None:
         interface = np.unique(np.asarray(interface, dtype=np.int64))
@@ -274,18 +284,19 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         statics = np.zeros((3 * model.n_nodes, 0))
         if reference is None:   # the interface moves with the frame on average: its deformation is kept
             statics = constraint_modes(model, interface, limits.FE_MODES - (modes or 1))
-        Phi = craig_bampton(model, interface, modes, cutoff_hz)
+        Phi = normal = craig_bampton(model, interface, modes, cutoff_hz)
         if Phi.shape[1] + statics.shape[1] > limits.FE_MODES:
             raise ModelError(f"{model.source}: {Phi.shape[1]} + {statics.shape[1]} constraint modes, at most "
                              f"{limits.FE_MODES}", hint="lower cutoff_hz, or tie the interface to a reference point")
         Phi = np.hstack([Phi, statics])
     elif method == "free" and reference is None:
-        Phi = free_modes(model.K, model.M, rigid_fields(model.nodes), model.source, modes, cutoff_hz)
+        Phi = normal = free_modes(model.K, model.M, rigid_fields(model.nodes), model.source, modes, cutoff_hz)
     elif method == "free":
         if interface is None:
             raise ModelError("a reference point needs its interface node set",
                              hint="interface: {node_set: name, reference: [x, y, z]}")
         Phi, at_reference = free_modes_rbe2(model, interface, reference, modes, cutoff_hz)
+        normal = Phi
     else:
         raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
     N, n = model.n_nodes, Phi.shape[1]
@@ -297,6 +308,7 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     K_ee = 0.5 * (K_ee + K_ee.T)
     lam = scipy.linalg.eigvalsh(K_ee, mo.M_ee)   # the reduced body's own frequencies
     full = full_frequencies(model, method, interface, reference, n)
+    full = full[full <= _band_top(model, normal) * (1 + 1e-6)]   # (the slack: eigsh's tolerance, not a mode)
     R_RP, Phi_kept, Psi_kept = kept_nodes(model, Phi, keep)
     if reference is not None:   # craig-bampton: clamped to the frame (Φ = Ψ = 0); free: its u_R, θ_R
         ref = at_reference.reshape(2, 3, n) / scale if method == "free" else np.zeros((2, 3, n))
@@ -420,7 +432,7 @@ def reduce_cached(files, inputs, build):
         with np.load(path, allow_pickle=False) as z:
             reduced = {k: z[k] for k in CACHED}
         nodal_data(reduced)   # a damaged entry fails here and is computed again
-        if reduced["full_frequencies"].shape != reduced["frequencies"].shape:
+        if not 1 <= len(reduced["full_frequencies"]) <= len(reduced["frequencies"]):
             raise ValueError("damaged")
         return reduced
     except (OSError, KeyError, ValueError, IndexError, TypeError):
