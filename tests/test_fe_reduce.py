@@ -494,10 +494,11 @@ def test_cli_prints_one_line_for_a_broken_fe_model(tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1 and "not positive semi-definite" in r.stderr, r.stderr
 
 
-FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep")
+FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep",
+           "check_tolerance")
 
 
-VALID = {("node_sets", "null"), ("keep", "[1, 2]"), ("cutoff_hz", "99999")}   # no node sets; two nodes; ≤ 100 modes
+VALID = {("node_sets", "null"), ("keep", "[1, 2]"), ("cutoff_hz", "99999"), ("check_tolerance", "99999")}   # no node sets; two nodes; ≤ 100 modes
 
 
 def test_every_fe_key_with_a_wrong_value_is_a_model_error_at_that_key(tmp_path):
@@ -642,3 +643,72 @@ def test_explicit_method_recovers_from_an_unstable_first_trial_step(tmp_path):
     _, Y, _ = mbsfmu.simulate(spec, stop=0.02, step=0.002, method="dop853", rtol=1e-8, atol=1e-10)
     _, R, _ = mbsfmu.simulate(spec, stop=0.02, step=0.002, method="radau5", rtol=1e-12, atol=1e-14)
     assert np.abs(Y - R).max() < 1e-9, np.abs(Y - R).max()
+
+
+# -- how good a reduction is: the full model's frequencies under the same boundary condition ----------------
+
+def _null_space_frequencies(K, M, C, skip, count):
+    """Lowest frequencies (Hz) of the full model constrained by C u = 0 (dense LAPACK on C's null space)."""
+    Z = scipy.linalg.null_space(C)
+    lam = scipy.linalg.eigh(Z.T @ (K @ Z), Z.T @ (M @ Z), eigvals_only=True)[skip:skip + count]
+    return np.sqrt(lam) / (2 * np.pi)
+
+
+def _interface_rows(X, root, fields):
+    """Constraint rows acting on the interface DOFs only: fields (3n_I × r) → C (r × 3N)."""
+    C = np.zeros((fields.shape[1], 3 * len(X)))
+    C[:, (3 * root[:, None] + np.arange(3)).ravel()] = fields.T
+    return C
+
+
+@pytest.mark.parametrize("method, reference", [("craig-bampton", [0, 0.05, 0.05]), ("craig-bampton", None),
+                                               ("free", None), ("free", [-0.1, 0.05, 0.05])])
+def test_full_model_frequencies_are_the_dense_eigenvalues_under_the_bases_condition(method, reference):
+    """The full model's frequencies a reduction is judged by equal dense eigh of the constrained full matrices:
+    CB + reference: interface clamped; CB + node set: only its six rigid motions held (T_rᵀ u_I = 0); free:
+    nothing held, six rigid modes skipped; free + reference (RBE2): the interface moves rigidly (its 3n_I − 6
+    deformation components zero), six rigid modes skipped."""
+    X, M, K = bar()
+    root = np.flatnonzero(X[:, 0] == 0)
+    got = cms.full_frequencies(fe.FEModel(X, M, K, {}, "bar"), method, root, reference, 8)
+    rigid = cms.rigid_fields(X[root] - X[root].mean(axis=0))
+    U = np.linalg.svd(rigid)[0]
+    if method == "craig-bampton":
+        ref = (dense_frequencies(K, M, root, count=8) if reference else
+               _null_space_frequencies(K, M, _interface_rows(X, root, rigid), 0, 8))
+    else:
+        ref = (dense_frequencies(K, M, skip=6, count=8) if reference is None else
+               _null_space_frequencies(K, M, _interface_rows(X, root, U[:, 6:]), 6, 8))
+    assert np.allclose(got, ref, rtol=1e-8, atol=0), (got, ref)
+
+
+def _check(folder, fe_yaml):
+    import subprocess
+    import sys
+    (folder / "s.yaml").write_text(f"mbsfmu: 1\nname: t\nbodies:\n  part:\n    parent: world\n    joint: {{type: fixed}}\n"
+                                   f"    elastic:\n      fe: {{{MM}, keep: [0], {fe_yaml}}}\n")
+    return subprocess.run([sys.executable, "-m", "mbsfmu.cli", "check", str(folder / "s.yaml")], capture_output=True,
+                          text=True, timeout=120, env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))
+
+
+def test_check_notes_a_reduction_that_misses_a_mode_of_its_band(tmp_path):
+    """CB on the bar's 9-node end face without a reference point, 1 fixed-interface mode: it claims the band up
+    to the clamped first frequency, but the full model under the node set's condition (only the face's rigid
+    motion held) has two modes there (dense LAPACK), and the reduced body's second is far above: one note line,
+    exit status 0.  2 modes reproduce both: no note; check_tolerance above the miss silences it."""
+    X, M, K = bar()
+    write_mm(tmp_path, X, M, K)
+    root = np.flatnonzero(X[:, 0] == 0)
+    clamped = dense_frequencies(K, M, root, count=1)[0]
+    held = _null_space_frequencies(K, M, _interface_rows(X, root, cms.rigid_fields(X[root])), 0, 3)
+    assert np.count_nonzero(held <= clamped) == 2            # the band of 1 fixed-interface mode holds two modes
+    iface = f"interface: {{nodes: {root.tolist()}}}"
+    r = _check(tmp_path, f"{iface}, modes: 1")
+    notes = [x for x in r.stderr.splitlines() if x.startswith("note:")]
+    assert r.returncode == 0 and len(notes) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "mode 2 " in notes[0] and "0.01" in notes[0], notes
+    shown = next(x for x in r.stdout.splitlines() if "full model" in x).split(": ")[1].split(" Hz")[0]
+    assert np.allclose([float(f) for f in shown.split(", ")], held[:2], rtol=5e-4), (shown, held)
+    for adequate in ("modes: 2", "modes: 1, check_tolerance: 5"):   # the miss: 4.7 times the full model's
+        r = _check(tmp_path, f"{iface}, {adequate}")
+        assert r.returncode == 0 and r.stderr == "" and "full model" in r.stdout, (adequate, r.stderr)
