@@ -688,7 +688,7 @@ def _check(folder, fe_yaml):
     (folder / "s.yaml").write_text(f"mbsfmu: 1\nname: t\nbodies:\n  part:\n    parent: world\n    joint: {{type: fixed}}\n"
                                    f"    elastic:\n      fe: {{{MM}, keep: [0], {fe_yaml}}}\n")
     return subprocess.run([sys.executable, "-m", "mbsfmu.cli", "check", str(folder / "s.yaml")], capture_output=True,
-                          text=True, timeout=120, env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))
+                          text=True, timeout=120)
 
 
 def test_check_notes_a_reduction_that_misses_a_mode_of_its_band(tmp_path):
