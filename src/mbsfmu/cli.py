@@ -164,11 +164,11 @@ def _reduction_check(name, fe):
     import warnings
     from .bodies.cms import frequency_deviation
     full, off = fe["full_frequencies"], frequency_deviation(fe)
-    print(f"    full model, same boundary condition: {_hz(full)} Hz (the reduction's off by at most {100 * off.max():.2g} %)")
+    print(f"    full model, same boundary condition: {_hz(full)} Hz (the reduction's off by at most {100 * off.max():.3g} %)")
     bad = [i + 1 for i in range(len(off)) if off[i] > fe["check_tolerance"]]
     if bad:
         warnings.warn(f"{name}: mode{'s' if len(bad) > 1 else ''} {', '.join(map(str, bad[:8]))}"
-                      f"{', …' if len(bad) > 8 else ''} of the reduction differ from the full model's by more than "
+                      f"{', …' if len(bad) > 8 else ''} of the reduction {'differ' if len(bad) > 1 else 'differs'} from the full model's by more than "
                       f"{fe['check_tolerance']:.3g} (up to {100 * off.max():.3g} %): retain more modes (modes, cutoff_hz)",
                       stacklevel=2)
 

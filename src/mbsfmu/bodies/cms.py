@@ -49,7 +49,7 @@ SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positiv
 RIGID = 1e-13
 CACHE_VERSION = "cms-3"
 DEFAULT_MODES = 10
-CHECK_TOLERANCE = 0.01   # `mbsfmu check` warns when a retained frequency is off the full model's by more
+CHECK_TOLERANCE = 0.01   # `mbsfmu check` notes a frequency of the claimed band off the full model's by more
 
 
 def _lam_scale(K, M):
