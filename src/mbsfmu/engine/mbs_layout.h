@@ -121,13 +121,13 @@ enum { MBS_VAR_KINDS(MBS_CODE) MBS_V_N };
 
 /* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, sim.c to a host's):
  * a variable's domain is lo..hi, 0 besides with VD_ZERO, always finite; a rule holds for the numbers a
- * parameter derives (numbers per rule: domains.RULE_SIZE). */
+ * parameter derives, each rule with how many consecutive numbers of D it reads (0: a body or a td slot). */
 #define MBS_VDOM_FLAGS(X) X(VD_LO_OPEN, 1) X(VD_HI_OPEN, 2) X(VD_ZERO, 4)
 enum { MBS_VDOM_FLAGS(MBS_VALUE) };
 #define MBS_RULES(X) \
-    X(R_NONNEG) X(R_MAGNITUDE) X(R_INERTIA) X(R_AXIS) X(R_ROTATION) X(R_CARRIES) \
-    X(R_TIMED)          /* a td slot */ \
-    X(R_PERPENDICULAR) X(R_NOT_PARALLEL)
+    X(R_NONNEG, 1) X(R_MAGNITUDE, 1) X(R_INERTIA, 9) X(R_AXIS, 3) X(R_ROTATION, 9) X(R_CARRIES, 0) \
+    X(R_TIMED, 0)       /* a td slot */ \
+    X(R_PERPENDICULAR, 6) X(R_NOT_PARALLEL, 6)
 enum { MBS_RULES(MBS_CODE) R_N };
 /* S_LIMITS: the scene's experiment and the sample count of R_TIMED (limits.DOMAIN_SAMPLES), limits.MAGNITUDE,
  * limits.AXIS_LENGTH */

@@ -119,7 +119,8 @@ static void eigenvalues3(const double *A, double lam[3])
             if (lam[j] > lam[j + 1]) { double x = lam[j]; lam[j] = lam[j + 1]; lam[j + 1] = x; }
 }
 
-static const int rule_size[R_N] = {1, 1, 9, 3, 9, 0, 0, 6, 6};  /* domains.RULE_SIZE */
+#define RULE_SIZE(code, size) size,
+static const int rule_size[R_N] = {MBS_RULES(RULE_SIZE)};  /* numbers of D each rule reads (mbs_layout.h) */
 
 /* NULL if the rule holds for v (rule_size[rule] numbers), else what is wrong (written into buf). */
 static const char *rule_problem(const MbsModel *m, int rule, const double *v, char *buf, size_t len)

@@ -155,8 +155,7 @@ def _minimize(f, a, b, iterations=60):
 NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES, TIMED, PERPENDICULAR, NOT_PARALLEL = (  # codes: mbs_layout.h
     _layout.R_NONNEG, _layout.R_MAGNITUDE, _layout.R_INERTIA, _layout.R_AXIS, _layout.R_ROTATION, _layout.R_CARRIES,
     _layout.R_TIMED, _layout.R_PERPENDICULAR, _layout.R_NOT_PARALLEL)
-RULE_SIZE = {NONNEG: 1, MAGNITUDE: 1, INERTIA: 9, AXIS: 3, ROTATION: 9, CARRIES: 0, TIMED: 0, PERPENDICULAR: 6,
-             NOT_PARALLEL: 6}
+RULE_SIZE = {_layout.CONSTANTS[name]: size for name, size in _layout.LISTS["MBS_RULES"]}  # numbers each rule reads
 # CARRIES: the loader's `massless` check of a body; TIMED: a drive (or its derivatives) or force value of t that
 # a parameter feeds, finite at the DOMAIN_SAMPLES times of first_failure (the checks between samples stay the
 # loader's: they need the expression tree, which the engine holds as bytecode)
