@@ -78,22 +78,16 @@ def test_file_and_data_file_names_are_escaped(tmp_path, ch):
     line, _, path = _refusal(tmp_path, file=f"scene{ch}.yaml", MASS="-1")  # a refusal that names the file
     _shown_safely(line, ch)
     assert "scene" in line and ":7: bodies.link.mass" in line
-    elastic = SCENE.replace("    KEY: [0, 0, 0]\n", f"    elastic: {{nodal: {{file: {_yaml('data' + ch + '.npz')}}}}}\n")
-    for k, v in GOOD.items():
-        elastic = elastic.replace(k, v)
-    path.write_text(elastic, encoding="utf-8")
-    with pytest.raises(ModelError) as e:
-        mbsfmu.load(path)
-    _shown_safely(str(e.value), ch)
-    assert "data" in str(e.value)
-    mesh = SCENE.replace("    KEY: [0, 0, 0]\n", f"    shape: {{type: mesh, file: {_yaml('mesh' + ch + '.stl')}}}\n")
-    for k, v in GOOD.items():
-        mesh = mesh.replace(k, v)
-    path.write_text(mesh, encoding="utf-8")
-    with pytest.raises(ModelError) as e:
-        mbsfmu.load(path)
-    _shown_safely(str(e.value), ch)
-    assert "bodies.link.shape.file" in str(e.value)
+    for key, expected in ((f"elastic: {{nodal: {{file: {_yaml('data' + ch + '.npz')}}}}}", "data"),
+                          (f"shape: {{type: mesh, file: {_yaml('mesh' + ch + '.stl')}}}", "bodies.link.shape.file")):
+        text = SCENE.replace("    KEY: [0, 0, 0]\n", f"    {key}\n")
+        for k, v in GOOD.items():
+            text = text.replace(k, v)
+        path.write_text(text, encoding="utf-8")
+        with pytest.raises(ModelError) as e:
+            mbsfmu.load(path)
+        _shown_safely(str(e.value), ch)
+        assert expected in str(e.value)
 
 
 def test_the_cli_line_is_escaped(tmp_path):
