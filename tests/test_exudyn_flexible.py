@@ -38,6 +38,20 @@ bodies:
 M_TIP, T_END = 0.2, 1.0
 
 
+
+def exudyn_accelerations(mbs, k):
+    """Exudyn's accelerations of the first k coordinates of the system `mbs` (an FFRF body: 6 frame + its modes),
+    assembled here, at its initial state: its own mass matrix solved against its own right-hand side."""
+    mbs.Assemble()
+    s = exu.SimulationSettings()
+    s.timeIntegration.verboseMode = 0
+    s.solution.file.write = False
+    solver = exu.MainSolverImplicitSecondOrder()
+    solver.InitializeSolver(mbs, s)
+    solver.ComputeMassMatrix(mbs)
+    solver.ComputeODE2RHS(mbs)
+    return np.linalg.solve(np.asarray(solver.GetSystemMassMatrix())[:k, :k], np.asarray(solver.GetSystemResidual())[:k])
+
 def exudyn_gravity(mbs, body, m, g):
     """Gravity as the point forces m_k g at the mesh points (MarkerSuperElementPosition + LoadForceVector).
 
@@ -186,16 +200,7 @@ def test_exudyn_one_state_accelerations():
         mbs.SetNodeParameter(obj["nGenericODE2"], "initialCoordinates", list(q))
         mbs.SetNodeParameter(obj["nGenericODE2"], "initialCoordinates_t", list(qd))
         exudyn_gravity(mbs, obj["oFFRFreducedOrder"], m, g)
-        mbs.Assemble()
-        s = exu.SimulationSettings()
-        s.timeIntegration.verboseMode = 0
-        s.solution.file.write = False
-        solver = exu.MainSolverImplicitSecondOrder()
-        solver.InitializeSolver(mbs, s)
-        solver.ComputeMassMatrix(mbs)
-        solver.ComputeODE2RHS(mbs)
-        k = 6 + n
-        ydd = np.linalg.solve(np.asarray(solver.GetSystemMassMatrix())[:k, :k], np.asarray(solver.GetSystemResidual())[:k])
+        ydd = exudyn_accelerations(mbs, 6 + n)
         return ydd[:3], ydd[6:]
 
     a0, al0, qdd0 = ours(0 * gI)
