@@ -192,6 +192,11 @@ CASES = {
                              "name: y.phi2", "outputs[0]", ["output 'y.phi2'", "coordinate 'phi2.r.x'", "'y.phi2.r.x'"]),
     "output_q_vs_coordinate_r_x": (base("coordinates: [phi]", "coordinates: [r.x]") + "outputs:\n  - {body: arm, name: q}\n",
                                    "name: q", "outputs[0]", ["output 'q'", "coordinate 'r.x'", "'q.r.x'"]),
+    "input_yd_vs_velocity_x": (base("coordinates: [phi]", "coordinates: [x]") + "forces:\n  - {type: force, body: arm, input: yd}\n",
+                               "input: yd", "forces[0].input", ["input 'yd'", "coordinate 'x'", "'yd.x'"]),
+    # the one written later in the file is named to rename, whichever section it is in
+    "output_above_the_coordinate": (base("coordinates: [phi]", "coordinates: [r.x]").replace("bodies:", "outputs:\n  - {body: arm, name: q}\nbodies:"),
+                                    "coordinates: [r.x]", "bodies.arm.joint.coordinates", ["coordinate 'r.x'", "output 'q'", "'q.r.x'"]),
     # checks at load
     "tiny_axis": (base("axis: [0, 1, 0]", "axis: [0, 1e-300, 0]"), "axis:", "bodies.arm.joint.axis", ["length 1e-300"]),
     "huge_axis": (base("axis: [0, 1, 0]", "axis: [1e300, 1e300, 0]"), "axis:", "bodies.arm.joint.axis", ["length"]),

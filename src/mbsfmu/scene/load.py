@@ -1016,8 +1016,8 @@ class _Checker:
     def variable_names(self, spec):
         """Two scene names that make one FMU variable (an input `q` beside a coordinate `x`: both `q.x`)."""
         clash = names.first_collision(spec)
-        if clash:
-            (var, first, first_path), (_, second, second_path) = clash
+        if clash:  # the one written later in the file is the one to rename
+            (var, first, first_path), (_, second, second_path) = sorted(clash, key=lambda v: self.line_of(v[2]))
             self.fail_at(second_path, f"{second} and {first} both make the FMU variable '{var}' (line {self.line_of(first_path)})",
                          "rename one of them")
 

@@ -1,37 +1,40 @@
-"""The FMU variable names a scene generates (contract: docs/fmu.md, "Variables"), each with the scene
-key it comes from, so that two scene names that would give one FMU variable are refused at load, naming both."""
+"""Which scene key gives each FMU variable, so that two scene names that would give one FMU variable are refused
+at load, naming both. The variables themselves (names, order, kinds) are fmu/variables.py's: this module only
+traces each one back to the key it comes from, through the engine's variable kind and index."""
 
-from ..engine.layout import LISTS
-
-INTEGRATOR = tuple(e[1] for e in LISTS["MBS_VAR_KINDS"] if e[1])  # the settable integrator settings
+from ..engine import layout as L
+from ..equations.model import Model
+from ..fmu.variables import variables
 
 
 def fmu_variables(spec):
-    """[(FMU variable name, what gives it, key path of its source in the scene)] in the FMU's order."""
-    out = [(p["name"], f"parameter '{p['name']}'", f"parameters.{p['name']}") for p in spec["parameters"]]
-    out += [(v, "the integrator settings", "integrator") for v in INTEGRATOR]
+    """[(FMU variable name, what gives it, key path of its source in the scene)] in value-reference order."""
+    model = Model(spec)
+    coordinate = {}  # coordinate name → (what, path); the loader already refused a name two bodies give
     for b in spec["bodies"]:
-        j, path = b["joint"], f"bodies.{b['name']}.joint.coordinates"
-        driven = set(j["drive"])
-        quat = j["type"] in ("spherical", "free") and j.get("parameterization") == "quaternion"
-        for c in j["coordinates"]:
-            if c not in driven:
-                out.append((f"y.{c}", f"coordinate '{c}'", path))
-        for c in j["velocities"]:
-            if quat or c not in driven:
-                out += [(f"q.{c}", f"coordinate '{c}'", path), (f"yd.{c}", f"coordinate '{c}'", path)]
-        if b["elastic"]:
-            for c in b["elastic"]["coordinates"]:
-                epath = f"bodies.{b['name']}.elastic.coordinates"
-                out += [(f"{v}.{c}", f"elastic coordinate '{c}'", epath) for v in ("y", "q", "yd")]
-    for i, f in enumerate(spec["forces"]):
-        if "input" in f:
-            out += [(f"{f['input']}.{x}", f"input '{f['input']}'", f"forces[{i}].input") for x in "xyz"]
-    for i, o in enumerate(spec["outputs"]):
-        for quantity, sym in (("position", "r"), ("velocity", "v")):
-            if quantity in o["quantities"]:
-                out += [(f"{o['name']}.{sym}.{x}", f"output '{o['name']}'", f"outputs[{i}]") for x in "xyz"]
-    return out
+        for c in b["joint"]["coordinates"] + b["joint"]["velocities"]:
+            coordinate.setdefault(c, (f"coordinate '{c}'", f"bodies.{b['name']}.joint.coordinates"))
+        for c in b["elastic"]["coordinates"] if b["elastic"] else ():
+            coordinate.setdefault(c, (f"elastic coordinate '{c}'", f"bodies.{b['name']}.elastic.coordinates"))
+    inputs = [i for i, f in enumerate(spec["forces"]) if "input" in f]  # FIN index // 3 → force
+
+    def parameter(i):
+        name = spec["parameters"][i]["name"]
+        return f"parameter '{name}'", f"parameters.{name}"
+
+    def force_input(i):
+        k = inputs[i // 3]
+        return f"input '{spec['forces'][k]['input']}'", f"forces[{k}].input"
+
+    def output(i):
+        return f"output '{spec['outputs'][i // 6]['name']}'", f"outputs[{i // 6}]"
+
+    source = {L.MBS_V_PARAM: parameter, L.MBS_V_FIN: force_input, L.MBS_V_OUT: output,
+              L.MBS_V_Y: lambda i: coordinate[model.coordinates[i]],
+              L.MBS_V_QIN: lambda i: coordinate[model.velocity_coordinates[i]],
+              L.MBS_V_YD: lambda i: coordinate[model.velocity_coordinates[i]]}
+    setting = lambda i: ("the integrator settings", "integrator")  # noqa: E731
+    return [(v.name, *source.get(v.kind, setting)(v.index)) for v in variables(spec, model)]
 
 
 def first_collision(spec):
