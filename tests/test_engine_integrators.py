@@ -13,11 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mbsfmu.engine import layout
+
 ROOT = Path(__file__).resolve().parents[1]
 ENGINE = ROOT / "src" / "mbsfmu" / "engine"
 TEST_ODES = Path(__file__).resolve().parent / "c" / "test_odes.c"
-METHODS = ["rk4", "dopri5", "dop853", "radau5", "gen_alpha", "auto"]
-RK4, DOPRI5, DOP853, RADAU5, GEN_ALPHA, AUTO = range(6)
+METHODS = list(layout.METHODS)  # the engine's table, in code order (mbs_layout.h: MBS_METHODS)
+RK4, DOPRI5, DOP853, RADAU5, GEN_ALPHA, AUTO = (layout.MBS_RK4, layout.MBS_DOPRI5, layout.MBS_DOP853, layout.MBS_RADAU5,
+                                                layout.MBS_GEN_ALPHA, layout.MBS_AUTO)
 
 
 class Options(C.Structure):
@@ -175,7 +178,7 @@ def vdp_rhs(mu):
     return lambda t, x: [x[1], mu * ((1 - x[0] ** 2) * x[1] - x[0])]
 
 
-ADAPTIVE = ["dopri5", "dop853", "radau5", "auto"]
+ADAPTIVE = list(layout.ADAPTIVE)
 
 
 # ------------------------------------------------------------------ accuracy against independent references

@@ -117,3 +117,29 @@ def test_no_python_source_keeps_its_own_copy_of_a_layout_name():
     bad = [f"{p.relative_to(SRC)}: {m.group(0).strip()}" for p in sorted(SRC.rglob("*.py")) if p.name != "layout.py"
            for m in assign.finditer(p.read_text())]
     assert not bad, bad
+
+
+@pytest.mark.parametrize("entry", layout.LISTS["MBS_METHODS"], ids=lambda e: e[1])
+def test_method_accuracy_column_is_what_the_engine_does(entry):
+    """MBS_METHODS says what sets each integrator's accuracy (the benchmarks sweep rtol or the step from it): a
+    "tolerance" method ignores integrator.step (bit for bit) and follows rtol; a "step" method follows the step."""
+    import numpy as np
+    from mbsfmu import load
+    from mbsfmu.simulation import Simulation
+    spec = load(SRC.parents[1] / "models" / "double_pendulum.yaml").spec
+    _, method, _, control = entry
+
+    def run(rtol, step):
+        sim = Simulation(spec)
+        for k, v in (("method", method), ("rtol", rtol), ("atol", rtol * 1e-2), ("step", step)):
+            sim.set(f"integrator.{k}", v)
+        sim.initialize(0.0)
+        return sim.run(np.linspace(0.0, 0.5, 26))
+    base = run(1e-3, 1e-3)
+    step_changes = np.abs(run(1e-3, 5e-4) - base).max()
+    rtol_changes = np.abs(run(1e-8, 1e-3) - base).max()
+    assert control in ("tolerance", "step")
+    if control == "tolerance":
+        assert step_changes == 0.0 and rtol_changes > 1e-6
+    else:
+        assert step_changes > 1e-12

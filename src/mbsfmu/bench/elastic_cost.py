@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import files
+from ..engine import layout as L
 from . import output
 
 MODES = (2, 5, 10, 20, 40)
@@ -69,9 +70,13 @@ def scene(modes, stiffening=False):
     return mbsfmu.loads(SCENE.format(modes=modes, stiffening=str(stiffening).lower(), m_tip=M_TIP)).spec
 
 
-def exudyn():
-    """Exudyn's faster module (no range checks, AVX2) when the CPU has it: its best case."""
+def prefer_fast_exudyn():
+    """Exudyn's faster module (no range checks, AVX2) when the CPU has it, its best case: before its first import."""
     os.environ.setdefault("EXUDYN_MODULE", "fast")
+
+
+def exudyn():
+    prefer_fast_exudyn()
     import exudyn as exu
     return exu
 
@@ -117,30 +122,27 @@ def exudyn_model(spec):
     return mbs, sensor, obj
 
 
-def _settings(exu, T, h, dt, rho=0.8):
+def _settings(exu, T, h, dt):
     s = exu.SimulationSettings()
     s.timeIntegration.endTime = T
     s.timeIntegration.numberOfSteps = int(round(T / h))
     s.timeIntegration.verboseMode = 0
     s.solution.file.write = False
     s.solution.sensors.writePeriod = dt
-    s.timeIntegration.generalizedAlpha.spectralRadius = rho
     return s
 
 
-def run_exudyn(spec, solver, ts, h, rho=0.8):
-    """A fixed step h (generalized-α: spectral radius rho): tip positions at ts, CPU seconds (model build and
-    assembly included, as for mbsfmu). Exudyn 1.13.6's explicit solvers (RK44, DOPRI5) stop at once on this
-    model ("system mass matrix seems to be singular"): the run is listed with that note."""
-    exu = exudyn()
-    c0 = time.process_time()
-    mbs, sensor, _ = exudyn_model(spec)
-    mbs.Assemble()
-    s = _settings(exu, float(ts[-1] - ts[0]), h, float(ts[1] - ts[0]), rho)
-    exu.SolveDynamic(mbs, s, solverType=getattr(exu.DynamicSolverType, solver), showHints=False)
-    cpu = time.process_time() - c0
-    d = np.asarray(mbs.GetSensorStoredData(sensor))
-    return np.column_stack([np.interp(ts, d[:, 0], d[:, k]) for k in (1, 2, 3)]), cpu
+def exudyn_twin():
+    """work_precision.run_exudyn's twin of the scene: (assembled model with its tip sensor, tip positions as
+    recorded), in Exudyn's faster module. Exudyn 1.13.6's explicit solvers (RK44, DOPRI5) stop at once on this model
+    ("system mass matrix seems to be singular"): the run is listed with that note."""
+    prefer_fast_exudyn()
+
+    def build(spec):
+        mbs, sensor, _ = exudyn_model(spec)
+        mbs.Assemble()
+        return None, mbs, sensor
+    return build, lambda A: A
 
 
 # ------------------------------------------------------------------------------------------------ (a) cost
@@ -316,7 +318,7 @@ def tip_path(sim, ts, Y):
 def speed_runs(spec, ts, quick=False):
     """Every family over its sweep: rows {family, method, setting, cpu, error}; plus the reference floor."""
     from mbsfmu.simulation import Simulation
-    from .work_precision import run_mbsfmu, run_scipy
+    from .work_precision import run_exudyn, run_mbsfmu, run_scipy
     sim = Simulation(spec)
     sim.initialize(ts[0])   # binds the numbers tip_path's output points use
     Yref, _, _ = run_mbsfmu(spec, "dop853", ts, rtol=1e-13, atol=1e-15)
@@ -327,14 +329,16 @@ def speed_runs(spec, ts, quick=False):
     rtols = (1e-4, 1e-6, 1e-8) if quick else tuple(10.0 ** -k for k in range(3, 11))
     steps = (1e-3, 2e-4) if quick else (2e-3, 1e-3, 5e-4, 2e-4, 1e-4, 6.25e-5, 5e-5)  # each divides the 10 ms step
     jobs = [("mbsfmu", m, f"rtol={r:.0e}", lambda m=m, r=r: run_mbsfmu(spec, m, ts, rtol=r, atol=r * 1e-2))
-            for m in ("dopri5", "dop853", "radau5", "auto") for r in rtols]
+            for m in L.ADAPTIVE for r in rtols]
     jobs += [("mbsfmu", m, f"h={h:g}", lambda m=m, h=h: run_mbsfmu(spec, m, ts, h=h))
-             for m in ("rk4", "gen_alpha") for h in steps]
+             for m in L.FIXED_STEP for h in steps]
     jobs += [("scipy", m, f"rtol={r:.0e}", lambda m=m, r=r: run_scipy(spec, m, ts, rtol=r, atol=r * 1e-2))
              for m in ("RK45", "DOP853", "Radau", "LSODA") for r in rtols]
+    twin = exudyn_twin()
     jobs += [("exudyn", f"GeneralizedAlpha ρ∞={rho:g}", f"h={h:g}",
-              lambda rho=rho, h=h: run_exudyn(spec, "GeneralizedAlpha", ts, h, rho)) for rho in (0.8, 1.0) for h in steps]
-    jobs += [("exudyn", m, "h=0.001", lambda m=m: run_exudyn(spec, m, ts, 1e-3)) for m in ("RK44", "DOPRI5")]
+              lambda rho=rho, h=h: run_exudyn(spec, "GeneralizedAlpha", ts, h, rho=rho, twin=twin))
+             for rho in (0.8, 1.0) for h in steps]
+    jobs += [("exudyn", m, "h=0.001", lambda m=m: run_exudyn(spec, m, ts, 1e-3, twin=twin)) for m in ("RK44", "DOPRI5")]
     rows = []
     for fam, method, setting, fn in jobs:
         try:

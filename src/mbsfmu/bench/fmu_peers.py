@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import files
+from ..engine import layout as L
 from . import output
 from .work_precision import REPEATS, TARGET_ERROR, _best_of, build_exudyn, comm_points, exudyn_supported, reference, \
     run_exudyn, run_mbsfmu, run_scipy
@@ -45,8 +46,7 @@ from .work_precision import REPEATS, TARGET_ERROR, _best_of, build_exudyn, comm_
 MODELS = Path(__file__).resolve().parents[3] / "models"
 CASES = {"spinning_top": ("spinning_top.yaml", 2.0, {"spin": 150.0}),
          "double_pendulum": ("double_pendulum.yaml", 10.0, {})}
-ENGINE_ADAPTIVE = ("dop853", "dopri5", "radau5", "auto")
-ENGINE_FIXED = ("rk4", "gen_alpha")
+ENGINE_ADAPTIVE, ENGINE_FIXED = L.ADAPTIVE, L.FIXED_STEP  # the engine's integrators (mbs_layout.h: MBS_METHODS)
 PEERS = ([("fmu", m) for m in ENGINE_ADAPTIVE + ENGINE_FIXED] + [("mbsfmu", m) for m in ENGINE_ADAPTIVE + ENGINE_FIXED]
          + [("exudyn", m) for m in ("RK44", "RK67", "DOPRI5", "GeneralizedAlpha")] + [("mujoco", "RK4")]
          + [("scipy", m) for m in ("RK45", "DOP853", "Radau", "LSODA")])

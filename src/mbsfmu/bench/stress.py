@@ -19,9 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import files
+from ..engine import layout as L
 from . import output
 
-METHODS = ("auto", "dopri5", "dop853", "radau5", "rk4", "gen_alpha")
+METHODS = L.METHODS  # every integrator of the engine (mbs_layout.h: MBS_METHODS)
 COLUMNS = ["case", "method", "status", "expected", "error", "energy_drift", "wall_seconds", "steps",
            "rhs_evaluations", "message"]
 

@@ -27,11 +27,11 @@ import time
 import numpy as np
 
 from .. import files
+from ..engine import layout as L
 from . import output
 
 COLUMNS = ["method", "setting", "cpu_seconds", "error", "steps", "rhs_evaluations"]
-ADAPTIVE = ("dopri5", "dop853", "radau5", "auto")
-FIXED = ("rk4", "gen_alpha")
+ADAPTIVE, FIXED = L.ADAPTIVE, L.FIXED_STEP  # the engine's integrators, swept over rtol or over the step
 MBSFMU_METHODS = ADAPTIVE + FIXED
 SCIPY_METHODS = ("RK45", "DOP853", "Radau", "BDF", "LSODA")
 EXUDYN_METHODS = ("GeneralizedAlpha", "RK44")
@@ -238,12 +238,13 @@ def build_exudyn(spec):
     return SC, mbs, sensor
 
 
-def run_exudyn(spec, solver, ts, h=None, rtol=None, atol=None, twin=None):
+def run_exudyn(spec, solver, ts, h=None, rtol=None, atol=None, twin=None, rho=0.8):
     """Exudyn SolveDynamic over ts → (Y at ts, cpu, stats); twin: (builder, coordinates → positions), by default
     build_exudyn's ObjectKinematicTree. Fixed step h (dividing the communication step):
     the sensor records exactly the communication points. rtol: DOPRI5's own step-size control (atol =
     rtol·1e-2, largest step one interval); it has no dense output and records at the first step end after each
-    period, so the points come from cubic Hermite interpolation of the recorded coordinates and velocities."""
+    period, so the points come from cubic Hermite interpolation of the recorded coordinates and velocities.
+    rho: generalized-α's spectral radius (mbsfmu gen_alpha's default)."""
     atol = rtol * 1e-2 if atol is None and rtol is not None else atol
     import exudyn as exu
     from exudyn.itemInterface import SensorNode
@@ -264,7 +265,7 @@ def run_exudyn(spec, solver, ts, h=None, rtol=None, atol=None, twin=None):
     else:
         ti.numberOfSteps, ti.automaticStepSize = len(ts) - 1, True
         ti.relativeTolerance, ti.absoluteTolerance = rtol, atol
-    ti.generalizedAlpha.spectralRadius = 0.8  # mbsfmu gen_alpha's default
+    ti.generalizedAlpha.spectralRadius = rho
     s.solution.file.write = False
     s.solution.sensors.writePeriod = dt
     exu.SolveDynamic(mbs, s, solverType=getattr(exu.DynamicSolverType, solver), showHints=False)

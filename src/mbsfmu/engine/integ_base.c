@@ -10,13 +10,13 @@
 
 #include "integ_internal.h"
 
-#define METHOD_NAME(code, name, cls) name,
+#define METHOD_NAME(code, name, ...) name,
 const char *const mbs_method_names[MBS_NMETHODS] = {MBS_METHODS(METHOD_NAME)};
 #undef METHOD_NAME
-#define METHOD_LISTED(code, name, cls) ", " name
+#define METHOD_LISTED(code, name, ...) ", " name
 #define METHODS_LISTED (MBS_METHODS(METHOD_LISTED)) /* ", rk4, dopri5, ..." */
 
-#define METHOD_CLASS(code, name, cls) [code] = &mbs_##cls##_class,
+#define METHOD_CLASS(code, name, cls, ...) [code] = &mbs_##cls##_class,
 static const MbsMethodClass *const method_classes[MBS_NMETHODS] = {MBS_METHODS(METHOD_CLASS)};
 #undef METHOD_CLASS
 

@@ -59,8 +59,8 @@
  * knows mbs_integ_t).  Stats: count c->jac_evaluations / c->lu_decompositions yourself (rhs evaluations
  * are counted by mbs_integ_f); steps and rejections are counted by the driver (by a fixed-step advance).
  *
- * REGISTRATION: one entry in mbs_layout.h's MBS_METHODS (code, name, class) and a file integ_<name>.c that
- * defines mbs_<class>_class; integ_base.c's table, the engine's names, Python's list (loader, compiler, CLI,
+ * REGISTRATION: one entry in mbs_layout.h's MBS_METHODS (code, name, class, "tolerance" or "step") and a file
+ * integ_<name>.c that defines mbs_<class>_class; integ_base.c's table, the engine's names, Python's list (loader, compiler, CLI,
  * docs' check) and build.py (integ_*.c) follow. rk4, dopri5, dop853 live in integ_erk.c; auto (integ_auto.c)
  * is a composite (MbsComposite) of a dopri5 child with stop_when_stiff and a radau5 child; it sets the radau5
  * child's c->h/has_h after reset to hand the step size over.
@@ -171,7 +171,7 @@ struct MbsIntegrator {
 };
 
 /* every method's class: mbs_<class>_class for each MBS_METHODS entry (mbs_layout.h) */
-#define MBS_METHOD_CLASS_DECL(code, name, cls) extern const MbsMethodClass mbs_##cls##_class;
+#define MBS_METHOD_CLASS_DECL(code, name, cls, ...) extern const MbsMethodClass mbs_##cls##_class;
 MBS_METHODS(MBS_METHOD_CLASS_DECL)
 #undef MBS_METHOD_CLASS_DECL
 

@@ -113,3 +113,5 @@ def names(list_name, arg=1):
 CONSTANTS, LISTS = parse(HEADER.read_text())
 globals().update(CONSTANTS)
 METHODS = tuple(e[1] for e in LISTS["MBS_METHODS"])  # integrator names, in code order
+ADAPTIVE = tuple(e[1] for e in LISTS["MBS_METHODS"] if e[3] == "tolerance")  # accuracy from rtol, atol
+FIXED_STEP = tuple(e[1] for e in LISTS["MBS_METHODS"] if e[3] == "step")  # accuracy from integrator.step

@@ -104,11 +104,13 @@ enum { MBS_FORCE_D(MBS_FIELD) DF };
 #define MBS_INTEG_D(X) X(DI_RTOL) X(DI_ATOL) X(DI_MAX_STEP) X(DI_STEP) X(DI_RHO_INF)
 enum { MBS_INTEG_D(MBS_CODE) DI };
 
-/* the integrators (H_METHOD, the integrator.method variable): name, and the class that implements it
- * (mbs_<class>_class, integ_internal.h) */
+/* the integrators (H_METHOD, the integrator.method variable): name, the class that implements it
+ * (mbs_<class>_class, integ_internal.h), and what sets its accuracy: "tolerance" (rtol, atol: adaptive) or "step"
+ * (integrator.step: fixed steps) */
 #define MBS_METHODS(X) \
-    X(MBS_RK4, "rk4", rk4) X(MBS_DOPRI5, "dopri5", dopri5) X(MBS_DOP853, "dop853", dop853) \
-    X(MBS_RADAU5, "radau5", radau5) X(MBS_GEN_ALPHA, "gen_alpha", gen_alpha) X(MBS_AUTO, "auto", auto)
+    X(MBS_RK4, "rk4", rk4, "step") X(MBS_DOPRI5, "dopri5", dopri5, "tolerance") \
+    X(MBS_DOP853, "dop853", dop853, "tolerance") X(MBS_RADAU5, "radau5", radau5, "tolerance") \
+    X(MBS_GEN_ALPHA, "gen_alpha", gen_alpha, "step") X(MBS_AUTO, "auto", auto, "tolerance")
 enum { MBS_METHODS(MBS_CODE) MBS_NMETHODS };
 
 /* kinds of variables (S_VARS; value reference = row index); the second arg: the variable's name for the
