@@ -460,3 +460,17 @@ def test_auto_goes_on_with_radau5_where_the_first_explicit_steps_leave_the_domai
         ref = np.array([t, t - (1 - np.exp(-lam * t)) / lam])
         assert np.allclose(x, ref, rtol=rtol, atol=0), (t, x, ref)
     assert integ.stats["switched"] == 1 and integ.stats["switched_at"] < 1e-6  # within its first steps
+
+
+def test_common_driver_names_no_method():
+    """The common driver (integ_base.c) hands every public call to its class's MbsIntegOps and never asks which
+    method or which kind of class it runs (auto is a class like the others, issue 23): its code, comments and
+    strings aside, names no method's code, class or name, compares no method, and has no composite branch."""
+    import re
+    code = re.sub(r"/\*.*?\*/|//[^\n]*", " ", (ENGINE / "integ_base.c").read_text(), flags=re.S)
+    code = re.sub(r'"(?:\\.|[^"\\])*"', '""', code)
+    words = set(re.findall(r"[A-Za-z_]\w*", code))
+    named = {e[0] for e in layout.LISTS["MBS_METHODS"]} | {e[1] for e in layout.LISTS["MBS_METHODS"]}
+    named |= {f"mbs_{e[2]}_class" for e in layout.LISTS["MBS_METHODS"]} | {"composite"}
+    assert not words & named, words & named
+    assert not re.search(r"method\s*[!=]=|[!=]=\s*\w*method\b|cls\s*[!=]=|ops\s*[!=]=", code)

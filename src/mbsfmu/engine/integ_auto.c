@@ -17,9 +17,10 @@ static AutoState *state(const MbsIntegrator *it) { return (AutoState *)it->ms; }
 
 static MbsIntegrator *auto_active(const MbsIntegrator *it) { return it->sub[state(it)->phase]; }
 
-static int auto_init(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen)
+static int auto_setup(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, char *err, size_t errlen)
 {
     MbsIntegOptions o = *opt;
+    if (mbs_integ_take_options(it, ode, opt, 1, err, errlen)) return 1; /* dense output: its children's */
     o.dense = it->dense;
     o.h = 0.0; /* both children are adaptive */
     it->sub[0] = mbs_integ_new(MBS_DOPRI5, &it->ode, &o, err, errlen);
@@ -149,6 +150,6 @@ static int auto_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_
     return 0;
 }
 
-static const MbsComposite composite = {auto_init, auto_reset, auto_inputs_changed, auto_advance, auto_active,
-                                       auto_stats, auto_snapshot_size, auto_snapshot_save, auto_snapshot_load};
-const MbsMethodClass mbs_auto_class = {.name = "auto", .composite = &composite};
+static const MbsIntegOps auto_ops = {auto_setup, auto_reset, auto_inputs_changed, auto_advance, auto_active,
+                                     auto_stats, auto_snapshot_size, auto_snapshot_save, auto_snapshot_load};
+const MbsMethodClass mbs_auto_class = {.name = "auto", .ops = &auto_ops};

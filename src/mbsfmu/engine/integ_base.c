@@ -1,7 +1,7 @@
 /* The common integrator driver: options, reset, advance to exact communication points with the step size
  * carried over, dense output (ahead point + segment), advance_many, stats, snapshots, messages.
- * Methods plug in through MbsMethodClass (integ_internal.h); a composite one (auto, integ_auto.c) takes every
- * public call through its MbsComposite. */
+ * Methods plug in through MbsMethodClass (integ_internal.h); each public call goes to the class's MbsIntegOps:
+ * mbs_single_ops (below) for a method of hooks, a composite's own (auto, integ_auto.c). */
 #include <float.h>
 #include <math.h>
 #include <stdio.h>
@@ -346,9 +346,10 @@ int mbs_method_index(const char *name)
 static size_t align8(size_t k) { return (k + 7u) & ~(size_t)7u; }
 
 /* Common option checks and normalization. */
-static int take_options(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, int has_dense,
-                        const char *name, char *err, size_t errlen)
+int mbs_integ_take_options(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, int has_dense, char *err,
+                           size_t errlen)
 {
+    const char *name = it->cls->name;
     double ms = opt->max_step;
     if (!ode || !ode->f || ode->n < 1 || ode->npos < 0 || ode->nvel < 0) {
         err_put(err, errlen, "the ODE needs n >= 1 and a right-hand side f", NULL, NULL);
@@ -397,9 +398,6 @@ static int take_options(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOpti
 MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOptions *opt, char *err, size_t errlen)
 {
     MbsIntegrator *it;
-    const MbsMethodClass *cls;
-    MbsSizes sz;
-    size_t n, m, off_x, nwork_d, work_bytes;
     if (err && errlen) err[0] = '\0';
     if (method < 0 || method >= MBS_NMETHODS) {
         err_put(err, errlen, "unknown integrator method; valid: ", NULL, METHODS_LISTED + 2);
@@ -415,18 +413,21 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
         return NULL;
     }
     it->method = method;
-    cls = it->cls = method_classes[method];
-    if (cls->composite) { /* dense output: its children's */
-        if (take_options(it, ode, opt, 1, cls->name, err, errlen) || cls->composite->init(it, opt, err, errlen)) {
-            mbs_integ_free(it);
-            return NULL;
-        }
-        return it;
-    }
-    if (take_options(it, ode, opt, cls->dense_rows > 0, cls->name, err, errlen)) {
-        free(it);
+    it->cls = method_classes[method];
+    if (it->cls->ops->setup(it, ode, opt, err, errlen)) {
+        mbs_integ_free(it);
         return NULL;
     }
+    return it;
+}
+
+/* A single method: options, then one history block and one work block of the sizes its class asks for. */
+static int single_setup(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, char *err, size_t errlen)
+{
+    const MbsMethodClass *cls = it->cls;
+    MbsSizes sz;
+    size_t n, m, off_x, nwork_d, work_bytes;
+    if (mbs_integ_take_options(it, ode, opt, cls->dense_rows > 0, err, errlen)) return 1;
     memset(&sz, 0, sizeof sz);
     cls->sizes(it->n, ode->nvel, opt, &sz);
     n = (size_t)it->n;
@@ -444,8 +445,7 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
                      "(rk4, dopri5, dop853) for a scene this large", cls->name,
                      ((double)it->hist_bytes * 2 + (double)work_bytes) / (1 << 30), it->n,
                      (double)MBS_INTEG_MAX_BYTES / (1 << 30));
-        free(it);
-        return NULL;
+        return 1;
     }
     it->hist = (unsigned char *)calloc(1, it->hist_bytes);
     it->hist_tmp = (unsigned char *)calloc(1, it->hist_bytes);
@@ -453,8 +453,7 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
     it->view = sz.view ? calloc(1, sz.view) : NULL;
     if (!it->hist || !it->hist_tmp || !it->work || (sz.view && !it->view)) {
         err_put(err, errlen, "out of memory", NULL, NULL);
-        mbs_integ_free(it);
-        return NULL;
+        return 1;
     }
     it->c = (MbsCommon *)it->hist;
     it->ms = it->hist + it->off_ms;
@@ -470,12 +469,9 @@ MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOption
     it->wa = it->tmp2 + n;
     it->wi = (int *)(it->work + nwork_d);
     it->c->t = NAN;
-    if (cls->init && cls->init(it, err, errlen)) {
-        mbs_integ_free(it);
-        return NULL;
-    }
+    if (cls->init && cls->init(it, err, errlen)) return 1;
     cls->reset_history(it);
-    return it;
+    return 0;
 }
 
 void mbs_integ_free(MbsIntegrator *it)
@@ -492,10 +488,11 @@ void mbs_integ_free(MbsIntegrator *it)
 
 int mbs_integ_method(const MbsIntegrator *it) { return it->method; }
 
-int mbs_integ_reset(MbsIntegrator *it, double t0, const double *x0)
+int mbs_integ_reset(MbsIntegrator *it, double t0, const double *x0) { return it->cls->ops->reset(it, t0, x0); }
+
+static int single_reset(MbsIntegrator *it, double t0, const double *x0)
 {
     MbsCommon *c = it->c;
-    if (it->cls->composite) return it->cls->composite->reset(it, t0, x0);
     mbs_msg_set(it, "");
     if (!isfinite(t0) || !x0 || !mbs_all_finite(it->n, x0)) {
         mbs_msg_set(it, "initial state is not finite");
@@ -513,23 +510,19 @@ int mbs_integ_reset(MbsIntegrator *it, double t0, const double *x0)
     return 0;
 }
 
-void mbs_integ_inputs_changed(MbsIntegrator *it)
+void mbs_integ_inputs_changed(MbsIntegrator *it) { it->cls->ops->inputs_changed(it); }
+
+static void single_inputs_changed(MbsIntegrator *it)
 {
-    if (it->cls->composite) {
-        it->cls->composite->inputs_changed(it);
-        return;
-    }
     /* with dense output restart from the visible (interpolated) state, so the new inputs act from t on;
      * cached derivatives (FSAL stage, f at the step start) are stale */
     drop_ahead(it);
     it->cls->invalidate_derivative(it);
 }
 
-static MBS_NOINLINE int advance(MbsIntegrator *it, double t_end)
+static int single_advance(MbsIntegrator *it, double t_end)
 {
-    MbsCommon *c;
-    if (it->cls->composite) return it->cls->composite->advance(it, t_end);
-    c = it->c;
+    MbsCommon *c = it->c;
     it->msg[0] = '\0', it->msg_len = 0;
     if (!c->started) {
         mbs_msg_set(it, "mbs_integ_reset(t0, x0) must be called before mbs_integ_advance()");
@@ -560,12 +553,12 @@ int mbs_integ_advance(MbsIntegrator *it, double t_end)
 {
     /* a fixed-step method stepping on from its last point (what a master does) calls it directly; small
      * enough to inline into the caller, which saves a call per communication point (a composite has no
-     * advance of its class) */
+     * step hooks: its advance is its ops') */
     if (it->cls->advance && it->c->started && !it->c->has_ahead && t_end > it->c->t) {
         it->msg[0] = '\0', it->msg_len = 0;
         return it->cls->advance(it, t_end);
     }
-    return advance(it, t_end);
+    return it->cls->ops->advance(it, t_end);
 }
 
 int mbs_integ_advance_many(MbsIntegrator *it, const double *ts, int m, double *X)
@@ -583,7 +576,7 @@ int mbs_integ_advance_many(MbsIntegrator *it, const double *ts, int m, double *X
         if (mbs_integ_advance(it, ts[i])) return 1;
         memcpy(X + (size_t)i * n, mbs_integ_x(it), (size_t)n * sizeof(double));
         i++;
-        a = it->cls->composite ? it->cls->composite->active(it) : it;
+        a = it->cls->ops->active(it);
         c = a->c;
         if (!c->has_ahead) continue;
         /* points strictly inside the step come from its continuous extension (its end lands exactly) */
@@ -601,30 +594,23 @@ int mbs_integ_advance_many(MbsIntegrator *it, const double *ts, int m, double *X
     return 0;
 }
 
-double mbs_integ_t(const MbsIntegrator *it)
-{
-    return it->cls->composite ? mbs_integ_t(it->cls->composite->active(it)) : it->c->t;
-}
+static MbsIntegrator *single_active(const MbsIntegrator *it) { return (MbsIntegrator *)it; }
 
-const double *mbs_integ_x(const MbsIntegrator *it)
-{
-    return it->cls->composite ? mbs_integ_x(it->cls->composite->active(it)) : it->x;
-}
+double mbs_integ_t(const MbsIntegrator *it) { return it->cls->ops->active(it)->c->t; }
+
+const double *mbs_integ_x(const MbsIntegrator *it) { return it->cls->ops->active(it)->x; }
 
 double mbs_integ_h(const MbsIntegrator *it)
 {
-    if (it->cls->composite) return mbs_integ_h(it->cls->composite->active(it));
-    return it->c->has_h ? it->c->h : NAN;
+    const MbsCommon *c = it->cls->ops->active(it)->c;
+    return c->has_h ? c->h : NAN;
 }
 
-void mbs_integ_stats(const MbsIntegrator *it, MbsStats *out)
+void mbs_integ_stats(const MbsIntegrator *it, MbsStats *out) { it->cls->ops->stats(it, out); }
+
+static void single_stats(const MbsIntegrator *it, MbsStats *out)
 {
-    const MbsCommon *c;
-    if (it->cls->composite) {
-        it->cls->composite->stats(it, out);
-        return;
-    }
-    c = it->c;
+    const MbsCommon *c = it->c;
     out->steps = (long)c->steps;
     out->rejected = (long)c->rejected;
     out->rhs_evaluations = (long)c->rhs_evaluations;
@@ -653,19 +639,21 @@ long mbs_get_i32(const unsigned char *p)
     return (long)(u & 0x7fffffffUL) - (long)(u & 0x80000000UL);
 }
 
-size_t mbs_integ_snapshot_size(const MbsIntegrator *it)
+size_t mbs_integ_snapshot_size(const MbsIntegrator *it) { return it->cls->ops->snapshot_size(it); }
+
+void mbs_integ_snapshot_save(const MbsIntegrator *it, unsigned char *buf) { it->cls->ops->snapshot_save(it, buf); }
+
+int mbs_integ_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
 {
-    return it->cls->composite ? it->cls->composite->snapshot_size(it) : SNAP_HEADER + it->hist_bytes;
+    return it->cls->ops->snapshot_load(it, buf, len);
 }
 
-void mbs_integ_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
+static size_t single_snapshot_size(const MbsIntegrator *it) { return SNAP_HEADER + it->hist_bytes; }
+
+static void single_snapshot_save(const MbsIntegrator *it, unsigned char *buf)
 {
     unsigned long long hb = it->hist_bytes;
     int k;
-    if (it->cls->composite) {
-        it->cls->composite->snapshot_save(it, buf);
-        return;
-    }
     memcpy(buf, "MBSI", 4);
     mbs_put_i32(buf + 4, it->method);
     mbs_put_i32(buf + 8, it->n);
@@ -713,10 +701,12 @@ void mbs_integ_snapshot_commit(MbsIntegrator *it)
     mbs_msg_set(it, "");
 }
 
-int mbs_integ_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
+static int single_snapshot_load(MbsIntegrator *it, const unsigned char *buf, size_t len)
 {
-    if (it->cls->composite) return it->cls->composite->snapshot_load(it, buf, len);
     if (mbs_integ_snapshot_check(it, buf, len)) return 1;
     mbs_integ_snapshot_commit(it);
     return 0;
 }
+
+const MbsIntegOps mbs_single_ops = {single_setup, single_reset, single_inputs_changed, single_advance, single_active,
+                                    single_stats, single_snapshot_size, single_snapshot_save, single_snapshot_load};

@@ -297,7 +297,7 @@ int mbs_dopri5_stiff(const MbsIntegrator *it) { return ((const FsalState *)it->m
 
 const MbsMethodClass mbs_dopri5_class = {
     "dopri5", 5, dopri5_sizes, dopri5_init, fsal_reset, fsal_invalidate, dopri5_start, dopri5_attempt, NULL,
-    dopri5_dense, alternating_eval, dopri5_stop_early, NULL, fsal_check, NULL};
+    dopri5_dense, alternating_eval, dopri5_stop_early, NULL, fsal_check, &mbs_single_ops};
 
 /* ------------------------------------------------------------------------------------------- dop853 */
 
@@ -373,7 +373,7 @@ static int dop853_dense(MbsIntegrator *it, double t_old, const double *x_old, co
 
 const MbsMethodClass mbs_dop853_class = {
     "dop853", 8, dop853_sizes, dop853_init, fsal_reset, fsal_invalidate, dop853_start, dop853_attempt, NULL,
-    dop853_dense, alternating_eval, NULL, NULL, fsal_check, NULL};
+    dop853_dense, alternating_eval, NULL, NULL, fsal_check, &mbs_single_ops};
 
 /* ------------------------------------------------------------------------------------------- rk4 */
 
@@ -475,4 +475,5 @@ static int rk4_advance(MbsIntegrator *it, double t_end)
 }
 
 const MbsMethodClass mbs_rk4_class = {
-    "rk4", 0, rk4_sizes, rk4_init, rk4_nothing, rk4_nothing, NULL, NULL, NULL, NULL, NULL, NULL, rk4_advance, NULL, NULL};
+    "rk4", 0, rk4_sizes, rk4_init, rk4_nothing, rk4_nothing, NULL, NULL, NULL, NULL, NULL, NULL, rk4_advance, NULL,
+    &mbs_single_ops};

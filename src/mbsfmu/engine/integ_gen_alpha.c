@@ -442,5 +442,5 @@ static int check(const MbsIntegrator *it, const void *ms, const int *hi)
 
 const MbsMethodClass mbs_gen_alpha_class = {
     "gen_alpha", 0, sizes, init, reset_history, invalidate_derivative, start, attempt, accepted, NULL, NULL,
-    NULL, advance, check, NULL,
+    NULL, advance, check, &mbs_single_ops,
 };

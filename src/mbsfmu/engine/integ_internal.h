@@ -60,10 +60,11 @@
  * are counted by mbs_integ_f); steps and rejections are counted by the driver (by a fixed-step advance).
  *
  * REGISTRATION: one entry in mbs_layout.h's MBS_METHODS (code, name, class, "tolerance" or "step") and a file
- * integ_<name>.c that defines mbs_<class>_class; integ_base.c's table, the engine's names, Python's list (loader, compiler, CLI,
- * docs' check) and build.py (integ_*.c) follow. rk4, dopri5, dop853 live in integ_erk.c; auto (integ_auto.c)
- * is a composite (MbsComposite) of a dopri5 child with stop_when_stiff and a radau5 child; it sets the radau5
- * child's c->h/has_h after reset to hand the step size over.
+ * integ_<name>.c that defines mbs_<class>_class with .ops = &mbs_single_ops; integ_base.c's table, the engine's
+ * names, Python's lists (loader, compiler, CLI, benchmarks, docs' check) and build.py (integ_*.c) follow. rk4,
+ * dopri5, dop853 live in integ_erk.c; auto (integ_auto.c) is a composite (its own MbsIntegOps) of a dopri5 child
+ * with stop_when_stiff and a radau5 child; it sets the radau5 child's c->h/has_h after reset to hand the step
+ * size over.
  */
 #ifndef MBS_INTEG_INTERNAL_H
 #define MBS_INTEG_INTERNAL_H
@@ -100,10 +101,12 @@ typedef struct {
     size_t view;           /* bytes of the method's pointer struct (it->view) */
 } MbsSizes;
 
-/* A composite method ('auto'): integrators of other classes run under it, and the public functions hand every
- * call to these, so the common driver names no method. */
-typedef struct MbsComposite {
-    int (*init)(MbsIntegrator *it, const MbsIntegOptions *opt, char *err, size_t errlen); /* after the options */
+/* What the public functions (mbs_integ_*) do, per class: each hands its call to these and names no method. A
+ * single method's are the common driver's (mbs_single_ops, integ_base.c: the hooks below do the rest); a
+ * composite method ('auto', integ_auto.c) supplies its own and runs child integrators (it->sub) under them. */
+typedef struct MbsIntegOps {
+    /* options, memory, history; after calloc (it->cls, it->method set). 1 with err set: the caller frees it */
+    int (*setup)(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, char *err, size_t errlen);
     int (*reset)(MbsIntegrator *it, double t0, const double *x0);
     void (*inputs_changed)(MbsIntegrator *it);
     int (*advance)(MbsIntegrator *it, double t_end);
@@ -112,7 +115,8 @@ typedef struct MbsComposite {
     size_t (*snapshot_size)(const MbsIntegrator *it);
     void (*snapshot_save)(const MbsIntegrator *it, unsigned char *buf);
     int (*snapshot_load)(MbsIntegrator *it, const unsigned char *buf, size_t len);
-} MbsComposite;
+} MbsIntegOps;
+extern const MbsIntegOps mbs_single_ops;
 
 typedef struct MbsMethodClass {
     const char *name;
@@ -130,7 +134,7 @@ typedef struct MbsMethodClass {
     int (*stop_early)(const MbsIntegrator *it);                           /* NULL: never */
     int (*advance)(MbsIntegrator *it, double t_end);                      /* NULL: mbs_integ_adaptive */
     int (*check)(const MbsIntegrator *it, const void *ms, const int *hi); /* NULL: nothing to check */
-    const MbsComposite *composite; /* NULL: a single method (the fields above), else only name and this */
+    const MbsIntegOps *ops; /* &mbs_single_ops for a method of the hooks above; a composite: its own (no hooks) */
 } MbsMethodClass;
 
 struct MbsIntegrator {
@@ -198,6 +202,9 @@ int mbs_integ_trial_nonfinite(MbsIntegrator *it, double h, const char *what);
  * stages out of the region where the equations hold: c->h = h/4 and MBS_REJECT, counted with the non-finite
  * trials. Later (or after MBS_MAX_NONFINITE_TRIALS) MBS_FAIL with the ODE's message: no step size cures it. */
 int mbs_integ_stage_failed(MbsIntegrator *it, double h);
+/* The common option checks into it (has_dense: the class can interpolate); 0, or 1 with err set. */
+int mbs_integ_take_options(MbsIntegrator *it, const MbsOde *ode, const MbsIntegOptions *opt, int has_dense, char *err,
+                           size_t errlen);
 /* The adaptive driver from (c->t, x) to t_end; 0 or 1. */
 int mbs_integ_adaptive(MbsIntegrator *it, double t_end);
 /* The fixed-step substep count of rk4 / gen_alpha: equal steps <= h_max over span (max_steps checked,

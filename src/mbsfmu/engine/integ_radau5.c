@@ -405,5 +405,5 @@ static int check(const MbsIntegrator *it, const void *ms, const int *hi)
 
 const MbsMethodClass mbs_radau5_class = {
     "radau5", 4, sizes, init, reset_history, invalidate_derivative, start, attempt, accepted, dense_coeffs,
-    dense_eval, NULL, NULL, check, NULL,
+    dense_eval, NULL, NULL, check, &mbs_single_ops,
 };
