@@ -51,6 +51,23 @@ def test_examples_cover_every_joint_and_force_type():
         assert f"examples/{f.name}" in text, f"{f.name} is not linked from scene-format.md"
 
 
+def test_joint_table_of_the_docs_is_the_joint_table():
+    """scene-format.md's joint table states, for every joint type of the table (kinematics/joints.py), its dof,
+    every default coordinate name of each parameterization and the fields it takes."""
+    from mbsfmu.kinematics.joints import JOINTS, PARAMETERIZATIONS
+    text = (DOCS / "scene-format.md").read_text(encoding="utf-8")
+    rows = {m.group(1): m.group(0) for m in re.finditer(r"^\| (\w+) \| \d+ \|.*$", text, re.M)}
+    for kind, params in PARAMETERIZATIONS.items():
+        row = rows[kind] + (rows["spherical"] if "the spherical set" in rows[kind] else "")  # free's row refers to it
+        default = JOINTS[(kind, params[0] if params else None)]
+        assert row.split("|")[2].strip() == str(default.nvel), row
+        for p in params or (None,):
+            joint = JOINTS[(kind, p)]
+            for name in joint.positions + joint.velocities:
+                assert re.search(rf"[ `]\.{name}\b|<body>\.{name}\b", row), (kind, name)
+            assert all(f"`{f}" in row for f in joint.fields), (kind, joint.fields)
+
+
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
 def test_example_builds_a_valid_fmu(path, tmp_path):
     from fmpy.validation import validate_fmu

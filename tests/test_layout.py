@@ -78,16 +78,24 @@ def test_engine_method_names_are_the_layouts():
     assert tuple(n.decode() for n in names) == layout.METHODS
 
 
+def test_joint_table_has_exactly_the_layouts_joints():
+    """The joint table (kinematics/joints.py: loader, compiler, units, docs) and mbs_layout.h's MBS_JOINTS list the
+    same (type, parameterization) pairs: a joint added on one side only fails here."""
+    from mbsfmu.kinematics.joints import JOINTS
+    assert set(JOINTS) == {(e[1], e[2] or None) for e in layout.LISTS["MBS_JOINTS"]}
+
+
 @pytest.mark.parametrize("entry", layout.LISTS["MBS_JOINTS"], ids=lambda e: e[0])
-def test_joint_coordinate_counts_are_the_kinematics(entry):
-    """The engine refuses a body whose coordinate counts are not its joint type's (model.c, from MBS_JOINTS): the
-    counts are those of the numpy reference's joint (kinematics/joints.py), for every code the compiler writes."""
-    from mbsfmu.engine.compile import JOINT_TYPES
-    from mbsfmu.kinematics.joints import make_joint
+def test_joint_table_row_is_the_layouts_and_the_kinematics(entry):
+    """Each row's engine code is the header's, and its coordinate counts are the header's (which model.c checks a
+    compiled body against), its default names' and units', and those of the numpy reference's joint object."""
+    from mbsfmu.kinematics.joints import JOINTS
     name, kind, param, npos, nvel = entry
-    joint = make_joint(kind, axis=[0, 0, 1], axes=[[1, 0, 0], [0, 1, 0]], parameterization=param or "quaternion")
-    assert (joint.npos, joint.nvel) == (npos, nvel)
-    assert JOINT_TYPES[(kind, param or None)] == layout.CONSTANTS[name]
+    row = JOINTS[(kind, param or None)]
+    joint = row.make(axis=[0, 0, 1], axes=[[1, 0, 0], [0, 1, 0]])
+    assert row.code == layout.CONSTANTS[name]
+    assert (joint.npos, joint.nvel) == (row.npos, row.nvel) == (npos, nvel)
+    assert (len(row.units), len(row.velocity_units)) == (npos, nvel)
 
 
 @pytest.mark.parametrize("text, words", [

@@ -17,7 +17,6 @@ from . import layout as L
 from .elastic_tables import elastic_sections
 
 # every section id, field, type code and size comes from mbs_layout.h (layout.py); these are views of it
-JOINT_TYPES = {(e[1], e[2] or None): L.CONSTANTS[e[0]] for e in L.LISTS["MBS_JOINTS"]}  # (joint, parametrization)
 FORCE_TYPES, FN1, FN2 = L.names("MBS_FORCES"), L.names("MBS_FN1"), L.names("MBS_FN2")
 BINARY = {"+": L.OP_ADD, "-": L.OP_SUB, "*": L.OP_MUL, "/": L.OP_DIV, "^": L.OP_POW}
 
@@ -139,7 +138,7 @@ def compile_scene(spec, variables, guid=""):
     for i, b in enumerate(m.bodies):
         j, s = b.spec["joint"], b.spec
         ib[i, L.IB_PARENT] = b.parent
-        ib[i, L.IB_JTYPE] = JOINT_TYPES[(b.kind, b.param if b.kind in ("spherical", "free") else None)]
+        ib[i, L.IB_JTYPE] = b.type.code
         ncardan += ib[i, L.IB_JTYPE] in (L.J_SPH_CARDAN, L.J_FREE_CARDAN)
         ib[i, L.IB_NPOS], ib[i, L.IB_NVEL] = b.joint.npos, b.joint.nvel
         ib[i, L.IB_MASSIVE] = int(i in m.massive)

@@ -8,7 +8,7 @@ as a literal zero, a body without mass, no gravity, no drives — the evaluator 
 import numpy as np
 
 from ..expr import parse
-from ..kinematics.joints import make_joint, quaternion_slice
+from ..kinematics.joints import joint_type
 from ..kinematics.rotations import axis_angle
 
 
@@ -37,7 +37,8 @@ class Body:
         self.name, self.spec, self.parent = spec["name"], spec, parent  # parent: index in topological order, -1 world
         self.kind = j["type"]
         self.param = j.get("parameterization", "quaternion")
-        self.quat = quaternion_slice(self.kind, self.param)
+        self.type = joint_type(self.kind, self.param)  # its row of the joint table
+        self.quat = self.type.quaternion
         self.coordinates, self.velocities = j["coordinates"], j["velocities"]
         self.driven = [c in j["drive"] for c in self.coordinates]
         self.drives = [(k, parse(j["drive"][c])) for k, c in enumerate(self.coordinates) if c in j["drive"]]
@@ -51,9 +52,8 @@ class Body:
     def bind(self, env):
         """Evaluate the parameter-dependent data of this body."""
         j, s = self.spec["joint"], self.spec
-        self.joint = make_joint(self.kind, axis=_vec(j["axis"], env) if "axis" in j else None,
-                                axes=[_vec(a, env) for a in j["axes"]] if "axes" in j else None,
-                                parameterization=self.param)
+        self.joint = self.type.make(axis=_vec(j["axis"], env) if "axis" in j else None,
+                                    axes=[_vec(a, env) for a in j["axes"]] if "axes" in j else None)
         self.at = _vec(j["at"], env) if self.has_at else None
         self.R0 = _rotation(j["rotation"], env) if self.has_rotation else None
         self.m = parse(s["mass"])(env)
@@ -125,18 +125,11 @@ class Model:
         self.bind(self.parameters)
 
     def coordinate_units(self):
-        """Units of y and ẏ entries (contract order)."""
-        lin = {"prismatic": "m", "cylindrical": ["m", "rad"], "planar": ["m", "m", "rad"], "free": ["m", "m", "m"]}
+        """Units of y and ẏ entries (contract order): the joint table's, then 1 for elastic coordinates."""
         pos, vel = [], []
         for b in (self.bodies[self.index[s["name"]]] for s in self.spec["bodies"]):
-            n = len(b.coordinates)
-            u = lin.get(b.kind, "rad")
-            u = [u] * n if isinstance(u, str) else u + ["rad"] * (n - len(u))
-            if b.quat is not None:
-                u[b.quat] = ["1"] * 4
-            vu = [x for x in u if x != "1"] + (["rad"] * 3 if b.quat is not None else [])
-            pos += [x for x, dr in zip(u, b.driven) if not dr]
-            vel += [x + "/s" for x, dr in zip(vu, b.driven + [False] * 3) if not dr or b.quat is not None]
+            pos += [u for u, dr in zip(b.type.units, b.driven) if not dr]
+            vel += [u + "/s" for u, dr in zip(b.type.velocity_units, b.driven) if not dr or b.quat is not None]
             if b.elastic:
                 n_e = len(b.elastic["coordinates"])
                 pos += ["1"] * n_e

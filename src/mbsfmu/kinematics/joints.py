@@ -8,6 +8,7 @@ so that the tree recursion skips it.
 
 import numpy as np
 
+from ..engine import layout as L
 from .rotations import axis_angle, cross, quat_to_matrix, rot_x, rot_y, rot_z
 
 _E = np.eye(3)
@@ -139,24 +140,56 @@ class FreeCardan:
         return S, p[0:3], np.hstack([np.zeros((3, 3)), H]), _H_T_FREE, b_R, None
 
 
+class JointType:
+    """A row of the joint table: the scene's joint type (and parameterization), its numpy joint class, the scene
+    fields it takes, its default coordinate names (suffixes of `<body>.`) and their units, and its engine code."""
+
+    def __init__(self, cls, fields, positions, units, velocities=None, velocity_units=None):
+        self.cls, self.fields, self.positions, self.units = cls, fields, positions, units
+        self.velocities = positions if velocities is None else velocities
+        self.velocity_units = units if velocity_units is None else velocity_units
+        self.npos, self.nvel = len(self.positions), len(self.velocities)
+        q = positions.index("q0") if "q0" in positions else None
+        self.quaternion = None if q is None else slice(q, q + 4)  # where the unit quaternion sits in y
+
+    def make(self, axis=None, axes=None):
+        return self.cls(axis) if "axis" in self.fields else self.cls(axes) if "axes" in self.fields else self.cls()
+
+
+_XYZ, _QUAT, _CARDAN, _OMEGA = ("x", "y", "z"), ("q0", "q1", "q2", "q3"), ("a", "b", "c"), ("wx", "wy", "wz")
+_P = ("parameterization",)
+# The joint table (contract: docs/scene-format.md, "Joints"), keyed by (type, parameterization or None) as
+# mbs_layout.h's MBS_JOINTS, whose codes and coordinate counts tests/test_layout.py holds it against.
+JOINTS = {
+    ("fixed", None): JointType(Fixed, (), (), ()),
+    ("revolute", None): JointType(Revolute, ("axis",), ("angle",), ("rad",)),
+    ("prismatic", None): JointType(Prismatic, ("axis",), ("s",), ("m",)),
+    ("cylindrical", None): JointType(Cylindrical, ("axis",), ("s", "angle"), ("m", "rad")),
+    ("universal", None): JointType(Universal, ("axes",), ("angle1", "angle2"), ("rad", "rad")),
+    ("planar", None): JointType(Planar, ("axes",), ("x", "y", "angle"), ("m", "m", "rad")),
+    ("spherical", "quaternion"): JointType(SphericalQuaternion, _P, _QUAT, ("1",) * 4, _OMEGA, ("rad",) * 3),
+    ("spherical", "cardan"): JointType(SphericalCardan, _P, _CARDAN, ("rad",) * 3),
+    ("free", "quaternion"): JointType(FreeQuaternion, _P, _XYZ + _QUAT, ("m",) * 3 + ("1",) * 4, _XYZ + _OMEGA,
+                                      ("m",) * 3 + ("rad",) * 3),
+    ("free", "cardan"): JointType(FreeCardan, _P, _XYZ + _CARDAN, ("m",) * 3 + ("rad",) * 3),
+}
+_CODES = {(e[1], e[2] or None): L.CONSTANTS[e[0]] for e in L.LISTS["MBS_JOINTS"]}
+for (_kind, _param), _row in JOINTS.items():
+    _row.kind, _row.param, _row.code = _kind, _param, _CODES.get((_kind, _param))
+TYPES = tuple(dict.fromkeys(kind for kind, _ in JOINTS))  # the scene's joint types, in table order
+PARAMETERIZATIONS = {kind: tuple(p for k, p in JOINTS if k == kind and p) for kind in TYPES}  # first: the default
+
+
+def joint_type(kind, parameterization="quaternion"):
+    """The table's row of a scene joint (the parameterization matters only to the types that have one)."""
+    return JOINTS[(kind, parameterization if PARAMETERIZATIONS[kind] else None)]
+
+
 def make_joint(kind, axis=None, axes=None, parameterization="quaternion"):
     """The joint object for a scene joint type."""
-    if kind == "fixed":
-        return Fixed()
-    if kind in ("revolute", "prismatic", "cylindrical"):
-        return {"revolute": Revolute, "prismatic": Prismatic, "cylindrical": Cylindrical}[kind](axis)
-    if kind == "universal":
-        return Universal(axes)
-    if kind == "planar":
-        return Planar(axes)
-    quat = parameterization == "quaternion"
-    if kind == "spherical":
-        return SphericalQuaternion() if quat else SphericalCardan()
-    return FreeQuaternion() if quat else FreeCardan()
+    return joint_type(kind, parameterization).make(axis, axes)
 
 
 def quaternion_slice(kind, parameterization):
     """Positions of the quaternion inside a joint's position coordinates (or None)."""
-    if parameterization != "quaternion":
-        return None
-    return {"spherical": slice(0, 4), "free": slice(3, 7)}.get(kind)
+    return joint_type(kind, parameterization).quaternion

@@ -14,15 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine.layout import LISTS, METHODS  # the engine's integrators (mbs_layout.h: MBS_METHODS)
 from ..errors import ModelError
 from ..expr import FUNCTIONS, ExprError, parse
+from ..kinematics.joints import PARAMETERIZATIONS, TYPES as JOINT_TYPES, joint_type  # the joint table
 from . import datafile, domains, limits, names, urdf
 from .shapes import check_shapes
 from .yaml_lines import Date, Map, Seq, read_yaml
 
-JOINT_TYPES = ("fixed", "revolute", "prismatic", "cylindrical", "universal", "planar", "spherical", "free")
-FORCE_TYPES = ("spring_damper", "joint_spring_damper", "force", "torque")
-from ..engine.layout import METHODS  # noqa: E402  the engine's integrators (mbs_layout.h: MBS_METHODS)
+FORCE_TYPES = tuple(e[1] for e in LISTS["MBS_FORCES"])  # the engine's force elements (mbs_layout.h: MBS_FORCES)
 TOP_KEYS = ("mbsfmu", "name", "description", "gravity", "parameters", "bodies", "forces", "integrator",
             "experiment", "outputs")
 RESERVED = {"t", "pi", "world", "q", "y", "yd", "integrator"}
@@ -484,9 +484,7 @@ class _Checker:
         kind = j["type"]
         if kind not in JOINT_TYPES:
             self.fail(j, "type", path + ".type", f"unknown joint type '{kind}'", _suggest(kind, JOINT_TYPES))
-        fields = {"fixed": (), "revolute": ("axis",), "prismatic": ("axis",), "cylindrical": ("axis",),
-                  "universal": ("axes",), "planar": ("axes",), "spherical": ("parameterization",),
-                  "free": ("parameterization",)}[kind]
+        fields = joint_type(kind, PARAMETERIZATIONS[kind][0] if PARAMETERIZATIONS[kind] else None).fields
         common = ("type", "at", "node", "rotation", "coordinates", "initial", "initial_velocity", "drive")
         self.keys(j, path, common + fields, required=tuple(f for f in fields if f != "parameterization"))
         out = {"type": kind}
@@ -502,9 +500,9 @@ class _Checker:
                 self.fail(j, "node", path + ".node", "'node' needs an elastic parent body", "use 'at' on rigid parents")
             out["node"] = j["node"]
         out["rotation"] = self.rotation(j, "rotation", path + ".rotation") if "rotation" in j else None
-        if kind in ("revolute", "prismatic", "cylindrical"):
+        if "axis" in fields:
             out["axis"] = self.vector(j, "axis", path + ".axis", nonzero=True)
-        if kind in ("universal", "planar"):
+        if "axes" in fields:
             axes = j["axes"]
             if not isinstance(axes, list) or len(axes) != 2:
                 self.fail(j, "axes", path + ".axes", "expected two axes [a1, a2]")
@@ -513,15 +511,17 @@ class _Checker:
             problem = domains.check(rule, [self.value(x) for a in out["axes"] for x in a])
             if problem:
                 self.fail(j, "axes", path + ".axes", problem)
-        param = j.get("parameterization", "quaternion")
-        if kind in ("spherical", "free"):
-            if param not in ("quaternion", "cardan"):
-                self.fail(j, "parameterization", path + ".parameterization", f"unknown parameterization '{param}'", _suggest(param, ("quaternion", "cardan")))
+        param = j.get("parameterization", PARAMETERIZATIONS[kind][0] if PARAMETERIZATIONS[kind] else None)
+        if PARAMETERIZATIONS[kind]:
+            if param not in PARAMETERIZATIONS[kind]:
+                self.fail(j, "parameterization", path + ".parameterization", f"unknown parameterization '{param}'", _suggest(param, PARAMETERIZATIONS[kind]))
             out["parameterization"] = param
-        pos, vel = _default_coordinates(kind, name, param)
+        row = joint_type(kind, param)
+        pos, vel = [f"{name}.{s}" for s in row.positions], [f"{name}.{s}" for s in row.velocities]
+        quat = row.quaternion is not None
         if "coordinates" in j:
             given = j["coordinates"]
-            if kind in ("spherical", "free") and param == "quaternion":
+            if quat:
                 self.fail(j, "coordinates", path + ".coordinates", "quaternion joints use fixed coordinate names", "names are " + ", ".join(pos) + "; or use parameterization: cardan")
             if not isinstance(given, list) or len(given) != len(pos):
                 self.fail(j, "coordinates", path + ".coordinates", f"a {kind} joint has {len(pos)} coordinate(s), got {_shown(given)}", "e.g. " + str(pos))
@@ -531,7 +531,6 @@ class _Checker:
                 self.fail(j, "coordinates", path + ".coordinates", "coordinate names repeat")
             pos = vel = list(given)
         out["coordinates"], out["velocities"] = pos, vel
-        quat = kind in ("spherical", "free") and param == "quaternion"
         out["initial"], out["initial_velocity"], out["initial_rotation"] = {}, {}, None
         if "initial" in j:
             ini = j["initial"]
@@ -541,7 +540,7 @@ class _Checker:
                 if c == "rotation" and kind in ("spherical", "free"):
                     out["initial_rotation"] = self.rotation(ini, "rotation", path + ".initial.rotation")
                 elif c in pos and not (quat and c in pos[-4:]):
-                    read = self.angle if _is_angle(kind, param, pos.index(c)) else self.number
+                    read = self.angle if row.units[pos.index(c)] == "rad" else self.number
                     out["initial"][c] = read(ini, c, f"{path}.initial.{c}")
                 else:
                     valid = [p for p in pos if not (quat and p in pos[-4:])] + (["rotation"] if kind in ("spherical", "free") else [])
@@ -877,15 +876,15 @@ class _Checker:
                 j = b["joint"]
                 if c in j["drive"]:
                     self.fail(f, "coordinate", path + ".coordinate", f"coordinate '{c}' is driven, so a spring on it does nothing")
-                quat = j["type"] in ("spherical", "free") and j.get("parameterization") == "quaternion"
-                if quat and c not in j["coordinates"][:3 if j["type"] == "free" else 0]:
+                row = joint_type(j["type"], j.get("parameterization"))
+                if row.quaternion and c not in j["coordinates"][:row.quaternion.start]:
                     self.fail(f, "coordinate", path + ".coordinate", f"'{c}' is a quaternion coordinate", "use parameterization: cardan, or a spring_damper between points")
                 if b["elastic"] and c in b["elastic"]["coordinates"]:
                     self.fail(f, "coordinate", path + ".coordinate", f"'{c}' is an elastic coordinate (its stiffness comes from the body)")
                 g["coordinate"] = c
                 g["stiffness"] = self.number(f, "stiffness", path + ".stiffness", nonneg=True) if "stiffness" in f else 0.0
                 g["damping"] = self.number(f, "damping", path + ".damping", nonneg=True) if "damping" in f else 0.0
-                angle = _is_angle(j["type"], j.get("parameterization"), j["coordinates"].index(c))
+                angle = row.units[j["coordinates"].index(c)] == "rad"
                 g["offset"] = (self.angle if angle else self.number)(f, "offset", path + ".offset") if "offset" in f else 0.0
             else:
                 self.keys(f, path, ("type", "body", "at", "node", "value", "input", "frame"), required=("body",))
@@ -1020,24 +1019,6 @@ class _Checker:
             (var, first, first_path), (_, second, second_path) = sorted(clash, key=lambda v: self.line_of(v[2]))
             self.fail_at(second_path, f"{second} and {first} both make the FMU variable '{var}' (line {self.line_of(first_path)})",
                          "rename one of them")
-
-
-def _is_angle(kind, param, i):
-    """Whether position coordinate i of a joint is an angle (radians): the contract's default names say so."""
-    return _default_coordinates(kind, "", param)[0][i] in {".angle", ".angle1", ".angle2", ".a", ".b", ".c"}
-
-
-def _default_coordinates(kind, name, param):
-    """Default position and velocity coordinate names of a joint (contract table)."""
-    b = name
-    rot_pos = [f"{b}.q0", f"{b}.q1", f"{b}.q2", f"{b}.q3"] if param == "quaternion" else [f"{b}.a", f"{b}.b", f"{b}.c"]
-    rot_vel = [f"{b}.wx", f"{b}.wy", f"{b}.wz"] if param == "quaternion" else rot_pos
-    table = {"fixed": ([], []), "revolute": ([f"{b}.angle"],) * 2, "prismatic": ([f"{b}.s"],) * 2,
-             "cylindrical": ([f"{b}.s", f"{b}.angle"],) * 2, "universal": ([f"{b}.angle1", f"{b}.angle2"],) * 2,
-             "planar": ([f"{b}.x", f"{b}.y", f"{b}.angle"],) * 2, "spherical": (rot_pos, rot_vel),
-             "free": ([f"{b}.x", f"{b}.y", f"{b}.z"] + rot_pos, [f"{b}.x", f"{b}.y", f"{b}.z"] + rot_vel)}
-    pos, vel = table[kind]
-    return list(pos), list(vel)
 
 
 _FE_MESH_KEYS = ("mesh", "material", "element")
