@@ -151,3 +151,44 @@ def test_method_accuracy_column_is_what_the_engine_does(entry):
         assert step_changes == 0.0 and rtol_changes > 1e-6
     else:
         assert step_changes > 1e-12
+
+
+def _joint_rows():
+    from mbsfmu.kinematics.joints import JOINTS
+    return list(JOINTS.values())
+
+
+@pytest.mark.parametrize("row", _joint_rows(), ids=lambda r: f"{r.kind}-{r.param}")
+def test_joint_table_units_and_flags_are_the_kinematics(row):
+    """What the table says of each coordinate (its unit, hence the loader's angle reading and the FMU's units) and
+    of the joint (free orientation, free translation) is what the numpy joint does: moving an "m" coordinate by δ
+    translates the joint frame by δ without turning it, a "rad" one turns it by δ without translating, "1" is the
+    unit quaternion; a "m/s" velocity's H_T column is a unit vector (H_R's zero), a "rad/s" one the other way."""
+    import numpy as np
+    joint = row.make(axis=[0, 0, 1], axes=[[1, 0, 0], [0, 1, 0]])
+    p0, v0 = np.zeros(row.npos), np.zeros(row.nvel)
+    if row.quaternion is not None:
+        p0[row.quaternion.start] = 1.0
+
+    def frame(p):
+        R, d = joint.motion(p, v0)[:2]
+        return (np.eye(3) if R is None else R), (np.zeros(3) if d is None else d)
+    R0, d0 = frame(p0)
+    for k, unit in enumerate(row.units):
+        if unit == "1":
+            assert row.quaternion is not None and row.quaternion.start <= k < row.quaternion.stop
+            continue
+        p = p0.copy()
+        p[k] += 0.3
+        R, d = frame(p)
+        angle = np.arccos(np.clip((np.trace(R0.T @ R) - 1) / 2, -1, 1))
+        moved = np.linalg.norm(d - d0)
+        assert (moved, angle) == pytest.approx((0.3, 0.0) if unit == "m" else (0.0, 0.3), abs=1e-12), (k, unit)
+    H_R, H_T = joint.motion(p0, v0)[2:4]
+    H_R = np.zeros((3, row.nvel)) if H_R is None else H_R
+    H_T = np.zeros((3, row.nvel)) if H_T is None else H_T
+    for k, unit in enumerate(row.velocity_units):
+        norms = (np.linalg.norm(H_T[:, k]), np.linalg.norm(H_R[:, k]))
+        assert norms == pytest.approx((1.0, 0.0) if unit == "m" else (0.0, 1.0), abs=1e-12), (k, unit)
+    assert row.orientation == (np.linalg.matrix_rank(H_R) == 3)
+    assert row.translation == (np.linalg.matrix_rank(H_T) == 3)

@@ -139,7 +139,7 @@ def compile_scene(spec, variables, guid=""):
         j, s = b.spec["joint"], b.spec
         ib[i, L.IB_PARENT] = b.parent
         ib[i, L.IB_JTYPE] = b.type.code
-        ncardan += ib[i, L.IB_JTYPE] in (L.J_SPH_CARDAN, L.J_FREE_CARDAN)
+        ncardan += b.type.cardan is not None
         ib[i, L.IB_NPOS], ib[i, L.IB_NVEL] = b.joint.npos, b.joint.nvel
         ib[i, L.IB_MASSIVE] = int(i in m.massive)
         ib[i, L.IB_POS:L.IB_POS + b.joint.npos] = b.pos_idx
@@ -175,12 +175,12 @@ def compile_scene(spec, variables, guid=""):
                 for r in range(3):
                     db[i, off + r] = num(a[r], off + r)
                 rule(domains.AXIS, off, f"joint.axes[{k}]")
-            rule(domains.PERPENDICULAR if b.kind == "planar" else domains.NOT_PARALLEL, L.DB_A1_RAW, "joint.axes")
-        if b.kind in ("spherical", "free"):
+            rule(b.type.axes_rule, L.DB_A1_RAW, "joint.axes")
+        if b.type.orientation:
             ib[i, L.IB_IROT] = _rotation(j["initial_rotation"], lambda v, off: num(v, L.DB_IROT_RAW + off), db[i, L.DB_IROT_RAW:])
             _rotation_rules(j["initial_rotation"], lambda kind, off, what: rule(kind, L.DB_IROT_RAW + off, "joint.initial.rotation" + what))
-            if b.param == "cardan":
-                names = b.coordinates[-3:]
+            if b.type.cardan is not None:
+                names = b.coordinates[b.type.cardan]
                 ib[i, L.IB_IROT_MASK] = sum(1 << k for k, c in enumerate(names) if c not in j["initial"])
         for k, c in enumerate(b.coordinates):
             if b.pos_idx[k] >= 0 and c in j["initial"]:

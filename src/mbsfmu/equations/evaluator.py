@@ -61,7 +61,7 @@ class Evaluator:
                     yd[b.vel_idx[k]] = parse(j["initial_velocity"][c])(env)
             if b.quat is not None:
                 y[b.pos_idx[b.quat]] = matrix_to_quat(initial_rotation(j["initial_rotation"], env))
-            elif b.kind in ("spherical", "free") and j["initial_rotation"] is not None:
+            elif b.type.orientation and j["initial_rotation"] is not None:
                 S = initial_rotation(j["initial_rotation"], env)  # Cardan x-y-z angles of S
                 angles = _cardan_angles(S)
                 for k, c in enumerate(b.coordinates[-3:]):
@@ -164,7 +164,7 @@ class Evaluator:
     def singularity_message(self, y, y_before=None):
         """Why M is (or was, between y_before and y) singular: Cardan angles at gimbal lock (b = ±90°), else None."""
         for b in self.model.bodies:
-            if b.kind in ("spherical", "free") and b.param == "cardan":
+            if b.type.cardan is not None:
                 k = len(b.coordinates) - 2  # the middle angle b
                 idx = b.pos_idx[k]
                 if idx < 0:

@@ -140,24 +140,36 @@ class FreeCardan:
         return S, p[0:3], np.hstack([np.zeros((3, 3)), H]), _H_T_FREE, b_R, None
 
 
+_XYZ, _QUAT, _CARDAN, _OMEGA = ("x", "y", "z"), ("q0", "q1", "q2", "q3"), ("a", "b", "c"), ("wx", "wy", "wz")
+_P = ("parameterization",)
+
+
+def _slice(names, part):
+    k = names.index(part[0]) if part[0] in names else -1
+    return slice(k, k + len(part)) if k >= 0 and tuple(names[k:k + len(part)]) == part else None
+
+
 class JointType:
     """A row of the joint table: the scene's joint type (and parameterization), its numpy joint class, the scene
-    fields it takes, its default coordinate names (suffixes of `<body>.`) and their units, and its engine code."""
+    fields it takes, its default coordinate names (suffixes of `<body>.`) and their units, its engine code; the
+    rule its two axes obey (an R_* code of mbs_layout.h), whether it has a free orientation (`initial.rotation`,
+    `initial_velocity.omega`) and a free translation (`initial_velocity.velocity`)."""
 
-    def __init__(self, cls, fields, positions, units, velocities=None, velocity_units=None):
+    def __init__(self, cls, fields, positions, units, velocities=None, velocity_units=None, axes_rule=None,
+                 translation=False):
         self.cls, self.fields, self.positions, self.units = cls, fields, positions, units
         self.velocities = positions if velocities is None else velocities
         self.velocity_units = units if velocity_units is None else velocity_units
         self.npos, self.nvel = len(self.positions), len(self.velocities)
-        q = positions.index("q0") if "q0" in positions else None
-        self.quaternion = None if q is None else slice(q, q + 4)  # where the unit quaternion sits in y
+        self.axes_rule, self.translation = axes_rule, translation
+        self.quaternion = _slice(positions, _QUAT)  # where the unit quaternion sits in y, or None
+        self.cardan = _slice(positions, _CARDAN)    # where the x-y-z Cardan angles sit, or None
+        self.orientation = self.quaternion is not None or self.cardan is not None
 
     def make(self, axis=None, axes=None):
         return self.cls(axis) if "axis" in self.fields else self.cls(axes) if "axes" in self.fields else self.cls()
 
 
-_XYZ, _QUAT, _CARDAN, _OMEGA = ("x", "y", "z"), ("q0", "q1", "q2", "q3"), ("a", "b", "c"), ("wx", "wy", "wz")
-_P = ("parameterization",)
 # The joint table (contract: docs/scene-format.md, "Joints"), keyed by (type, parameterization or None) as
 # mbs_layout.h's MBS_JOINTS, whose codes and coordinate counts tests/test_layout.py holds it against.
 JOINTS = {
@@ -165,13 +177,13 @@ JOINTS = {
     ("revolute", None): JointType(Revolute, ("axis",), ("angle",), ("rad",)),
     ("prismatic", None): JointType(Prismatic, ("axis",), ("s",), ("m",)),
     ("cylindrical", None): JointType(Cylindrical, ("axis",), ("s", "angle"), ("m", "rad")),
-    ("universal", None): JointType(Universal, ("axes",), ("angle1", "angle2"), ("rad", "rad")),
-    ("planar", None): JointType(Planar, ("axes",), ("x", "y", "angle"), ("m", "m", "rad")),
+    ("universal", None): JointType(Universal, ("axes",), ("angle1", "angle2"), ("rad", "rad"), axes_rule=L.R_NOT_PARALLEL),
+    ("planar", None): JointType(Planar, ("axes",), ("x", "y", "angle"), ("m", "m", "rad"), axes_rule=L.R_PERPENDICULAR),
     ("spherical", "quaternion"): JointType(SphericalQuaternion, _P, _QUAT, ("1",) * 4, _OMEGA, ("rad",) * 3),
     ("spherical", "cardan"): JointType(SphericalCardan, _P, _CARDAN, ("rad",) * 3),
     ("free", "quaternion"): JointType(FreeQuaternion, _P, _XYZ + _QUAT, ("m",) * 3 + ("1",) * 4, _XYZ + _OMEGA,
-                                      ("m",) * 3 + ("rad",) * 3),
-    ("free", "cardan"): JointType(FreeCardan, _P, _XYZ + _CARDAN, ("m",) * 3 + ("rad",) * 3),
+                                      ("m",) * 3 + ("rad",) * 3, translation=True),
+    ("free", "cardan"): JointType(FreeCardan, _P, _XYZ + _CARDAN, ("m",) * 3 + ("rad",) * 3, translation=True),
 }
 _CODES = {(e[1], e[2] or None): L.CONSTANTS[e[0]] for e in L.LISTS["MBS_JOINTS"]}
 for (_kind, _param), _row in JOINTS.items():

@@ -507,7 +507,7 @@ class _Checker:
             if not isinstance(axes, list) or len(axes) != 2:
                 self.fail(j, "axes", path + ".axes", "expected two axes [a1, a2]")
             out["axes"] = [self.vector(axes, i, f"{path}.axes[{i}]", nonzero=True) for i in range(2)]
-            rule = domains.PERPENDICULAR if kind == "planar" else domains.NOT_PARALLEL
+            rule = joint_type(kind).axes_rule
             problem = domains.check(rule, [self.value(x) for a in out["axes"] for x in a])
             if problem:
                 self.fail(j, "axes", path + ".axes", problem)
@@ -537,29 +537,29 @@ class _Checker:
             if not isinstance(ini, Map):
                 self.fail(j, "initial", path + ".initial", "expected a mapping coordinate: value")
             for c in ini:
-                if c == "rotation" and kind in ("spherical", "free"):
+                if c == "rotation" and row.orientation:
                     out["initial_rotation"] = self.rotation(ini, "rotation", path + ".initial.rotation")
-                elif c in pos and not (quat and c in pos[-4:]):
+                elif c in pos and not (quat and c in pos[row.quaternion]):
                     read = self.angle if row.units[pos.index(c)] == "rad" else self.number
                     out["initial"][c] = read(ini, c, f"{path}.initial.{c}")
                 else:
-                    valid = [p for p in pos if not (quat and p in pos[-4:])] + (["rotation"] if kind in ("spherical", "free") else [])
+                    valid = [p for p in pos if not (quat and p in pos[row.quaternion])] + (["rotation"] if row.orientation else [])
                     self.fail(ini, c, f"{path}.initial.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
         if "initial_velocity" in j:
             ini = j["initial_velocity"]
             if not isinstance(ini, Map):
                 self.fail(j, "initial_velocity", path + ".initial_velocity", "expected a mapping coordinate: value")
             for c in ini:
-                if c == "omega" and kind in ("spherical", "free"):
+                if c == "omega" and row.orientation:
                     for i, v in enumerate(self.vector(ini, "omega", path + ".initial_velocity.omega")):
                         out["initial_velocity"][vel[-3 + i]] = v
-                elif c == "velocity" and kind == "free":
+                elif c == "velocity" and row.translation:
                     for i, v in enumerate(self.vector(ini, "velocity", path + ".initial_velocity.velocity")):
                         out["initial_velocity"][vel[i]] = v
                 elif c in vel:
                     out["initial_velocity"][c] = self.number(ini, c, f"{path}.initial_velocity.{c}")
                 else:
-                    valid = list(vel) + (["omega"] if kind in ("spherical", "free") else []) + (["velocity"] if kind == "free" else [])
+                    valid = list(vel) + (["omega"] if row.orientation else []) + (["velocity"] if row.translation else [])
                     self.fail(ini, c, f"{path}.initial_velocity.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
         out["drive"] = {}
         if "drive" in j:
