@@ -20,6 +20,12 @@ Which host produces which numbers:
   test bound 1e-12 relative): it steps from t_k = k*h with h_k = (k+1)*h - k*h, which differs
   from 0.01 in the last bit for 48 of the 50 steps, so the integrator aims at slightly different
   end times.
+* test_libcosim_bit_identical_to_fmpy[<model>-<kind>]: a third host, OSP's libcosim through its Python binding
+  libcosimpy (PyPI; the wheel ships libcosimc and its own FMI Library), runs every shipped model's native and
+  pythonfmu FMU in this process. Full precision: a last-value observer's fmi2GetReal after every step. libcosim
+  keeps time in integer nanoseconds and hands the FMU t_k = to_double(k·Δ) and h = t_(k+1) − t_k (its
+  to_double_time_point / to_double_duration); fmpy's FMU2Slave stepped on that grid gives the same outputs,
+  bit for bit (on the ecos grid, t += 0.01, they differ by ~2e-15).
 * test_ecos_cli_matches_to_the_last_printed_digit: the `ecos simulate` command line in a
   subprocess with a clean environment (no PYTHONPATH/PYTHONHOME/LD_PRELOAD) is the non-Python
   host case. Its CSV cannot carry full precision: ecos's csv_writer prints reals with
@@ -116,21 +122,29 @@ def _clean_env():
     return {k: v for k, v in os.environ.items() if k not in drop}
 
 
-def _fmpy_on_ecos_grid(fmu_path, tmp_path, names, n):
-    """fmpy FMU2Slave stepped exactly like ecos: doStep(t, STEP), t += STEP; no inputs set."""
+def _fmpy_on_grid(fmu_path, tmp_path, names, steps):
+    """fmpy FMU2Slave: doStep(t, h) for each (t, h) of steps, no inputs set → (times, outputs) at the start and
+    after each step."""
     f, vr = _open(fmu_path, tmp_path, "grid")
     _init(f)
     refs = [vr[k] for k in names]
-    t = 0.0
-    ts, rows = [t], [f.getReal(refs)]
-    for _ in range(n):
-        f.doStep(t, STEP)
-        t += STEP
-        ts.append(t)
+    ts, rows = [0.0], [f.getReal(refs)]
+    for t, h in steps:
+        f.doStep(t, h)
+        ts.append(t + h)
         rows.append(f.getReal(refs))
     f.terminate()
     f.freeInstance()
     return np.array(ts), np.array(rows)
+
+
+def _fmpy_on_ecos_grid(fmu_path, tmp_path, names, n):
+    """fmpy FMU2Slave stepped exactly like ecos: doStep(t, STEP), t += STEP."""
+    steps, t = [], 0.0
+    for _ in range(n):
+        steps.append((t, STEP))
+        t += STEP
+    return _fmpy_on_grid(fmu_path, tmp_path, names, steps)
 
 
 def _child_processes(exe):
@@ -236,6 +250,64 @@ def test_ecos_cli_matches_to_the_last_printed_digit(fmu, tmp_path):
 
 
 # ---- FMU state with the real runtime -------------------------------------------------------------
+
+# ---- libcosim (libcosimpy) -------------------------------------------------------------------------
+
+MODELS = sorted((REPO / "models").glob("*.yaml"))
+COSIM_STEP_NS = 10_000_000  # libcosim's step, integer nanoseconds (0.01 s)
+
+
+def _libcosim():
+    """libcosimpy's modules, or skip (not installed, or its libcosimc does not load here)."""
+    try:
+        from libcosimpy.CosimExecution import CosimExecution
+        from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+        from libcosimpy.CosimObserver import CosimObserver
+        from libcosimpy.CosimSlave import CosimLocalSlave
+        log_output_level(CosimLogLevel.ERROR)  # its FMI Library logs every load at debug level
+    except (ImportError, OSError) as exc:
+        pytest.skip(f"libcosimpy not usable ({exc}); pip install libcosimpy")
+    return CosimExecution, CosimLocalSlave, CosimObserver
+
+
+def _libcosim_grid(n):
+    """(t, h) of each fmi2DoStep libcosim makes: its integer-nanosecond time points as doubles (ns / 1e9, what
+    std::chrono's duration<double> makes of them) and h the difference of two of them."""
+    t = [k * COSIM_STEP_NS * 1.0 / 1e9 for k in range(n + 1)]
+    return [(t[k], t[k + 1] - t[k]) for k in range(n)]
+
+
+@pytest.mark.parametrize("kind", ["native", "pythonfmu"])
+@pytest.mark.parametrize("model", MODELS, ids=lambda p: p.stem)
+def test_libcosim_bit_identical_to_fmpy(model, kind, tmp_path):
+    import mbsfmu
+    CosimExecution, CosimLocalSlave, CosimObserver = _libcosim()
+    if kind == "native":
+        from mbsfmu.fmu import native
+        if native.compiler() is None:
+            pytest.skip("no C compiler (cc, gcc, clang or $CC)")
+    fmu = mbsfmu.build_fmu(model, tmp_path / kind, kind=kind)
+    md = read_model_description(str(fmu))
+    names = [v.name for v in md.modelVariables if v.causality == "output"]
+    vrs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    execution = CosimExecution.from_step_size(COSIM_STEP_NS)
+    index = execution.add_local_slave(CosimLocalSlave(fmu_path=str(fmu), instance_name="instance"))
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer)
+    times, rows = [], []
+    for _ in range(ECOS_STEPS):
+        assert execution.step(), execution.status().error_code
+        times.append(execution.status().current_time)
+        rows.append(observer.last_real_values(index, vrs))
+    del execution  # frees the instance (fmi2FreeInstance) before the reference's
+
+    grid = _libcosim_grid(ECOS_STEPS)
+    assert times == [COSIM_STEP_NS * (k + 1) for k in range(ECOS_STEPS)]
+    _, ref = _fmpy_on_grid(fmu, tmp_path, names, grid)
+    rows = np.array(rows)
+    assert rows.tolist() == ref[1:].tolist()  # same outputs, bit for bit, after every step
+    assert np.ptp(np.vstack([ref[:1], rows]), axis=0).max() > 1e-3  # the run really moves
+
 
 def _run(f, vr, t, n, names=("y.phi1", "y.phi2", "yd.phi1", "yd.phi2")):
     out = []
