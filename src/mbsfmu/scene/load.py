@@ -568,7 +568,8 @@ class _Checker:
                 self.fail(j, "drive", path + ".drive", "expected a mapping coordinate: expression in t")
             for c in d:
                 if quat:
-                    self.fail(d, c, f"{path}.drive.{c}", "quaternion joints cannot be driven", "drive revolute, prismatic, cylindrical, universal, planar or cardan coordinates")
+                    drivable = [k for k in JOINT_TYPES if joint_type(k).npos and joint_type(k).quaternion is None]
+                    self.fail(d, c, f"{path}.drive.{c}", "quaternion joints cannot be driven", f"drive {', '.join(drivable)} or cardan coordinates")
                 if c not in pos:
                     self.fail(d, c, f"{path}.drive.{c}", f"unknown coordinate '{c}'", _suggest(c, pos or ["(none)"]))
                 out["drive"][c] = self.number(d, c, f"{path}.drive.{c}", allow_t=True)
