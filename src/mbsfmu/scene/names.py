@@ -29,11 +29,13 @@ def fmu_variables(spec):
     def output(i):
         return f"output '{spec['outputs'][i // 6]['name']}'", f"outputs[{i // 6}]"
 
+    def setting(i):  # integrator.method, .rtol, ...
+        return "the integrator settings", "integrator"
+
     source = {L.MBS_V_PARAM: parameter, L.MBS_V_FIN: force_input, L.MBS_V_OUT: output,
               L.MBS_V_Y: lambda i: coordinate[model.coordinates[i]],
               L.MBS_V_QIN: lambda i: coordinate[model.velocity_coordinates[i]],
               L.MBS_V_YD: lambda i: coordinate[model.velocity_coordinates[i]]}
-    setting = lambda i: ("the integrator settings", "integrator")  # noqa: E731
     return [(v.name, *source.get(v.kind, setting)(v.index)) for v in variables(spec, model)]
 
 
