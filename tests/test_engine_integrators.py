@@ -197,7 +197,7 @@ def test_harmonic_oscillator_closed_form(lib, method):
     assert integ.t == ts[-1]
 
 
-@pytest.mark.parametrize("method", ["dopri5", "dop853", "radau5", "auto"])
+@pytest.mark.parametrize("method", ADAPTIVE)
 def test_van_der_pol_against_scipy(lib, method):
     ts = np.linspace(0.5, 10.0, 20)
     ref = scipy_reference(vdp_rhs(1.0), [2.0, 0.0], ts)
@@ -270,7 +270,7 @@ def test_rk4_fourth_order(lib):
 
 # ------------------------------------------------------------------ driver behaviour
 
-@pytest.mark.parametrize("method", ["rk4", "gen_alpha"])
+@pytest.mark.parametrize("method", layout.FIXED_STEP)
 def test_fixed_step_one_substep_per_point_when_the_master_accumulates_time(lib, method):
     """A fixed-step master (ecos, a C host) accumulates t += h, so at t = 50 s the span it asks for differs
     from h by ulps of t (≈ 1e-11 of a 1 ms step): that must still be one internal step, not two half steps."""

@@ -192,3 +192,19 @@ def test_joint_table_units_and_flags_are_the_kinematics(row):
         assert norms == pytest.approx((1.0, 0.0) if unit == "m" else (0.0, 1.0), abs=1e-12), (k, unit)
     assert row.orientation == (np.linalg.matrix_rank(H_R) == 3)
     assert row.translation == (np.linalg.matrix_rank(H_T) == 3)
+
+
+def test_no_source_writes_the_integrator_lists_by_hand():
+    """The class of defect the integrator table removes: a tuple, list or set literal naming every method, or every
+    adaptive or fixed-step one (layout.METHODS, ADAPTIVE, FIXED_STEP are those lists), which a new integrator would
+    have to be added to by hand. A subset chosen for a purpose (the methods a stress case runs) is not a copy."""
+    import ast
+    views = {frozenset(layout.METHODS), frozenset(layout.ADAPTIVE), frozenset(layout.FIXED_STEP)}
+    bad = []
+    for p in sorted(SRC.rglob("*.py")) + sorted((SRC.parents[1] / "tests").rglob("*.py")):
+        for n in ast.walk(ast.parse(p.read_text())):
+            names = [e.value for e in getattr(n, "elts", ()) if isinstance(e, ast.Constant)]
+            if isinstance(n, (ast.Tuple, ast.List, ast.Set)) and len(names) == len(n.elts) > 1 \
+                    and frozenset(names) in views:
+                bad.append(f"{p.name}:{n.lineno}: {names}")
+    assert not bad, bad

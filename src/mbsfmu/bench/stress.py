@@ -83,12 +83,11 @@ def cases():
         Case("spinup_beam_stiffening", "spinup_beam", "driven spin-up of a beam with dynamic stiffening (rheonomic, "
              "elastic)", reference="radau5", budget=40.0, quick_stop=0.5, tol_error=1e-4),
         Case("nan_input", "double_pendulum", "input q.phi1 = NaN", expect="fail", expect_message="not finite",
-             inputs={"q.phi1": nan}, reference=None, stop=0.1, methods=("auto", "dopri5", "radau5", "rk4", "gen_alpha")),
+             inputs={"q.phi1": nan}, reference=None, stop=0.1),
         Case("inf_input", "double_pendulum", "input q.phi2 = +Inf", expect="fail", expect_message="not finite",
-             inputs={"q.phi2": inf}, reference=None, stop=0.1, methods=("auto", "dopri5", "radau5", "rk4", "gen_alpha")),
+             inputs={"q.phi2": inf}, reference=None, stop=0.1),
         Case("nan_parameter", "double_pendulum", "parameter m set to NaN after initialization", expect="fail",
-             expect_message="not finite", params={"m": nan}, reference=None, stop=0.1,
-             methods=("auto", "dopri5", "radau5", "rk4", "gen_alpha")),
+             expect_message="not finite", params={"m": nan}, reference=None, stop=0.1),
     ]
 
 
