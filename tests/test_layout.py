@@ -208,3 +208,27 @@ def test_no_source_writes_the_integrator_lists_by_hand():
                     and frozenset(names) in views:
                 bad.append(f"{p.name}:{n.lineno}: {names}")
     assert not bad, bad
+
+
+def test_no_source_branches_on_joint_types_by_hand():
+    """The class of defect the joint table removes: a module naming two or more scene joint types in a literal
+    (`kind in ("spherical", "free")`, a dict of per-type defaults) or comparing a kind with one, which a new joint
+    type would have to be added to by hand. Only the table says what a type is; URDF's own joint kinds (urdf.py)
+    and the peers' twins in bench/ (what Exudyn or Pinocchio can model) are other vocabularies."""
+    import ast
+    from mbsfmu.kinematics.joints import TYPES
+    own = {"kinematics/joints.py", "scene/urdf.py"}
+    words = set(TYPES) - {"fixed", "free"}  # compared alone, these two are also variabilities and CMS mode kinds
+    bad = []
+    for p in sorted(SRC.rglob("*.py")):
+        rel = p.relative_to(SRC).as_posix()
+        if rel in own or rel.startswith("bench/"):
+            continue
+        for n in ast.walk(ast.parse(p.read_text())):
+            items = getattr(n, "elts", None) or (n.keys if isinstance(n, ast.Dict) else [])
+            named = [e.value for e in items if isinstance(e, ast.Constant) and e.value in TYPES]
+            compared = isinstance(n, ast.Compare) and any(isinstance(c, ast.Constant) and c.value in words
+                                                          for c in n.comparators)
+            if len(named) > 1 or compared:
+                bad.append(f"{rel}:{n.lineno}")
+    assert not bad, bad

@@ -15,6 +15,7 @@ from . import __version__, files
 from .engine.layout import METHODS
 from .errors import IntegrationError, ModelError, printable
 from .scene.limits import RESULT_POINTS, TABLE_ROWS
+from .scene.urdf import BASES
 
 EPILOG = """examples:
   mbsfmu build models/double_pendulum.yaml -o out/        # writes out/double_pendulum.fmu
@@ -446,7 +447,7 @@ def parser():
     p = sub.add_parser("convert", help="write the scene YAML equivalent to a URDF robot description")
     p.add_argument("urdf", help="URDF file (.urdf)")
     p.add_argument("-o", "--output", required=True, help="scene file to write (.yaml)")
-    p.add_argument("--base", choices=("fixed", "free"), default="fixed",
+    p.add_argument("--base", choices=BASES, default="fixed",
                    help="the root link fixed in the world (default) or on a free joint (a floating base)")
     p.add_argument("--repair", action="store_true", help="repair massless moving links and unphysical inertias")
     p.add_argument("--package-dir", action="append", default=[], metavar="DIR",
