@@ -138,6 +138,19 @@ def _commands(page):
                 yield words[1:]
 
 
+def test_integrators_page_lists_every_method_with_what_sets_its_accuracy():
+    """integrators.md's table has one row per integrator of the engine's table, and its "step" column says
+    "adaptive" for a method whose accuracy rtol sets and "fixed" for one whose integrator.step sets
+    (mbs_layout.h's MBS_METHODS; the benchmarks sweep each over that)."""
+    from mbsfmu.engine.layout import LISTS
+    cells = [re.split(r"(?<!\\)\|", ln) for ln in (DOCS / "integrators.md").read_text(encoding="utf-8").splitlines()
+             if re.match(r"\| `\w+` \|", ln)]  # cells split at the unescaped |
+    rows = {c[1].strip(" `"): c[4].strip() for c in cells}
+    assert set(rows) == {e[1] for e in LISTS["MBS_METHODS"]}
+    for _, name, _, control in LISTS["MBS_METHODS"]:
+        assert rows[name].startswith({"tolerance": "adaptive", "step": "fixed"}[control]), (name, rows[name])
+
+
 def test_documented_method_lists_are_the_engines():
     """Every place the docs list the integrators (the scene format, the FMU's variable, the CLI's --method) names
     exactly the engine's table, in its order (mbs_layout.h: MBS_METHODS, what the loader accepts)."""
