@@ -110,7 +110,7 @@ typedef struct MbsIntegOps {
     int (*reset)(MbsIntegrator *it, double t0, const double *x0);
     void (*inputs_changed)(MbsIntegrator *it);
     int (*advance)(MbsIntegrator *it, double t_end);
-    MbsIntegrator *(*active)(const MbsIntegrator *it); /* the child in charge: t, x, h, dense output */
+    MbsIntegrator *(*active)(const MbsIntegrator *it); /* in charge (itself or a child): t, x, h, dense output */
     void (*stats)(const MbsIntegrator *it, MbsStats *out);
     size_t (*snapshot_size)(const MbsIntegrator *it);
     void (*snapshot_save)(const MbsIntegrator *it, unsigned char *buf);
