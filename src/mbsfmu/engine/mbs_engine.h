@@ -89,6 +89,16 @@ MBS_API const char *mbs_message(const MbsInstance *s);   /* last failure, "" if 
 /* steps, rejected, rhs_evaluations, jac_evaluations, lu_decompositions, switched (0/1) */
 MBS_API void mbs_stats(const MbsInstance *s, long out[6], double *switched_at);
 
+/* ---- model exchange: the host integrates the continuous states x = [y; ẏ] (npos + nvel entries) ----
+ * After mbs_initialize, the host sets the time and x (finite numbers, else MBS_ERROR and nothing changes);
+ * mbs_derivatives gives ẋ there with the inputs and parameters set (MBS_ERROR: an input or parameter the host
+ * set is refused; MBS_DISCARD: ẋ is not defined at this state, e.g. a singular mass matrix). Quaternions are
+ * states as the engine keeps them: ṗ = G(p)·ω keeps |p| only as well as the host integrates it (the engine
+ * never changes x here; mbs_do_step normalizes after each step). Variables of kind MBS_V_DER read ẋ too. */
+MBS_API int mbs_set_time(MbsInstance *s, double t);
+MBS_API int mbs_set_state(MbsInstance *s, const double *x, size_t n);
+MBS_API int mbs_derivatives(MbsInstance *s, double *xdot, size_t n);
+
 /* ---- state: in-memory snapshot and serialized bytes are the same fixed layout ----
  * header: magic "MBSS", state format version, model GUID, payload length, checksum; then the payload.
  * mbs_state_load validates everything and leaves the instance unchanged on any error. */

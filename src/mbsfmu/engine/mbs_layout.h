@@ -114,11 +114,13 @@ enum { MBS_INTEG_D(MBS_CODE) DI };
 enum { MBS_METHODS(MBS_CODE) MBS_NMETHODS };
 
 /* kinds of variables (S_VARS; value reference = row index); the second arg: the variable's name for the
- * settable integrator settings */
+ * settable integrator settings. MBS_V_DER: the time derivative of state entry `index` of [y; ẏ] (the FMUs
+ * with model exchange declare them) */
 #define MBS_VAR_KINDS(X) \
     X(MBS_V_PARAM, "") X(MBS_V_METHOD, "integrator.method") X(MBS_V_RTOL, "integrator.rtol") \
     X(MBS_V_ATOL, "integrator.atol") X(MBS_V_MAX_STEP, "integrator.max_step") X(MBS_V_STEP, "integrator.step") \
-    X(MBS_V_QIN, "") X(MBS_V_FIN, "") X(MBS_V_Y, "") X(MBS_V_YD, "") X(MBS_V_OUT, "")
+    X(MBS_V_QIN, "") X(MBS_V_FIN, "") X(MBS_V_Y, "") X(MBS_V_YD, "") X(MBS_V_OUT, "") \
+    X(MBS_V_DER, "")
 enum { MBS_VAR_KINDS(MBS_CODE) MBS_V_N };
 
 /* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, sim.c to a host's):

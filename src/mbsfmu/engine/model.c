@@ -149,10 +149,11 @@ static int check_tables(const MbsModel *m, char *err, size_t errlen)
         if (!in(m->plain[k], 0, np) || !in(m->plain[H[H_NPLAIN] + k], 0, nv)) BAD("corrupt coordinate table (entry %d)", k);
     for (int k = 0; k < H[H_NVARS]; k++) {
         const int kind = m->vars[2 * k], idx = m->vars[2 * k + 1];
-        static const int hi_of[] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0};
+        static const int hi_of[MBS_V_N] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0};
         const int64_t hi = kind == MBS_V_PARAM ? H[H_NPARAM] : kind == MBS_V_QIN || kind == MBS_V_YD ? nv :
                            kind == MBS_V_Y ? np : kind == MBS_V_FIN ? 3 * (int64_t)H[H_NINPUT] :
-                           kind == MBS_V_OUT ? 6 * (int64_t)H[H_NOUT] : in(kind, 0, 11) ? hi_of[kind] : 0;
+                           kind == MBS_V_OUT ? 6 * (int64_t)H[H_NOUT] : kind == MBS_V_DER ? (int64_t)np + nv :
+                           in(kind, 0, MBS_V_N) ? hi_of[kind] : 0;
         if (!in(idx, 0, hi)) BAD("corrupt variable table (row %d: kind %d, index %d)", k, kind, idx);
     }
     for (int k = 0; k < H[H_NOUT]; k++) {

@@ -26,11 +26,13 @@ struct MbsInstance {
     double *saved;        /* the parameters before a set that may be refused (nparam) */
     double *carries;      /* per body: 1 if it or a body it carries has mass, inertia or elasticity (R_CARRIES) */
     double *work, *M, *k, *q, *xdot, *out;
+    double *der;          /* ẋ at (time, x) with the inputs and parameters set, when der_valid (model exchange) */
     void *elastic_work;
     int method;
     double rtol, atol, max_step, step;
     int initialized, params_dirty, inputs_dirty, initial_valid, q_in_active;
     int out_valid;        /* out holds the output points of the current state (a master reads them one by one) */
+    int der_valid;
     double *kin_x, kin_t; /* the workspace holds the kinematics at (kin_t, kin_x) when kin_valid */
     int kin_valid;
     int rule_broken;      /* the last bind failed on a rule of the scene (a derived quantity), not otherwise */
@@ -391,7 +393,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->nu = f + 3 * m->hdr[H_NINPUT];
     s->ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
     size_t nwork = (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f;
-    size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 3 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + s->n
+    size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 3 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + 2 * (size_t)s->n
                    + 6 * (size_t)m->hdr[H_NOUT] + s->n + (size_t)m->hdr[H_NPARAM] + NB(m) + 1;
     double *buf = calloc(total, sizeof(double));
     if (!buf) { free(s); return NULL; }
@@ -410,6 +412,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->k = buf;                buf += f;
     s->q = buf;                buf += f;
     s->xdot = buf;             buf += s->n;
+    s->der = buf;              buf += s->n;
     s->kin_x = buf;
 #ifdef MBS_WITH_ELASTIC
     if (m->hdr[H_FEATURES] & F_ELASTIC) {
@@ -444,7 +447,7 @@ int mbs_reset(MbsInstance *s)
     s->atol = di[DI_ATOL];
     s->max_step = di[DI_MAX_STEP];
     s->step = di[DI_STEP];
-    s->initialized = s->params_dirty = s->inputs_dirty = s->initial_valid = s->q_in_active = s->out_valid = 0;
+    s->initialized = s->params_dirty = s->inputs_dirty = s->initial_valid = s->q_in_active = s->out_valid = s->der_valid = 0;
     s->kin_valid = 0;
     s->time = 0.0;
     s->msg[0] = 0;
@@ -485,7 +488,7 @@ static int initial_state(MbsInstance *s)
     int rc = bind(s);
     if (rc) return report(s, rc, "%s", s->msg);
     mbs_initial_state(s->m, s->D, s->x);
-    s->out_valid = 0;
+    s->out_valid = s->der_valid = 0;
     for (int i = 0; i < s->n; i++) if (!isnan(s->start[i])) s->x[i] = s->start[i];
     for (int i = 0; i < s->n; i++)
         if (!isfinite(s->x[i])) return report(s, MBS_ERROR, "initial value of %s is not finite", i < NPOS(s->m) ? s->m->coord_name[i] : "a velocity");
@@ -504,15 +507,16 @@ static int initial_state(MbsInstance *s)
     return MBS_OK;
 }
 
-/* Inputs held over the next step: refuse NaN/Inf; restart the integrator only on a real change. */
-static int apply_inputs(MbsInstance *s)
+/* Inputs held over the next step (or evaluation): refuse NaN/Inf with `status` and `refused` (what did not
+ * happen); restart the integrator only on a real change. */
+static int apply_inputs(MbsInstance *s, int status, const char *refused)
 {
     const MbsModel *m = s->m;
     const int f = NVEL(m);
     for (int i = 0; i < s->nu; i++)
         if (!isfinite(s->u[i])) {
-            return report(s, MBS_DISCARD, "input %s is not finite (%g); step refused",
-                          mbs_var_name_of(m, i < f ? MBS_V_QIN : MBS_V_FIN, i < f ? i : i - f), s->u[i]);
+            return report(s, status, "input %s is not finite (%g); %s",
+                          mbs_var_name_of(m, i < f ? MBS_V_QIN : MBS_V_FIN, i < f ? i : i - f), s->u[i], refused);
         }
     s->inputs_dirty = 0;
     if (!memcmp(s->u, s->u_applied, (size_t)s->nu * sizeof(double))) return MBS_OK;
@@ -525,6 +529,7 @@ static int apply_inputs(MbsInstance *s)
 }
 
 /* ------------------------------------------------------------------------------------------ variables */
+static int derivatives(MbsInstance *s);
 static int var(const MbsInstance *s, int vr, int *idx)
 {
     int kind = mbs_model_var_kind(s->m, vr);
@@ -542,7 +547,7 @@ static int set_parameters(MbsInstance *s, const unsigned *vr, size_t n, const do
     for (size_t i = 0; i < n; i++)
         if (m->vars[2 * vr[i]] == MBS_V_PARAM) s->D[m->vars[2 * vr[i] + 1]] = value[i];
     if (!bind(s)) {
-        s->initial_valid = s->out_valid = 0;
+        s->initial_valid = s->out_valid = s->der_valid = 0;
         if (s->initialized) s->params_dirty = 1;
         return MBS_OK;
     }
@@ -601,6 +606,7 @@ int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *va
         if (kind == MBS_V_QIN || kind == MBS_V_FIN) {
             s->u[kind == MBS_V_QIN ? idx : NVEL(m) + idx] = value[i];
             s->inputs_dirty = 1;
+            s->der_valid = 0;
         } else if (kind != MBS_V_PARAM)
             *(kind == MBS_V_RTOL ? &s->rtol : kind == MBS_V_ATOL ? &s->atol : kind == MBS_V_MAX_STEP ? &s->max_step : &s->step) = value[i];
     }
@@ -640,8 +646,8 @@ int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double ou
 MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart from mbs_get_reals' fast loop */
 {
     int idx = 0, kind = var(s, vr, &idx), rc;
-    if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT) && !s->initialized && !s->initial_valid &&
-        (rc = initial_state(s)))
+    if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT || kind == MBS_V_DER) && !s->initialized &&
+        !s->initial_valid && (rc = initial_state(s)))
         return rc;
     switch (kind) {
     case MBS_V_PARAM: *value = s->D[idx]; return MBS_OK;
@@ -660,6 +666,10 @@ MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart f
             s->out_valid = 1;
         }
         *value = s->out[idx];
+        return MBS_OK;
+    case MBS_V_DER:
+        if ((rc = derivatives(s))) return rc;
+        *value = s->der[idx];
         return MBS_OK;
     case -1: return report(s, MBS_ERROR, "unknown value reference %d", vr);
     default: return report(s, MBS_ERROR, "value reference %d is a String", vr);
@@ -699,7 +709,7 @@ int mbs_set_start(MbsInstance *s, int index, double value)
                       name ? name : "?", value, isfinite(value) ? ": " : " is not finite", isfinite(value) ? why : "");
     }
     s->start[index] = value;
-    s->initial_valid = 0;
+    s->initial_valid = s->der_valid = 0;
     return MBS_OK;
 }
 
@@ -754,20 +764,23 @@ int mbs_initialize(MbsInstance *s, double t0)
     return MBS_OK;
 }
 
+/* Bind the parameters and apply the inputs set since the last step or evaluation; a refusal with `status`. */
+static int pending(MbsInstance *s, int status, const char *refused)
+{
+    if (s->params_dirty) {
+        if (bind(s)) return report(s, status, "%s; %s", s->msg, refused);
+        s->params_dirty = 0;
+        mbs_integ_inputs_changed(s->integ);
+    }
+    return s->inputs_dirty ? apply_inputs(s, status, refused) : MBS_OK;
+}
+
 /* Before a step at t: bind changed parameters and inputs, check that t is the current time. */
 static int prepare(MbsInstance *s, double t)
 {
     if (!s->initialized) return report(s, MBS_ERROR, "the instance is not initialized");
-    if (s->params_dirty) {
-        int rc = bind(s);
-        if (rc) return report(s, MBS_DISCARD, "%s; step refused", s->msg);
-        s->params_dirty = 0;
-        mbs_integ_inputs_changed(s->integ);
-    }
-    if (s->inputs_dirty) {
-        int rc = apply_inputs(s);
-        if (rc) return rc;
-    }
+    int rc = pending(s, MBS_DISCARD, "step refused");
+    if (rc) return rc;
     if (!isfinite(t) || fabs(t - s->time) > 1e-9 * (fabs(t) > 1.0 ? fabs(t) : 1.0))
         return report(s, MBS_ERROR, "do_step called at t=%.17g but the simulation is at t=%.17g", t, s->time);
     return MBS_OK;
@@ -786,7 +799,7 @@ static int failed(MbsInstance *s)
 
 int mbs_do_step(MbsInstance *s, double t, double h)
 {
-    s->out_valid = 0;
+    s->out_valid = s->der_valid = 0;
     int rc = prepare(s, t);
     if (rc) return rc;
     if (!(h >= 0) || !isfinite(h)) return report(s, MBS_ERROR, "communication step size %g is not a non-negative number", h);
@@ -803,7 +816,7 @@ int mbs_do_step(MbsInstance *s, double t, double h)
 
 int mbs_run(MbsInstance *s, const double *ts, int n, double *X)
 {
-    s->out_valid = 0;
+    s->out_valid = s->der_valid = 0;
     if (n < 1) return report(s, MBS_ERROR, "no time points");
     int rc = prepare(s, ts[0]);
     if (rc) return rc;
@@ -842,7 +855,7 @@ void mbs_stats(const MbsInstance *s, long out[6], double *switched_at)
 int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *k, double *q)
 {
     if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;
-    if (s->inputs_dirty && apply_inputs(s)) return MBS_ERROR;
+    if (s->inputs_dirty && apply_inputs(s, MBS_ERROR, "not evaluated")) return MBS_ERROR;
     time_numbers(s, t);
     MbsEval e = evaluation(s, x, s->xdot);
     e.M = M; e.k = k; e.q = q;
@@ -855,9 +868,67 @@ int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *
 int mbs_rhs(MbsInstance *s, double t, const double *x, double *xdot)
 {
     if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;
-    if (s->inputs_dirty && apply_inputs(s)) return MBS_ERROR;
+    if (s->inputs_dirty && apply_inputs(s, MBS_ERROR, "not evaluated")) return MBS_ERROR;
     int rc = ode_f(s, t, x, xdot);
     return rc ? report(s, MBS_ERROR, "%s", s->msg) : MBS_OK;
+}
+
+/* ------------------------------------------------------------------------------------------ model exchange
+ * The host integrates x = [y; ẏ]: it sets the time and the states, the engine gives ẋ (mbs_engine.h). */
+
+/* The name of state entry i: its y.* or yd.* variable's. */
+static const char *state_name(const MbsModel *m, int i)
+{
+    const int kind = i < NPOS(m) ? MBS_V_Y : MBS_V_YD, idx = i < NPOS(m) ? i : i - NPOS(m);
+    for (int vr = 0; vr < m->hdr[H_NVARS]; vr++)
+        if (m->vars[2 * vr] == kind && m->vars[2 * vr + 1] == idx) return m->var_name[vr];
+    return "?";
+}
+
+int mbs_set_time(MbsInstance *s, double t)
+{
+    if (!s->initialized) return report(s, MBS_ERROR, "the instance is not initialized");
+    if (!isfinite(t)) return report(s, MBS_ERROR, "time %g is not finite; the time stays %.17g", t, s->time);
+    if (t != s->time) s->time = t, s->out_valid = s->der_valid = 0;
+    return MBS_OK;
+}
+
+int mbs_set_state(MbsInstance *s, const double *x, size_t n)
+{
+    if (!s->initialized) return report(s, MBS_ERROR, "the instance is not initialized");
+    if (!x || n != (size_t)s->n)
+        return report(s, MBS_ERROR, "%zu continuous states given, the model has %d; states unchanged", x ? n : 0, s->n);
+    for (int i = 0; i < s->n; i++)
+        if (!isfinite(x[i]))
+            return report(s, MBS_ERROR, "continuous state %s = %g is not finite; states unchanged", state_name(s->m, i), x[i]);
+    if (memcmp(s->x, x, n * sizeof *x)) {
+        memcpy(s->x, x, n * sizeof *x);
+        s->out_valid = s->der_valid = 0;
+    }
+    return MBS_OK;
+}
+
+/* ẋ at (time, x) into s->der, once per time, state, inputs and parameters. Before initialization: at the initial
+ * state (as the other getters). The host's inputs or parameters refused: MBS_ERROR; not defined at this state
+ * (singular mass matrix, gimbal lock): MBS_DISCARD. */
+static int derivatives(MbsInstance *s)
+{
+    if (s->der_valid) return MBS_OK;
+    int rc = !s->initialized && !s->initial_valid ? initial_state(s) : MBS_OK;
+    if (!rc) rc = pending(s, MBS_ERROR, "no derivatives");
+    if (rc) return rc;
+    if (ode_f(s, s->time, s->x, s->der)) return report(s, MBS_DISCARD, "t = %.9g: %s", s->time, s->msg);
+    s->der_valid = 1;
+    return MBS_OK;
+}
+
+int mbs_derivatives(MbsInstance *s, double *xdot, size_t n)
+{
+    if (!xdot || n != (size_t)s->n)
+        return report(s, MBS_ERROR, "room for %zu derivatives, the model has %d", xdot ? n : 0, s->n);
+    int rc = derivatives(s);
+    if (!rc) memcpy(xdot, s->der, n * sizeof *xdot);
+    return rc;
 }
 
 /* ------------------------------------------------------------------------------------------ state bytes
@@ -953,7 +1024,7 @@ int mbs_state_load(MbsInstance *s, const void *buf, size_t len)
     memcpy(s->u, r, sizeof(double) * s->nu);             r += sizeof(double) * s->nu;
     memcpy(s->u_applied, r, sizeof(double) * s->nu);     r += sizeof(double) * s->nu;
     memcpy(s->x, r, sizeof(double) * s->n);
-    s->out_valid = 0;
+    s->out_valid = s->der_valid = 0;
     s->time = h.time; s->rtol = h.rtol; s->atol = h.atol; s->max_step = h.max_step; s->step = h.step;
     s->method = h.method;
     s->q_in_active = h.q_in_active;

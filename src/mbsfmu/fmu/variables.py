@@ -4,6 +4,9 @@ Listed from the normalized scene alone (no engine library, no Simulation), in va
 for both FMU kinds and in-process runs. Each variable also carries the row of the engine's variable table it
 becomes (``kind``: an ``MBS_V_*`` code of mbs_layout.h, ``index`` within that kind), so the compiler writes the
 table from here and never reads a name back. Contract: docs/fmu.md, "Variables".
+
+Model exchange (the native kind) adds one derivative variable per continuous state after all others
+(``variables(spec, derivatives=True)``); ``continuous_states`` pairs them up for any FMI version's writer.
 """
 
 from ..engine import layout as L
@@ -24,23 +27,28 @@ class Variable:
     """An FMU variable: name, causality, variability, type, unit, description, start; value reference ``vr``;
     the engine's variable-table row (``kind``, ``index``)."""
 
-    __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start", "vr", "kind", "index")
+    __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start", "vr", "kind", "index",
+                 "derivative_of")
 
     def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0,
-                 kind=None, index=0):
+                 kind=None, index=0, derivative_of=None):
         self.name, self.causality, self.variability, self.type = name, causality, variability, type
         self.unit, self.description, self.start = unit, description, start
         self.kind, self.index, self.vr = kind, index, None
+        self.derivative_of = derivative_of  # the state Variable this is the time derivative of (model exchange)
 
     def __repr__(self):
         return f"Variable({self.name!r}, {self.causality}, {self.unit})"
 
 
-def variables(spec, model=None):
+def variables(spec, model=None, derivatives=False):
     """The FMU variables of a normalized spec, in value-reference order (``model``: its equations.Model, if
-    already built)."""
+    already built; ``derivatives``: with the derivative variables of model exchange, after all others, so that
+    every other value reference is the same with or without them)."""
     model = Model(spec) if model is None else model
     out = _parameters(spec) + _settings(spec["integrator"]) + _inputs(spec, model) + _outputs(spec, model)
+    if derivatives:
+        out += _derivatives(out)
     for vr, v in enumerate(out):
         v.vr = vr
     return out
@@ -97,3 +105,23 @@ def _outputs(spec, model):
                                  kind=L.MBS_V_OUT, index=6 * i + 3 * s + k)
                         for k, ax in enumerate("xyz")]
     return out
+
+
+def continuous_states(variables):
+    """(state, derivative) Variable pairs in the engine's state order x = [y; ẏ]: what a model-exchange host
+    integrates (empty for a list made without ``derivatives``)."""
+    return [(v.derivative_of, v) for v in variables if v.derivative_of is not None]
+
+
+def _per_second(unit):
+    return unit + "2" if unit.endswith("/s") else unit + "/s"  # m → m/s → m/s2, 1 → 1/s → 1/s2
+
+
+def _derivatives(out):
+    """der(y.*) then der(yd.*): the engine's state x = [y; ẏ] with quaternions as it keeps them (ṗ = G(p)·ω:
+    the derivative keeps |p| = 1 only as well as the host integrates it; docs/fmu.md, "Model exchange")."""
+    states = [v for v in out if v.kind == L.MBS_V_Y] + [v for v in out if v.kind == L.MBS_V_YD]
+    return [Variable(f"der({v.name})", "local", "continuous", unit=_per_second(v.unit),
+                     description=f"time derivative of {v.name}", start=None, kind=L.MBS_V_DER, index=i,
+                     derivative_of=v)
+            for i, v in enumerate(states)]
