@@ -1,8 +1,10 @@
-/* A plain FMI 2.0 co-simulation master in C: dlopen an FMU binary, run it, print outputs or timings.
+/* A plain FMI 2.0 master in C: dlopen an FMU binary, run it, print outputs or timings.
  *
  *   fmu_host LIB RESOURCE_URI GUID [-n steps] [-h step] [-o vr,vr,...] [-s vr=value]... [-S vr=text]...
- *            [-p] [-m] [-T] [-L [-r chunks]] [-C cycles]
+ *            [-p] [-m] [-T] [-L [-r chunks]] [-C cycles] [-E -x states]
  *
+ * -E  model exchange (-x: the number of continuous states, at most 256): n explicit Euler steps of h over fmi2GetDerivatives (x += h·ẋ, then fmi2SetTime,
+ *     fmi2SetContinuousStates, fmi2CompletedIntegratorStep) instead of fmi2DoStep
  * -p  print "OUT t v1 v2 ..." (%.17g) at t0 and after every step
  * -m  print "LIBPYTHON yes|no": whether any libpython is mapped into this process (/proc/self/maps)
  * -T  timing: "TIME load_ns first_step_ns" (dlopen; fmi2Instantiate .. end of the first fmi2DoStep)
@@ -47,6 +49,9 @@ typedef struct {
     int (*set_real)(void *, const vr_t *, size_t, const double *);
     int (*set_string)(void *, const vr_t *, size_t, const char *const *);
     void (*free_instance)(void *);
+    int (*new_discrete_states)(void *, void *), (*enter_continuous)(void *), (*set_time)(void *, double);
+    int (*get_states)(void *, double *, size_t), (*set_states)(void *, const double *, size_t);
+    int (*get_derivatives)(void *, double *, size_t), (*completed_step)(void *, int, int *, int *);
 } Fmi;
 
 static void logger(void *env, const char *inst, int status, const char *cat, const char *msg, ...) {
@@ -76,6 +81,7 @@ static double now_ns(void) {
 #define MAXV 256
 static struct { vr_t vr; double v; const char *s; } sets[MAXV];
 static int nsets;
+static int model_exchange;  /* -E */
 
 /* resident set size in kB (Linux: /proc/self/statm counts pages), -1 where unknown */
 static long rss_kb(void) {
@@ -98,7 +104,8 @@ static int fail(const char *what, int status) {
 
 /* instantiate, apply the -s/-S settings, initialize at t = 0 */
 static void *start(const Fmi *f, const char *uri, const char *guid, const Callbacks *cb, int *rc) {
-    void *c = f->instantiate("host", 1, guid, uri, cb, 0, 0);
+    void *c = f->instantiate("host", model_exchange ? 0 : 1, guid, uri, cb, 0, 0);
+    double event_info[8];  /* fmi2EventInfo: five fmi2Booleans and a double (32 bytes; room to spare) */
     int i, st = 0;
     *rc = 0;
     if (!c) {
@@ -108,11 +115,26 @@ static void *start(const Fmi *f, const char *uri, const char *guid, const Callba
     }
     for (i = 0; i < nsets && !st; i++)
         st = sets[i].s ? f->set_string(c, &sets[i].vr, 1, &sets[i].s) : f->set_real(c, &sets[i].vr, 1, &sets[i].v);
-    if (st || (st = f->setup(c, 0, 0.0, 0.0, 0, 0.0)) || (st = f->enter(c)) || (st = f->exit_init(c))) {
+    if (st || (st = f->setup(c, 0, 0.0, 0.0, 0, 0.0)) || (st = f->enter(c)) || (st = f->exit_init(c)) ||
+        (model_exchange && ((st = f->new_discrete_states(c, event_info)) || (st = f->enter_continuous(c))))) {
         *rc = fail("setup/initialization", st);
         return c;
     }
     return c;
+}
+
+/* one explicit Euler step of h from t: x += h·ẋ(t, x) (nx <= MAXV states) */
+static int euler_step(const Fmi *f, void *c, double t, double h, size_t nx) {
+    double x[MAXV], dx[MAXV];
+    int st, event = 0, stop = 0;
+    size_t i;
+    if ((st = f->get_states(c, x, nx)) || (st = f->get_derivatives(c, dx, nx)))
+        return st;
+    for (i = 0; i < nx; i++)
+        x[i] += h * dx[i];
+    if ((st = f->set_time(c, t + h)) || (st = f->set_states(c, x, nx)) || (st = f->completed_step(c, 1, &event, &stop)))
+        return st;
+    return event || stop ? 9 : 0;
 }
 
 int main(int argc, char **argv) {
@@ -120,6 +142,7 @@ int main(int argc, char **argv) {
     vr_t out[MAXV];
     double y[MAXV], h = 0.01, t = 0, t0, t1, t2;
     int nout = 0, n = 10, reps = 20, print = 0, maps = 0, timing = 0, loop = 0, cycles = 0, i, k, st, rc;
+    size_t nx = 0;  /* -x: continuous states (model exchange) */
     Fmi f;
     Callbacks cb = {logger, calloc, free, NULL, NULL};
     void *so, *c;
@@ -148,9 +171,12 @@ int main(int argc, char **argv) {
         else if (!strcmp(a, "-T")) timing = 1;
         else if (!strcmp(a, "-L")) loop = 1;
         else if (!strcmp(a, "-C")) cycles = atoi(v), i++;
+        else if (!strcmp(a, "-E")) model_exchange = 1;
+        else if (!strcmp(a, "-x")) nx = (size_t)atoi(v), i++;
         else { fprintf(stderr, "unknown option %s\n", a); return 2; }
     }
 
+    if (nx > MAXV) { fprintf(stderr, "at most %d continuous states\n", MAXV); return 2; }
     t0 = now_ns();
     so = dlopen(lib, RTLD_NOW | RTLD_LOCAL);
     if (!so) { printf("DLOPEN %s\n", dlerror()); return 2; }
@@ -164,7 +190,19 @@ int main(int argc, char **argv) {
     *(void **)&f.set_real = dlsym(so, "fmi2SetReal");
     *(void **)&f.set_string = dlsym(so, "fmi2SetString");
     *(void **)&f.free_instance = dlsym(so, "fmi2FreeInstance");
+    *(void **)&f.new_discrete_states = dlsym(so, "fmi2NewDiscreteStates");
+    *(void **)&f.enter_continuous = dlsym(so, "fmi2EnterContinuousTimeMode");
+    *(void **)&f.set_time = dlsym(so, "fmi2SetTime");
+    *(void **)&f.get_states = dlsym(so, "fmi2GetContinuousStates");
+    *(void **)&f.set_states = dlsym(so, "fmi2SetContinuousStates");
+    *(void **)&f.get_derivatives = dlsym(so, "fmi2GetDerivatives");
+    *(void **)&f.completed_step = dlsym(so, "fmi2CompletedIntegratorStep");
     if (!f.instantiate || !f.do_step || !f.get_real || !f.free_instance) { printf("DLSYM missing\n"); return 2; }
+    if (model_exchange && (!f.new_discrete_states || !f.enter_continuous || !f.set_time || !f.get_states ||
+                           !f.set_states || !f.get_derivatives || !f.completed_step)) {
+        printf("DLSYM model exchange missing\n");
+        return 2;
+    }
     t1 = now_ns();
 
     for (k = 1; k <= cycles; k++) {  /* each instance freed before the next: memory must stay flat */
@@ -185,7 +223,9 @@ int main(int argc, char **argv) {
         printf("\n");
     }
     for (i = 0; i < n; i++) {
-        if ((st = f.do_step(c, t, h, 1))) return fail("fmi2DoStep", st);
+        if (model_exchange) {
+            if ((st = euler_step(&f, c, t, h, nx))) return fail("Euler step", st);
+        } else if ((st = f.do_step(c, t, h, 1))) return fail("fmi2DoStep", st);
         if (i == 0 && timing) {
             t2 = now_ns();
             printf("TIME %.0f %.0f\n", t1 - t0, t2 - t1);

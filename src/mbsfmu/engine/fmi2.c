@@ -1,7 +1,10 @@
-/* FMI 2.0 co-simulation layer over the mbsfmu engine (native FMUs, `mbsfmu build --kind native`).
+/* FMI 2.0 co-simulation and model-exchange layer over the mbsfmu engine (native FMUs, `mbsfmu build --kind
+ * native`).
  *
  * One fmi2Component = one engine instance plus the FMI bookkeeping: the host's callbacks (copied), the
- * instance name, the phase of the FMI 2.0 state machine and the logging switches.  The compiled scene is
+ * instance name, its interface (fmi2Instantiate's fmuType), the phase of that interface's FMI 2.0 state machine
+ * and the logging switches. Under model exchange the host integrates the engine's state x = [y; ẏ]
+ * (mbs_set_time, mbs_set_state, mbs_derivatives); there are no events.  The compiled scene is
  * read from <fmuResourceLocation>/scene.bin at instantiation; the only globals are the registries of the live
  * instances and FMU states (pointers from the host are looked up there, never followed blindly), so any number
  * of instances (of one or several FMUs) can live in one process.
@@ -26,15 +29,22 @@
 #include "fmu_files.h"
 #include "mbs_engine.h"
 
-/* ---- phases of the FMI 2.0 co-simulation state machine (bit masks, for "allowed in") ---- */
-enum { P_INSTANTIATED = 1, P_INIT = 2, P_STEP = 4, P_TERMINATED = 8, P_ERROR = 16, P_FATAL = 32 };
-#define P_ANY (P_INSTANTIATED | P_INIT | P_STEP | P_TERMINATED | P_ERROR)
-#define P_STATUS (P_STEP | P_TERMINATED | P_ERROR)  /* FMI 2.0 (co-simulation state machine): after initialization */
+/* ---- phases of the FMI 2.0 state machines (bit masks, for "allowed in"): co-simulation steps in P_STEP, model
+ * exchange moves between P_EVENT and P_CONT. A mask may also name the interface (I_CS, I_ME) a call belongs to;
+ * without one, both. ---- */
+enum { P_INSTANTIATED = 1, P_INIT = 2, P_STEP = 4, P_EVENT = 8, P_CONT = 16, P_TERMINATED = 32, P_ERROR = 64,
+       P_FATAL = 128, I_CS = 256, I_ME = 512 };
+#define P_ANY (P_INSTANTIATED | P_INIT | P_STEP | P_EVENT | P_CONT | P_TERMINATED | P_ERROR)
+#define P_STATUS (I_CS | P_STEP | P_TERMINATED | P_ERROR)  /* FMI 2.0 co-simulation: after initialization */
+#define P_RUNNING (P_STEP | P_EVENT | P_CONT)  /* initialized, not terminated */
+#define P_STATES (I_ME | P_EVENT | P_CONT | P_TERMINATED | P_ERROR)  /* model exchange: states and derivatives */
 static const char *phase_name(int p) {
     switch (p) {
     case P_INSTANTIATED: return "instantiated";
     case P_INIT: return "initialization mode";
     case P_STEP: return "step mode";
+    case P_EVENT: return "event mode";
+    case P_CONT: return "continuous-time mode";
     case P_TERMINATED: return "terminated";
     case P_ERROR: return "error";
     default: return "fatal";
@@ -51,6 +61,7 @@ typedef struct {
     MbsInstance *sim;
     fmi2CallbackFunctions cb;  /* a copy: the host need not keep its struct */
     char *name;
+    int iface;                 /* I_CS or I_ME */
     int phase;
     int logging_on;
     int category_on[NCAT];
@@ -157,6 +168,11 @@ static int allowed(Fmu *f, int mask, const char *fn) {
         return 0;
     }
     f->logged = 0;
+    if ((mask & (I_CS | I_ME)) && !(mask & f->iface)) {
+        logf_(f, fmi2Error, "%s: a %s function, but this instance is %s", fn, mask & I_CS ? "co-simulation" :
+              "model-exchange", f->iface == I_CS ? "co-simulation" : "model exchange");
+        return 0;
+    }
     if (f->phase & mask)
         return 1;
     logf_(f, fmi2Error, "%s: not allowed in phase '%s'", fn, phase_name(f->phase));
@@ -225,8 +241,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         emit(functions, name, fmi2Error, "fmi2Instantiate: no instance name");
         return NULL;
     }
-    if (fmuType != fmi2CoSimulation) {
-        emit(functions, name, fmi2Error, "fmi2Instantiate: this FMU supports co-simulation only");
+    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
+        emit(functions, name, fmi2Error, "fmi2Instantiate: fmuType is neither fmi2ModelExchange nor fmi2CoSimulation");
         return NULL;
     }
     if (!fmuGUID) {
@@ -263,6 +279,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     strcpy(f->name, name);
     f->cb = *functions;
     f->model = model;
+    f->iface = fmuType == fmi2ModelExchange ? I_ME : I_CS;
     f->phase = P_INSTANTIATED;
     f->refused_vr = -1;
     f->logging_on = loggingOn != fmi2False;
@@ -341,12 +358,12 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
         f->phase = P_ERROR;
         return fmi2Error;
     }
-    f->phase = P_STEP;
+    f->phase = f->iface == I_ME ? P_EVENT : P_STEP;
     return st;
 }
 
 fmi2Status fmi2Terminate(fmi2Component c) {
-    CHECK(P_STEP, "fmi2Terminate");
+    CHECK(P_RUNNING, "fmi2Terminate");
     f->phase = P_TERMINATED;
     return fmi2OK;
 }
@@ -395,12 +412,19 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
     size_t i, bad = 0;
     int rc;
-    CHECK(P_INSTANTIATED | P_INIT | P_STEP, "fmi2SetReal");
+    CHECK(P_INSTANTIATED | P_INIT | P_RUNNING, "fmi2SetReal");
     if (bad_array(f, vr, value, nvr, "fmi2SetReal"))
         return fmi2Error;
-    for (i = 0; i < nvr; i++)
-        if (vr_int(f, vr[i], "fmi2SetReal") < 0)
+    for (i = 0; i < nvr; i++) {
+        int kind = vr_int(f, vr[i], "fmi2SetReal") < 0 ? -1 : mbs_model_var_kind(f->model, (int)vr[i]);
+        if (kind < 0)
             return fmi2Error;
+        if (f->phase == P_CONT && kind != MBS_V_QIN && kind != MBS_V_FIN) {  /* FMI 2.0, 3.2.3 */
+            logf_(f, fmi2Error, "fmi2SetReal: %s is not an input: in continuous-time mode only inputs are set "
+                  "(parameters in event mode)", mbs_model_var_name(f->model, (int)vr[i]));
+            return fmi2Error;
+        }
+    }
     rc = mbs_set_reals(f->sim, vr, nvr, value, &bad);
     if (rc != MBS_OK)
         return setting(f, (int)vr[bad < nvr ? bad : 0], rc, "fmi2SetReal");
@@ -426,7 +450,7 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
     size_t i;
-    CHECK(P_INSTANTIATED | P_INIT | P_STEP, "fmi2SetString");
+    CHECK(P_INSTANTIATED | P_INIT | P_RUNNING, "fmi2SetString");
     if (bad_array(f, vr, value, nvr, "fmi2SetString"))
         return fmi2Error;
     for (i = 0; i < nvr; i++) {
@@ -525,7 +549,12 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
         return fmi2Error;
     }
     f->discarded = 0;
-    f->phase = mbs_initialized(f->sim) ? P_STEP : P_INSTANTIATED;  /* a state from before: initialize again */
+    if (!mbs_initialized(f->sim))
+        f->phase = P_INSTANTIATED;  /* a state from before: initialize again */
+    else if (f->iface == I_CS)
+        f->phase = P_STEP;
+    else if (!(f->phase & (P_EVENT | P_CONT)))
+        f->phase = P_EVENT;  /* model exchange: a host that restores while integrating goes on integrating */
     return fmi2OK;
 }
 
@@ -648,7 +677,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     fmi2Status st;
     (void)noSetFMUStatePriorToCurrentPoint;
-    CHECK(P_STEP, "fmi2DoStep");
+    CHECK(I_CS | P_STEP, "fmi2DoStep");
     if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0 ||
         currentCommunicationPoint + communicationStepSize == currentCommunicationPoint) {
         logf_(f, fmi2Error, "fmi2DoStep: bad step t=%g, h=%g (need finite t and h > 0 that advances t)",
@@ -720,4 +749,116 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
     if (status_refused(f, value, "fmi2GetStringStatus"))
         return fmi2Error;
     return not_available(f, "fmi2GetStringStatus", s);
+}
+
+
+/* ---- model exchange (FMI 2.0, chapter 3): the host integrates x = [y; ẏ]; no event indicators, no time
+ * events, nothing to do at a completed integrator step (quaternions: docs/fmu.md, "Model exchange") ---- */
+static size_t nstates(Fmu *f) { return (size_t)mbs_model_npos(f->model) + (size_t)mbs_model_nvel(f->model); }
+
+/* nx is not the number of continuous states, or the array is missing */
+static int bad_count(Fmu *f, const void *a, size_t nx, const char *fn) {
+    if (nx == nstates(f))
+        return bad_array(f, a, a, nx, fn);
+    logf_(f, fmi2Error, "%s: nx = %lu, but the model has %lu continuous states", fn, (unsigned long)nx,
+          (unsigned long)nstates(f));
+    return 1;
+}
+
+/* as bad_count, or there are no states yet (not initialized) */
+static int bad_states(Fmu *f, const void *a, size_t nx, const char *fn) {
+    if (bad_count(f, a, nx, fn))
+        return 1;
+    if (!mbs_initialized(f->sim)) {
+        logf_(f, fmi2Error, "%s: the instance is not initialized", fn);
+        return 1;
+    }
+    return 0;
+}
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) {
+    CHECK(I_ME | P_EVENT | P_CONT, "fmi2EnterEventMode");
+    f->phase = P_EVENT;
+    return fmi2OK;
+}
+
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
+    CHECK(I_ME | P_EVENT, "fmi2NewDiscreteStates");
+    if (!info) {
+        logf_(f, fmi2Error, "fmi2NewDiscreteStates: NULL event info");
+        return fmi2Error;
+    }
+    info->newDiscreteStatesNeeded = fmi2False;  /* no discrete states, no events: nothing changes */
+    info->terminateSimulation = fmi2False;
+    info->nominalsOfContinuousStatesChanged = fmi2False;
+    info->valuesOfContinuousStatesChanged = fmi2False;
+    info->nextEventTimeDefined = fmi2False;
+    info->nextEventTime = 0.0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
+    CHECK(I_ME | P_EVENT, "fmi2EnterContinuousTimeMode");
+    f->phase = P_CONT;
+    return fmi2OK;
+}
+
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
+    (void)noSetFMUStatePriorToCurrentPoint;
+    CHECK(I_ME | P_CONT, "fmi2CompletedIntegratorStep");
+    if (!enterEventMode || !terminateSimulation) {
+        logf_(f, fmi2Error, "fmi2CompletedIntegratorStep: NULL output pointer");
+        return fmi2Error;
+    }
+    *enterEventMode = fmi2False;  /* no step events; the states are the host's (quaternions are not normalized) */
+    *terminateSimulation = fmi2False;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
+    CHECK(I_ME | P_EVENT | P_CONT, "fmi2SetTime");
+    return engine_status(f, mbs_set_time(f->sim, time), "fmi2SetTime") == fmi2OK ? fmi2OK : fmi2Error;
+}
+
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+    CHECK(I_ME | P_CONT, "fmi2SetContinuousStates");
+    if (bad_states(f, x, nx, "fmi2SetContinuousStates"))
+        return fmi2Error;
+    return engine_status(f, mbs_set_state(f->sim, x, nx), "fmi2SetContinuousStates") == fmi2OK ? fmi2OK : fmi2Error;
+}
+
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
+    CHECK(P_STATES, "fmi2GetDerivatives");
+    if (bad_states(f, derivatives, nx, "fmi2GetDerivatives"))
+        return fmi2Error;
+    /* fmi2Discard where ẋ is not defined (singular mass matrix): the host may retry with a smaller step */
+    return engine_status(f, mbs_derivatives(f->sim, derivatives, nx), "fmi2GetDerivatives");
+}
+
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
+    CHECK(P_STATES | P_INIT, "fmi2GetEventIndicators");
+    (void)eventIndicators;
+    if (ni == 0)
+        return fmi2OK;
+    logf_(f, fmi2Error, "fmi2GetEventIndicators: ni = %lu, but the model has no event indicators", (unsigned long)ni);
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+    CHECK(P_STATES, "fmi2GetContinuousStates");
+    if (bad_states(f, x, nx, "fmi2GetContinuousStates"))
+        return fmi2Error;
+    memcpy(x, mbs_state(f->sim), nx * sizeof *x);
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
+    size_t i;
+    CHECK(P_STATES | P_INSTANTIATED | P_INIT, "fmi2GetNominalsOfContinuousStates");
+    if (bad_count(f, x_nominal, nx, "fmi2GetNominalsOfContinuousStates"))
+        return fmi2Error;
+    for (i = 0; i < nx; i++)
+        x_nominal[i] = 1.0;  /* coordinates of order one (m, rad, modal coordinates): the FMI default */
+    return fmi2OK;
 }

@@ -11,6 +11,9 @@ import zipfile
 from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
+from ..engine import layout as L
+from .variables import continuous_states
+
 DRAWING_FILE = "mbsfmu_drawing.json"  # in resources/: what `mbsfmu animate FMU` draws from (animation/trajectory.py)
 
 LOG_CATEGORIES = {
@@ -31,6 +34,8 @@ UNITS = {
     "N": {"kg": 1, "m": 1, "s": -2},
     "N.m": {"kg": 1, "m": 2, "s": -2},
     "m/s": {"m": 1, "s": -1},
+    "1/s": {"s": -1},
+    "1/s2": {"s": -2},
     "rad/s": {"rad": 1, "s": -1},
     "m/s2": {"m": 1, "s": -2},
     "rad/s2": {"rad": 1, "s": -2},
@@ -76,12 +81,26 @@ def _fmt(x) -> str:
     return repr(float(x))  # the shortest text that reads back to the same double (0.4, not 0.40000000000000002)
 
 
+# <ModelExchange> of an FMU that offers it (native kind): the same capabilities as its co-simulation
+MODEL_EXCHANGE = {
+    "needsExecutionTool": "false",
+    "completedIntegratorStepNotNeeded": "true",  # fmi2CompletedIntegratorStep does nothing (docs/fmu.md)
+    "canBeInstantiatedOnlyOncePerProcess": "false",
+    "canNotUseMemoryManagementFunctions": "true",
+    "canGetAndSetFMUstate": "true",
+    "canSerializeFMUstate": "true",
+    "providesDirectionalDerivative": "false",
+}
+
+
 def model_description(spec: dict, name: str, variables, version: str, guid: str | None = None,
-                      cosimulation: dict | None = None, source_files=()) -> bytes:
+                      cosimulation: dict | None = None, source_files=(), model_exchange: bool = False) -> bytes:
     """The complete FMI 2.0 modelDescription.xml for the given variables (variables.py; value reference = index).
 
     ``cosimulation`` overrides ``<CoSimulation>`` attributes, ``source_files`` fills its ``<SourceFiles>``
-    (native FMUs); everything else is the same for both kinds."""
+    (native FMUs), ``model_exchange`` adds ``<ModelExchange>`` (the variables then carry their derivatives:
+    ``variables(spec, derivatives=True)``); everything else is the same for both kinds."""
+    states = continuous_states(variables)
     guid = guid or "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "mbsfmu:" + json.dumps(spec, sort_keys=True)
                                         + ":" + version)) + "}"
     attrib = {
@@ -96,7 +115,10 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         "numberOfEventIndicators": "0",
     }
     root = Element("fmiModelDescription", attrib)
-    SubElement(root, "CoSimulation", {
+    interfaces = []
+    if model_exchange:
+        interfaces.append(SubElement(root, "ModelExchange", {"modelIdentifier": name, **MODEL_EXCHANGE}))
+    interfaces.append(SubElement(root, "CoSimulation", {
         "modelIdentifier": name,
         "needsExecutionTool": "true",
         "canHandleVariableCommunicationStepSize": "true",
@@ -109,9 +131,9 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         "canSerializeFMUstate": "true",
         "providesDirectionalDerivative": "false",
         **(cosimulation or {}),
-    })
-    if source_files:
-        sf = SubElement(root.find("CoSimulation"), "SourceFiles")
+    }))
+    for interface in interfaces if source_files else ():
+        sf = SubElement(interface, "SourceFiles")
         for f in source_files:
             SubElement(sf, "File", {"name": f})
 
@@ -144,7 +166,7 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         SubElement(root, "DefaultExperiment", de)
 
     mv = SubElement(root, "ModelVariables")
-    outputs = []
+    outputs, calculated = [], []  # indices (1-based) of the outputs, and of what initialization calculates
     for i, v in enumerate(variables):
         sv = {"name": v.name, "valueReference": str(i)}
         if getattr(v, "description", None):
@@ -160,6 +182,8 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         elif v.causality == "output":
             sv["initial"] = "calculated"
             outputs.append(i + 1)
+        if v.causality == "output" or v.derivative_of is not None:  # a local's initial is "calculated" by default
+            calculated.append(i + 1)
         node = SubElement(mv, "ScalarVariable", sv)
         tattr = {}
         if is_string:
@@ -169,17 +193,35 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         else:
             if v.unit:
                 tattr["unit"] = v.unit
-            if v.causality != "output":
+            if v.derivative_of is not None:
+                tattr["derivative"] = str(v.derivative_of.vr + 1)
+            if v.causality in ("parameter", "input"):
                 tattr["start"] = _fmt(0.0 if v.start is None else v.start)
             SubElement(node, "Real", tattr)
 
     ms = SubElement(root, "ModelStructure")
+    state_indices = " ".join(str(s.vr + 1) for s, _ in states)
     if outputs:
         o = SubElement(ms, "Outputs")
-        for idx in outputs:
-            SubElement(o, "Unknown", {"index": str(idx), "dependencies": ""})
+        for idx in outputs:  # no direct feedthrough from inputs; under model exchange outputs follow the states
+            SubElement(o, "Unknown", {"index": str(idx), "dependencies": _state_dependencies(variables[idx - 1],
+                                                                                           state_indices)})
+    if states:  # the derivatives depend on every state and input: no dependencies attribute says just that
+        d = SubElement(ms, "Derivatives")
+        for _, der in states:
+            SubElement(d, "Unknown", {"index": str(der.vr + 1)})
+    if calculated:
         iu = SubElement(ms, "InitialUnknowns")
-        for idx in outputs:
-            SubElement(iu, "Unknown", {"index": str(idx), "dependencies": ""})
+        for idx in calculated:
+            SubElement(iu, "Unknown", {"index": str(idx)} if variables[idx - 1].derivative_of is not None
+                       else {"index": str(idx), "dependencies": ""})
 
     return parseString(tostring(root, "UTF-8")).toprettyxml(indent="  ", encoding="UTF-8")
+
+
+def _state_dependencies(output, state_indices: str) -> str:
+    """An output's dependencies on the knowns: none without continuous states (co-simulation: no input reaches an
+    output within a step); with them, the state itself for y.*/yd.*, every state for a point's r and v."""
+    if not state_indices:
+        return ""
+    return str(output.vr + 1) if output.kind in (L.MBS_V_Y, L.MBS_V_YD) else state_indices

@@ -162,11 +162,11 @@ def build_native(scene, dest: Path) -> Path:
     name = dest.stem
     version = mbsfmu_version()
     guid = guid_for(spec, version)
-    variables = fmu_variables(spec)
+    variables = fmu_variables(spec, derivatives=True)  # model exchange too
     blob = compile_scene(spec, variables, guid)
     sources = source_files(blob)
     xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
-                            source_files=c_names(sources))
+                            source_files=c_names(sources), model_exchange=True)
     for n in package(dest, name, sources, blob, xml, drawing_resource(spec)):
         warnings.warn(f"native FMU {name}: {n}", RuntimeWarning, stacklevel=3)
     return dest
