@@ -1,0 +1,309 @@
+"""FMI 2.0 model exchange of the native FMU (issue 27, item 1): the host integrates the engine's x = [y; ẏ].
+
+References: fmpy's validation and its model-exchange solvers (CVode, explicit Euler) against `mbsfmu.simulate`
+(the engine's own dop853 at rtol 1e-12); explicit Euler's first-order convergence; a numpy Euler loop over the
+in-process engine's right-hand side for the plain C host's Euler loop (bit for bit); the FMI 2.0 model-exchange
+state machine for hostile hosts (in child processes: a crash fails the test instead of killing pytest).
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+from fmpy import read_model_description, simulate_fmu  # noqa: E402
+from fmpy.validation import validate_fmu  # noqa: E402
+
+import mbsfmu  # noqa: E402
+from mbsfmu.fmu import native  # noqa: E402
+from mbsfmu.fmu.variables import continuous_states, variables  # noqa: E402
+from mbsfmu.simulation import Simulation  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+MODELS = [p.stem for p in sorted((REPO / "models").glob("*.yaml"))]
+LIGHT = ["pendulum", "double_pendulum", "spinning_top", "driven_crank"]  # Euler at small steps: rigid, quick
+STOP = 0.5  # seconds of each model's experiment the comparisons run
+
+pytestmark = pytest.mark.skipif(native.compiler() is None, reason="no C compiler (cc, gcc, clang or $CC)")
+
+
+def _scene(m):
+    return mbsfmu.load(REPO / "models" / f"{m}.yaml")
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    out = tmp_path_factory.mktemp("me")
+    with warnings.catch_warnings(), pytest.MonkeyPatch.context() as mp:
+        warnings.simplefilter("ignore")
+        mp.setattr(native, "MINGW", "no-mingw-in-this-test")  # linux64 only: model exchange is the same C
+        return {m: mbsfmu.build_fmu(REPO / "models" / f"{m}.yaml", out, kind="native") for m in MODELS}
+
+
+def _reference(m, stop=STOP, step=None, inputs=None):
+    """The engine's own run at tight tolerance: {name: values} of y.* and yd.* at the communication points."""
+    scene = _scene(m)
+    t, Y, YD = mbsfmu.simulate(scene, stop=stop, step=step, inputs=inputs, method="dop853", rtol=1e-12, atol=1e-12)
+    sim = Simulation(scene.spec)
+    names = [f"y.{c}" for c in sim.coordinates] + [f"yd.{c}" for c in sim.velocity_coordinates]
+    return t, dict(zip(names, np.hstack([Y, YD]).T))
+
+
+def _states_of(result, ref):
+    return {n: result[n] for n in ref}
+
+
+# ---- the modelDescription -------------------------------------------------------------------------------
+@pytest.mark.parametrize("m", MODELS)
+def test_fmpy_validates_and_states_are_the_engines(built, m):
+    """fmpy's validation passes; the continuous states are y.* then yd.* in the engine's order (the derivative
+    attribute of each der(·) names its state), as many as the engine's x has."""
+    assert validate_fmu(str(built[m])) == []
+    md = read_model_description(str(built[m]), validate=True)
+    assert md.modelExchange is not None and md.coSimulation is not None
+    sim = Simulation(_scene(m).spec)
+    expected = [f"y.{c}" for c in sim.coordinates] + [f"yd.{c}" for c in sim.velocity_coordinates]
+    assert md.numberOfContinuousStates == sim.npos + sim.nvel == len(expected)
+    assert [u.variable.derivative.name for u in md.derivatives] == expected
+    assert [u.variable.name for u in md.derivatives] == [f"der({n})" for n in expected]
+    assert md.numberOfEventIndicators == 0
+
+
+def test_continuous_states_pair_each_state_with_its_derivative():
+    """The list both FMI versions take (variables.continuous_states): units per second, value references after
+    every other variable, nothing without derivatives."""
+    spec = _scene("spinning_top").spec
+    plain, with_der = variables(spec), variables(spec, derivatives=True)
+    assert [v.name for v in with_der[:len(plain)]] == [v.name for v in plain] and not continuous_states(plain)
+    pairs = continuous_states(with_der)
+    assert [d.vr for _, d in pairs] == list(range(len(plain), len(with_der)))
+    per_second = {"1": "1/s", "m": "m/s", "rad": "rad/s", "1/s": "1/s2", "m/s": "m/s2", "rad/s": "rad/s2"}
+    assert all(d.unit == per_second[s.unit] and d.name == f"der({s.name})" for s, d in pairs)
+    assert {s.unit for s, _ in pairs} >= {"1", "rad/s"}  # quaternion components and body rates
+
+
+# ---- numbers: fmpy's solvers against the engine's run ----------------------------------------------------
+@pytest.mark.parametrize("m", MODELS)
+def test_cvode_equals_the_engine(built, m):
+    """fmpy's CVode at rtol 1e-10 through model exchange = mbsfmu.simulate to 1e-6 of each signal's range."""
+    t, ref = _reference(m)
+    r = simulate_fmu(str(built[m]), fmi_type="ModelExchange", solver="CVode", relative_tolerance=1e-10,
+                     stop_time=STOP, output_interval=t[1] - t[0])
+    assert np.allclose(r["time"], t, rtol=0, atol=1e-12)
+    for name, want in ref.items():
+        scale = max(np.ptp(want), 1e-3 * np.abs(want).max(), 1e-12)
+        assert np.abs(r[name] - want).max() <= 1e-6 * scale, (name, np.abs(r[name] - want).max(), scale)
+
+
+@pytest.mark.parametrize("m", LIGHT)
+def test_euler_converges_at_first_order(built, m):
+    """fmpy's explicit Euler through model exchange: the error at the end against the engine's run halves
+    with the step (first order), and is small at the smallest step."""
+    stop = 0.2
+    t, ref = _reference(m, stop=stop, step=stop)
+    errors = []
+    for h in (4e-4, 2e-4, 1e-4):
+        r = simulate_fmu(str(built[m]), fmi_type="ModelExchange", solver="Euler", step_size=h, stop_time=stop,
+                         output_interval=stop)
+        assert abs(r["time"][-1] - stop) < 1e-9
+        errors.append(max(abs(r[n][-1] - v[-1]) for n, v in ref.items()))
+    ratios = [errors[0] / errors[1], errors[1] / errors[2]]
+    assert all(1.8 < q < 2.2 for q in ratios), (errors, ratios)
+    assert errors[-1] < 1e-2
+
+
+def test_cosimulation_of_the_same_fmu_is_the_engines_run(built):
+    """The co-simulation interface of an FMU that also offers model exchange: fmpy's run equals the in-process
+    run bit for bit (the same engine, the same steps)."""
+    for m in ("double_pendulum", "spinning_top"):
+        scene = _scene(m)
+        t, Y, YD = mbsfmu.simulate(scene, stop=0.2)
+        r = simulate_fmu(str(built[m]), fmi_type="CoSimulation", stop_time=0.2, output_interval=t[1] - t[0])
+        sim = Simulation(scene.spec)
+        got = np.array([r[f"y.{c}"] for c in sim.coordinates]).T
+        assert got.shape == Y.shape and np.array_equal(got, Y), m
+
+
+def test_inputs_and_drives_under_model_exchange(built):
+    """A generalized-force input held by the host, through CVode (drives and time expressions: driven_crank in
+    test_cvode_equals_the_engine)."""
+    md = read_model_description(str(built["cart_pole"]))
+    name = next(v.name for v in md.modelVariables if v.causality == "input" and v.name.startswith("q."))
+    t, ref = _reference("cart_pole", inputs={name: 2.5})
+    u = np.array([(0.0, 2.5), (STOP, 2.5)], dtype=[("time", float), (name, float)])
+    r = simulate_fmu(str(built["cart_pole"]), fmi_type="ModelExchange", solver="CVode", relative_tolerance=1e-10,
+                     stop_time=STOP, output_interval=t[1] - t[0], input=u)
+    free = simulate_fmu(str(built["cart_pole"]), fmi_type="ModelExchange", solver="CVode",
+                        relative_tolerance=1e-10, stop_time=STOP, output_interval=t[1] - t[0])
+    for n, want in ref.items():
+        assert np.abs(r[n] - want).max() <= 1e-6 * max(np.ptp(want), 1e-12), n
+    assert max(np.abs(r[n][-1] - free[n][-1]) for n in ref) > 1e-2  # the input acts
+
+
+# ---- the plain C host's model-exchange loop ---------------------------------------------------------------
+def test_plain_c_host_euler_equals_a_numpy_euler_over_the_engine(built, tmp_path):
+    """tests/c/fmu_host.c -E (no Python in the process): x += h·ẋ over fmi2GetDerivatives, bit for bit the
+    same numbers as the same loop in numpy over the in-process engine's right-hand side (mbs_rhs)."""
+    from test_fmu_native import _unpack
+    exe = tmp_path / "fmu_host"
+    subprocess.run([native.compiler(), "-O2", "-o", str(exe), str(REPO / "tests/c/fmu_host.c"), "-ldl"], check=True)
+    n, h = 40, 1e-3
+    for m in ("double_pendulum", "spinning_top", "driven_crank", "flexible_pendulum"):
+        d, md, outs = _unpack(built[m], tmp_path / m)
+        states = [s.valueReference for s in (u.variable.derivative for u in md.derivatives)]
+        lib = d / "binaries" / "linux64" / f"{md.modelExchange.modelIdentifier}.so"
+        out = subprocess.run([str(exe), str(lib), (d / "resources").as_uri(), md.guid, "-E", "-x", str(len(states)),
+                              "-n", str(n), "-h", str(h), "-o", ",".join(map(str, states)), "-p", "-m"],
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0 and "LIBPYTHON no" in out.stdout, out.stdout[-2000:]
+        rows = np.array([list(map(float, ln.split()[1:])) for ln in out.stdout.splitlines() if ln.startswith("OUT ")])
+        sim = Simulation(_scene(m).spec)
+        sim.initialize(0.0)
+        x, t, want = sim.x.copy(), 0.0, [np.r_[0.0, sim.x]]
+        for _ in range(n):
+            x = x + h * sim.f(t, x)
+            t += h
+            want.append(np.r_[t, x])
+        assert np.array_equal(rows, np.array(want)), (m, np.abs(rows - np.array(want)).max())
+
+
+# ---- hostile hosts ----------------------------------------------------------------------------------------
+HOSTILE = r'''
+from fmpy.fmi2 import FMU2Model
+import ctypes
+fmu, work, pyfmu = sys.argv[1:4]
+md = read_model_description(fmu)
+d = fmpy.extract(fmu, os.path.join(work, "u"))
+nx = md.numberOfContinuousStates
+Arr = ctypes.c_double * nx
+vr = {v.name: v.valueReference for v in md.modelVariables}
+
+
+def model(tag):
+    s = FMU2Model(guid=md.guid, unzipDirectory=d, modelIdentifier=md.modelExchange.modelIdentifier, instanceName=tag)
+    s.instantiate(callbacks=cb)
+    return s
+
+
+def running(s):
+    init(s)
+    s.newDiscreteStates()
+    s.enterContinuousTimeMode()
+
+
+def states(s):
+    x = Arr()
+    s.getContinuousStates(x, nx)
+    return list(x)
+
+
+def derivatives(s):
+    dx = Arr()
+    s.getDerivatives(dx, nx)
+    return list(dx)
+
+
+out = {}
+# calls out of the model-exchange order, each refused with fmi2Error and a message
+s = model("order")
+x = Arr()
+out["states before init"] = [status(s.getContinuousStates, x, nx), logged("order", 0)]
+out["time before init"] = [status(s.setTime, 0.1), logged("order", 0)[-1:]]
+init(s)
+k = len(LOG)
+out["set states in event mode"] = [status(s.setContinuousStates, x, nx), logged("order", k)]
+k = len(LOG)
+out["do step"] = [status(s.fmi2DoStep, s.component, 0.0, 0.01, 1), logged("order", k)]
+s.newDiscreteStates()
+s.enterContinuousTimeMode()
+k = len(LOG)
+out["discrete states in continuous mode"] = [status(s.newDiscreteStates), logged("order", k)]
+k = len(LOG)
+out["continuous twice"] = [status(s.enterContinuousTimeMode), logged("order", k)]
+param = next(v for v in md.modelVariables if v.causality == "parameter" and v.variability == "tunable")
+k = len(LOG)
+out["parameter in continuous mode"] = [status(s.setReal, [param.valueReference], [1.0]), logged("order", k)]
+k = len(LOG)
+out["wrong nx"] = [status(s.getDerivatives, Arr(), nx - 1), logged("order", k)]
+k = len(LOG)
+out["NULL states"] = [status(s.fmi2SetContinuousStates, s.component, None, nx), logged("order", k)]
+k = len(LOG)
+out["NULL event flags"] = [status(s.fmi2CompletedIntegratorStep, s.component, 1, None, None), logged("order", k)]
+k = len(LOG)
+out["event indicators"] = [status(s.getEventIndicators, Arr(), 1), logged("order", k)]
+
+# NaN states and time: refused, the instance unchanged against an untouched twin
+twin = model("twin")
+running(s), running(twin)
+before = states(s)
+bad = Arr(*before)
+bad[nx - 1] = float("nan")
+k = len(LOG)
+out["NaN state"] = [status(s.setContinuousStates, bad, nx), logged("order", k)]
+k = len(LOG)
+out["NaN time"] = [status(s.setTime, float("nan")), logged("order", k)]
+out["unchanged"] = states(s) == states(twin) and derivatives(s) == derivatives(twin) == derivatives(twin)
+# a NaN input: the derivatives are refused, not computed from it; a finite value again and they come back
+inp = [v.valueReference for v in md.modelVariables if v.causality == "input"][:1]
+if inp:
+    s.setReal(inp, [float("nan")])
+    k = len(LOG)
+    out["NaN input"] = [status(s.getDerivatives, Arr(), nx), logged("order", k)]
+    s.setReal(inp, [0.0])
+    out["input back"] = derivatives(s) == derivatives(twin)
+# a model-exchange step moves it: the state set is the state read, derivatives follow
+x1 = [a + 1e-3 * b for a, b in zip(states(s), derivatives(s))]
+s.setTime(1e-3)
+s.setContinuousStates(Arr(*x1), nx)
+out["set is read"] = states(s) == x1 and s.getReal([vr[md.derivatives[0].variable.derivative.name]]) == x1[:1]
+out["der variable"] = s.getReal([md.derivatives[-1].variable.valueReference]) == derivatives(s)[-1:]
+s.terminate(), twin.terminate()
+s.freeInstance(), twin.freeInstance()
+
+# the pythonfmu kind offers co-simulation only: model exchange is refused with a message, no instance
+pmd = read_model_description(pyfmu)
+pd = fmpy.extract(pyfmu, os.path.join(work, "p"))
+lib = ctypes.CDLL(os.path.join(pd, "binaries", "linux64", pmd.coSimulation.modelIdentifier + ".so"))
+lib.fmi2Instantiate.restype = ctypes.c_void_p
+k = len(LOG)
+c = lib.fmi2Instantiate(b"py", 0, pmd.guid.encode(), ("file://" + os.path.join(pd, "resources")).encode(),
+                        ctypes.byref(cb), 0, 0)
+out["pythonfmu ME"] = [c is None, [m[3] for m in LOG[k:]]]
+print(json.dumps(out))
+'''
+
+
+def test_hostile_model_exchange_calls(built, tmp_path):
+    """Out-of-order calls, wrong sizes, NULL pointers, NaN states, time and inputs: fmi2Error with a message
+    naming the call, never a crash, the instance bit-identical to an untouched twin; the pythonfmu FMU refuses
+    model exchange at fmi2Instantiate."""
+    from test_fmu_hostile import FMPY_CHILD
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pyfmu = mbsfmu.build_fmu(REPO / "models" / "cart_pole.yaml", tmp_path / "py")
+    r = subprocess.run([sys.executable, "-c", FMPY_CHILD + HOSTILE, str(built["cart_pole"]), str(tmp_path),
+                        str(pyfmu)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.splitlines()[-1])
+    calls = {"states before init": "fmi2GetContinuousStates", "time before init": "fmi2SetTime",
+             "set states in event mode": "fmi2SetContinuousStates", "do step": "fmi2DoStep",
+             "discrete states in continuous mode": "fmi2NewDiscreteStates",
+             "continuous twice": "fmi2EnterContinuousTimeMode", "parameter in continuous mode": "fmi2SetReal",
+             "wrong nx": "fmi2GetDerivatives", "NULL states": "fmi2SetContinuousStates",
+             "NULL event flags": "fmi2CompletedIntegratorStep", "event indicators": "fmi2GetEventIndicators",
+             "NaN state": "fmi2SetContinuousStates", "NaN time": "fmi2SetTime", "NaN input": "fmi2GetDerivatives"}
+    for case, fn in calls.items():
+        st, messages = out[case]
+        assert st == 3, (case, st, messages)  # fmi2Error
+        assert messages and all(m[0] == 3 for m in messages) and fn in messages[-1][2], (case, messages)
+    assert "model exchange" in out["do step"][1][-1][2]
+    assert "not finite" in out["NaN state"][1][-1][2] and "not finite" in out["NaN input"][1][-1][2]
+    assert out["unchanged"] and out["input back"] and out["set is read"] and out["der variable"]
+    refused, messages = out["pythonfmu ME"]
+    assert refused and any("co-simulation only" in m for m in messages), messages
