@@ -148,12 +148,25 @@ def test_validates_and_equals_in_process_run(built, model):
 
 
 def test_one_writer_for_both_kinds(built, tmp_path):
-    """Same variables, units, structure, experiment, categories; only <CoSimulation> differs, as listed."""
+    """Same variables, units, structure, experiment, categories; <CoSimulation> differs as listed, and the native
+    kind adds model exchange: its derivative variables (and their units) after the rest, the states as the
+    outputs' dependencies, <Derivatives>, the derivatives among the initial unknowns."""
     py = mbsfmu.build_fmu(REPO / "models" / "double_pendulum.yaml", tmp_path)
     a = ET.fromstring(zipfile.ZipFile(built["double_pendulum"]).read("modelDescription.xml"))
     b = ET.fromstring(zipfile.ZipFile(py).read("modelDescription.xml"))
-    for tag in ("UnitDefinitions", "LogCategories", "DefaultExperiment", "ModelVariables", "ModelStructure"):
+    for tag in ("LogCategories", "DefaultExperiment"):
         assert ET.tostring(a.find(tag)) == ET.tostring(b.find(tag)), tag
+    for tag in ("UnitDefinitions", "ModelVariables"):  # the pythonfmu kind's, then the derivatives'
+        ours, theirs = list(a.find(tag)), list(b.find(tag))
+        assert [ET.tostring(e).strip() for e in ours[:len(theirs)]] == [ET.tostring(e).strip() for e in theirs], tag
+    derivatives = [i + 1 for i, e in enumerate(a.find("ModelVariables")) if e.get("name").startswith("der(")]
+    assert len(derivatives) == len(a.find("ModelVariables")) - len(b.find("ModelVariables")) == 4
+    assert [u.get("index") for u in a.find("ModelStructure/Outputs")] == \
+        [u.get("index") for u in b.find("ModelStructure/Outputs")]
+    assert [int(u.get("index")) for u in a.find("ModelStructure/Derivatives")] == derivatives
+    assert [int(u.get("index")) for u in a.find("ModelStructure/InitialUnknowns")] == \
+        [int(u.get("index")) for u in b.find("ModelStructure/InitialUnknowns")] + derivatives
+    assert b.find("ModelStructure/Derivatives") is None and b.find("ModelExchange") is None
     ca, cb = a.find("CoSimulation"), b.find("CoSimulation")
     assert {k for k in ca.attrib if ca.attrib[k] != cb.attrib.get(k)} <= set(native.COSIMULATION)
     assert ca.attrib["needsExecutionTool"] == "false" and ca.attrib["canSerializeFMUstate"] == "true"
@@ -362,7 +375,7 @@ def test_instantiate_failures_are_logged_not_crashes(built, tmp_path):
                      ((d / "nothing").as_uri().encode(), "cannot load"), (quoted.encode() + b"%4", "percent")):
         assert not inst(bad) and why in last(), (bad, last())
     assert not inst(quoted.encode(), g=b"{not-the-guid}") and "does not match" in last()
-    assert not inst(quoted.encode(), kind=0) and "co-simulation only" in last()
+    assert not inst(quoted.encode(), kind=2) and "neither fmi2ModelExchange nor fmi2CoSimulation" in last()
     assert not inst(quoted.encode(), cb=None)  # no callbacks: NULL, nothing to call
     log = Log.of(name.decode())
     assert len(log) == 7 and all(s == 3 and c == "logStatusError" for s, c, _ in log)

@@ -55,7 +55,8 @@ def _assert_declares(fmu, listed):
     for d, v in zip(declared, listed):
         assert (d.valueReference, d.causality, d.variability, d.type) == (v.vr, v.causality, v.variability, v.type)
         assert (d.unit, d.description) == (v.unit, v.description)
-        if v.causality == "output":
+        assert (d.derivative.name if d.derivative else None) == (v.derivative_of.name if v.derivative_of else None)
+        if v.causality in ("output", "local"):
             assert d.start is None
         elif v.type == "String":
             assert d.start == v.start
@@ -78,7 +79,7 @@ def test_listing_is_what_the_native_fmu_declares(tmp_path, monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fmu = build_fmu(str(path), tmp_path, kind="native")
-    _assert_declares(fmu, variables(load(path).spec))
+    _assert_declares(fmu, variables(load(path).spec, derivatives=True))  # model exchange: der(·) after the rest
 
 
 def _slots(spec):
@@ -88,13 +89,13 @@ def _slots(spec):
     n_points = {o["name"]: len(o["quantities"]) for o in spec["outputs"]}
     return {L.MBS_V_PARAM: len(spec["parameters"]), L.MBS_V_QIN: m.nvel, L.MBS_V_Y: m.npos, L.MBS_V_YD: m.nvel,
             L.MBS_V_FIN: 3 * sum("input" in f for f in spec["forces"]),
-            L.MBS_V_OUT: 3 * sum(n_points.values())}
+            L.MBS_V_OUT: 3 * sum(n_points.values()), L.MBS_V_DER: m.npos + m.nvel}
 
 
 @pytest.mark.parametrize("path", MODELS, ids=[p.stem for p in MODELS])
 def test_every_engine_slot_has_one_variable(path):
     spec = load(path).spec
-    rows = [(v.kind, v.index) for v in variables(spec)]
+    rows = [(v.kind, v.index) for v in variables(spec, derivatives=True)]
     assert len(set(rows)) == len(rows)
     for kind, count in _slots(spec).items():
         indices = sorted(i for k, i in rows if k == kind)

@@ -206,10 +206,15 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         for idx in outputs:  # no direct feedthrough from inputs; under model exchange outputs follow the states
             SubElement(o, "Unknown", {"index": str(idx), "dependencies": _state_dependencies(variables[idx - 1],
                                                                                            state_indices)})
-    if states:  # the derivatives depend on every state and input: no dependencies attribute says just that
+    if states:  # der(y.*): their states (variables.py); der(yd.*): every state and input (no attribute says that)
         d = SubElement(ms, "Derivatives")
         for _, der in states:
-            SubElement(d, "Unknown", {"index": str(der.vr + 1)})
+            deps = {}
+            if der.depends_on is not None:
+                kind, on = der.depends_on
+                deps = {"dependencies": " ".join(str(v.vr + 1) for v in sorted(on, key=lambda v: v.vr)),
+                        "dependenciesKind": " ".join([kind] * len(on))}
+            SubElement(d, "Unknown", {"index": str(der.vr + 1), **deps})
     if calculated:
         iu = SubElement(ms, "InitialUnknowns")
         for idx in calculated:

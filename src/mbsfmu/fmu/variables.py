@@ -28,7 +28,7 @@ class Variable:
     the engine's variable-table row (``kind``, ``index``)."""
 
     __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start", "vr", "kind", "index",
-                 "derivative_of")
+                 "derivative_of", "depends_on")
 
     def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0,
                  kind=None, index=0, derivative_of=None):
@@ -36,6 +36,7 @@ class Variable:
         self.unit, self.description, self.start = unit, description, start
         self.kind, self.index, self.vr = kind, index, None
         self.derivative_of = derivative_of  # the state Variable this is the time derivative of (model exchange)
+        self.depends_on = None  # a derivative's states (kind "constant": ẏ_pos = ẏ) or None: every state and input
 
     def __repr__(self):
         return f"Variable({self.name!r}, {self.causality}, {self.unit})"
@@ -48,7 +49,7 @@ def variables(spec, model=None, derivatives=False):
     model = Model(spec) if model is None else model
     out = _parameters(spec) + _settings(spec["integrator"]) + _inputs(spec, model) + _outputs(spec, model)
     if derivatives:
-        out += _derivatives(out)
+        out += _derivatives(out, model)
     for vr, v in enumerate(out):
         v.vr = vr
     return out
@@ -117,11 +118,18 @@ def _per_second(unit):
     return unit + "2" if unit.endswith("/s") else unit + "/s"  # m → m/s → m/s2, 1 → 1/s → 1/s2
 
 
-def _derivatives(out):
-    """der(y.*) then der(yd.*): the engine's state x = [y; ẏ] with quaternions as it keeps them (ṗ = G(p)·ω:
+def _derivatives(out, model):
+    """der(y.*) then der(yd.*): the engine's state x = [y; ẏ] with quaternions as it keeps them (ṗ = ½ p ⊗ ω:
     the derivative keeps |p| = 1 only as well as the host integrates it; docs/fmu.md, "Model exchange")."""
-    states = [v for v in out if v.kind == L.MBS_V_Y] + [v for v in out if v.kind == L.MBS_V_YD]
-    return [Variable(f"der({v.name})", "local", "continuous", unit=_per_second(v.unit),
-                     description=f"time derivative of {v.name}", start=None, kind=L.MBS_V_DER, index=i,
-                     derivative_of=v)
-            for i, v in enumerate(states)]
+    y = [v for v in out if v.kind == L.MBS_V_Y]
+    yd = [v for v in out if v.kind == L.MBS_V_YD]
+    der = [Variable(f"der({v.name})", "local", "continuous", unit=_per_second(v.unit),
+                    description=f"time derivative of {v.name}", start=None, kind=L.MBS_V_DER, index=i,
+                    derivative_of=v)
+           for i, v in enumerate(y + yd)]
+    for i, j in zip(model.plain_pos, model.plain_vel):  # ẏ_pos = ẏ (the engine's plain coordinates)
+        der[i].depends_on = ("constant", [yd[j]])
+    for p, w in zip(model.quaternions, model.quat_vel):  # ṗ = ½ p ⊗ (0, ω): ṗ_k on the other three p and ω
+        for i in p:
+            der[i].depends_on = ("dependent", [y[k] for k in p if k != i] + [yd[k] for k in w])
+    return der
