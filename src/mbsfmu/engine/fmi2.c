@@ -26,30 +26,13 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
+#include "fmi2_guard.h"
 #include "fmu_files.h"
 #include "mbs_engine.h"
 
-/* ---- phases of the FMI 2.0 state machines (bit masks, for "allowed in"): co-simulation steps in P_STEP, model
- * exchange moves between P_EVENT and P_CONT. A mask may also name the interface (I_CS, I_ME) a call belongs to;
- * without one, both. ---- */
-enum { P_INSTANTIATED = 1, P_INIT = 2, P_STEP = 4, P_EVENT = 8, P_CONT = 16, P_TERMINATED = 32, P_ERROR = 64,
-       P_FATAL = 128, I_CS = 256, I_ME = 512 };
-#define P_ANY (P_INSTANTIATED | P_INIT | P_STEP | P_EVENT | P_CONT | P_TERMINATED | P_ERROR)
+/* phases and "allowed in" masks: fmi2_guard.h */
 #define P_STATUS (I_CS | P_STEP | P_TERMINATED | P_ERROR)  /* FMI 2.0 co-simulation: after initialization */
-#define P_RUNNING (P_STEP | P_EVENT | P_CONT)  /* initialized, not terminated */
 #define P_STATES (I_ME | P_EVENT | P_CONT | P_TERMINATED | P_ERROR)  /* model exchange: states and derivatives */
-static const char *phase_name(int p) {
-    switch (p) {
-    case P_INSTANTIATED: return "instantiated";
-    case P_INIT: return "initialization mode";
-    case P_STEP: return "step mode";
-    case P_EVENT: return "event mode";
-    case P_CONT: return "continuous-time mode";
-    case P_TERMINATED: return "terminated";
-    case P_ERROR: return "error";
-    default: return "fatal";
-    }
-}
 
 /* log categories, indexed by fmi2Status (OK .. Fatal); the names are those of the modelDescription */
 #define NCAT 5
@@ -79,54 +62,8 @@ typedef struct {
     unsigned char bytes[];     /* mbs_state_save's layout (header with version, GUID, length, checksum) */
 } FmuState;
 
-/* ---- registries of the live instances and FMU states this library handed out ----
- * A component or state pointer from the host is only compared with these, never followed unless found: a
- * freed, made-up or other FMU's pointer is refused without touching it (fmi2FreeInstance twice, a stale state
- * handle). One small lock: instances may live on several threads. */
-#if defined(_MSC_VER)
-#include <windows.h>
-static volatile LONG registry_lock = 0;
-#define LOCK() while (InterlockedExchange(&registry_lock, 1)) {}
-#define UNLOCK() InterlockedExchange(&registry_lock, 0)
-#else
-static volatile int registry_lock = 0;
-#define LOCK() while (__atomic_exchange_n(&registry_lock, 1, __ATOMIC_ACQUIRE)) {}
-#define UNLOCK() __atomic_store_n(&registry_lock, 0, __ATOMIC_RELEASE)
-#endif
-typedef struct { void **item; size_t n, cap; } Registry;
-static Registry instances, states;
-
-static int reg_find(Registry *r, const void *p) {
-    int found = 0;
-    size_t i;
-    if (!p) return 0;
-    LOCK();
-    for (i = 0; i < r->n && !found; i++) found = r->item[i] == p;
-    UNLOCK();
-    return found;
-}
-static int reg_add(Registry *r, void *p) {
-    int ok = 1;
-    LOCK();
-    if (r->n == r->cap) {
-        size_t cap = r->cap ? 2 * r->cap : 8;
-        void **grown = (void **)realloc(r->item, cap * sizeof *grown);
-        if (grown) r->item = grown, r->cap = cap;
-        else ok = 0;
-    }
-    if (ok) r->item[r->n++] = p;
-    UNLOCK();
-    return ok;
-}
-static int reg_drop(Registry *r, const void *p) {
-    int found = 0;
-    size_t i;
-    LOCK();
-    for (i = 0; i < r->n && !found; i++)
-        if (r->item[i] == p) r->item[i] = r->item[--r->n], found = 1;
-    UNLOCK();
-    return found;
-}
+/* the live instances and FMU states this library handed out (fmi2_guard.h) */
+static MbsRegistry instances, states;
 
 /* ---- logging ---- */
 static void emit(const fmi2CallbackFunctions *cb, const char *name, fmi2Status st, const char *msg) {
@@ -163,19 +100,15 @@ static fmi2Status engine_status(Fmu *f, int rc, const char *what) {
 
 /* The call `fn` is allowed in the phases `mask`: otherwise fmi2Error with a message, nothing changes. */
 static int allowed(Fmu *f, int mask, const char *fn) {
-    if (!reg_find(&instances, f)) {  /* no logger known: stderr */
+    char why[256];
+    if (!mbs_reg_find(&instances, f)) {  /* no logger known: stderr */
         fprintf(stderr, "mbsfmu: %s: %s\n", fn, f ? "not a live instance of this FMU (freed, or another FMU's)" : "NULL component");
         return 0;
     }
     f->logged = 0;
-    if ((mask & (I_CS | I_ME)) && !(mask & f->iface)) {
-        logf_(f, fmi2Error, "%s: a %s function, but this instance is %s", fn, mask & I_CS ? "co-simulation" :
-              "model-exchange", f->iface == I_CS ? "co-simulation" : "model exchange");
-        return 0;
-    }
-    if (f->phase & mask)
+    if (!mbs_phase_refuses(mask, f->phase, f->iface, fn, why, sizeof why))
         return 1;
-    logf_(f, fmi2Error, "%s: not allowed in phase '%s'", fn, phase_name(f->phase));
+    logf_(f, fmi2Error, "%s", why);
     return 0;
 }
 #define CHECK(mask, fn) Fmu *f = (Fmu *)c; if (!allowed(f, (mask), (fn))) return fmi2Error
@@ -286,7 +219,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     for (j = 0; j < NCAT; j++)
         f->category_on[j] = 1;
     f->sim = mbs_instance_new(model, engine_log, f);
-    if (!f->sim || !reg_add(&instances, f)) {
+    if (!f->sim || !mbs_reg_add(&instances, f)) {
         mbs_instance_free(f->sim);
         emit(functions, name, fmi2Error, "fmi2Instantiate: cannot create the engine instance (out of memory?)");
         mbs_model_free(model);
@@ -297,24 +230,16 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     return f;
 }
 
+static int owned_by(void *state, void *f) { return ((FmuState *)state)->owner == f; }
+
 void fmi2FreeInstance(fmi2Component c) {
     Fmu *f = (Fmu *)c;
-    size_t i;
-    if (!reg_drop(&instances, f)) {  /* NULL, freed before, or not ours: nothing to free */
+    if (!mbs_reg_drop(&instances, f)) {  /* NULL, freed before, or not ours: nothing to free */
         if (f)
             fprintf(stderr, "mbsfmu: fmi2FreeInstance: not a live instance of this FMU (freed, or another FMU's)\n");
         return;
     }
-    LOCK();  /* the states it handed out go with it */
-    for (i = 0; i < states.n;) {
-        FmuState *st = (FmuState *)states.item[i];
-        if (st->owner == f) {
-            states.item[i] = states.item[--states.n];
-            free(st);
-        } else
-            i++;
-    }
-    UNLOCK();
+    mbs_reg_drop_all(&states, owned_by, f, free);  /* the states it handed out go with it */
     mbs_instance_free(f->sim);
     mbs_model_free(f->model);
     free(f->name);
@@ -495,7 +420,7 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
 /* ---- FMU state: the engine's byte layout, in memory and serialized ---- */
 /* A state handed out by any live instance of this FMU (same model: it restores into any of them). */
 static FmuState *state_of(Fmu *f, fmi2FMUstate s, const char *fn) {
-    if (reg_find(&states, s))
+    if (mbs_reg_find(&states, s))
         return (FmuState *)s;
     logf_(f, fmi2Error, "%s: not an FMU state of this FMU's live instances (never handed out, or freed)", fn);
     return NULL;
@@ -525,12 +450,12 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
         return fmi2Error;
     if (!st || st->len != len) {  /* new, or an old one of another size: replace */
         FmuState *fresh = state_new(f, len);
-        if (!fresh || !reg_add(&states, fresh)) {
+        if (!fresh || !mbs_reg_add(&states, fresh)) {
             free(fresh);
             logf_(f, fmi2Error, "fmi2GetFMUstate: out of memory");
             return fmi2Error;
         }
-        if (st && reg_drop(&states, st))
+        if (st && mbs_reg_drop(&states, st))
             free(st);
         st = fresh;
         *FMUstate = st;
@@ -567,7 +492,7 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     }
     if (!*FMUstate)
         return fmi2OK;  /* FMI 2.0: freeing NULL is a no-op */
-    if (!(st = state_of(f, *FMUstate, "fmi2FreeFMUstate")) || !reg_drop(&states, st))
+    if (!(st = state_of(f, *FMUstate, "fmi2FreeFMUstate")) || !mbs_reg_drop(&states, st))
         return fmi2Error;
     free(st);
     *FMUstate = NULL;
@@ -637,7 +562,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
         return fmi2Error;
     }
     st = state_new(f, size);
-    if (!st || !reg_add(&states, st)) {
+    if (!st || !mbs_reg_add(&states, st)) {
         free(st);
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
         return fmi2Error;

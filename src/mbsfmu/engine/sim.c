@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fmi2_guard.h"
 #include "mbs_integrator.h"
 #include "mbs_model.h"
 
@@ -932,21 +933,14 @@ int mbs_derivatives(MbsInstance *s, double *xdot, size_t n)
 }
 
 /* ------------------------------------------------------------------------------------------ state bytes
- * header: "MBSS", uint32 version, char guid[64], uint64 payload length, uint64 FNV-1a checksum of the payload;
+ * header (fmi2_guard.h, which both FMU kinds check too): "MBSS", uint32 version, char guid[64], uint64 payload
+ * length, uint64 FNV-1a checksum of the payload;
  * payload: Head, parameters (nparam), u, u_applied, x (n), then the integrator snapshot (initialized only). */
-#define STATE_VERSION 1u
-#define HEADER_SIZE (4 + 4 + 64 + 8 + 8)
+#define HEADER_SIZE MBS_STATE_HEADER
 typedef struct {
     double time, rtol, atol, max_step, step;
     int32_t initialized, method, q_in_active, params_dirty;
 } Head;
-
-static uint64_t fnv1a(const unsigned char *p, size_t n)
-{
-    uint64_t h = 1469598103934665603ull;
-    for (size_t i = 0; i < n; i++) { h ^= p[i]; h *= 1099511628211ull; }
-    return h;
-}
 
 static size_t payload_size(const MbsInstance *s, size_t integ_size)
 {
@@ -971,8 +965,8 @@ int mbs_state_save(const MbsInstance *s, void *buf, size_t len)
     memcpy(w, s->u_applied, sizeof(double) * s->nu);                       w += sizeof(double) * s->nu;
     memcpy(w, s->x, sizeof(double) * s->n);                                w += sizeof(double) * s->n;
     if (isz) mbs_integ_snapshot_save(s->integ, w);
-    uint32_t version = STATE_VERSION;
-    uint64_t plen = payload_size(s, isz), sum = fnv1a(pay, plen);
+    uint32_t version = MBS_STATE_VERSION;
+    uint64_t plen = payload_size(s, isz), sum = mbs_state_checksum(pay, plen);
     memcpy(p, "MBSS", 4);
     memcpy(p + 4, &version, 4);
     memset(p + 8, 0, 64);
@@ -985,19 +979,11 @@ int mbs_state_save(const MbsInstance *s, void *buf, size_t len)
 int mbs_state_load(MbsInstance *s, const void *buf, size_t len)
 {
     const unsigned char *p = buf;
-    uint32_t version;
-    uint64_t plen, sum;
+    uint64_t plen;
     Head h;
-    if (!p || len < HEADER_SIZE + sizeof h || memcmp(p, "MBSS", 4))
-        return report(s, MBS_ERROR, "not an mbsfmu FMU state (%zu bytes, bad header); state unchanged", len);
-    memcpy(&version, p + 4, 4);
+    const char *why = mbs_state_header_problem(p, len, sizeof h, s->m->guid);
+    if (why) return report(s, MBS_ERROR, "%s (%zu bytes); state unchanged", why, len);
     memcpy(&plen, p + 72, 8);
-    memcpy(&sum, p + 80, 8);
-    if (version != STATE_VERSION) return report(s, MBS_ERROR, "FMU state has format version %u, expected %u; state unchanged", version, STATE_VERSION);
-    if (memchr(p + 8, 0, 64) == NULL || strcmp((const char *)p + 8, s->m->guid))
-        return report(s, MBS_ERROR, "FMU state belongs to another model (GUID %.40s); state unchanged", (const char *)p + 8);
-    if (plen != len - HEADER_SIZE) return report(s, MBS_ERROR, "FMU state is truncated or has trailing bytes; state unchanged");
-    if (fnv1a(p + HEADER_SIZE, (size_t)plen) != sum) return report(s, MBS_ERROR, "FMU state checksum mismatch (corrupt bytes); state unchanged");
     const unsigned char *r = p + HEADER_SIZE;
     memcpy(&h, r, sizeof h);
     if ((h.initialized != 0 && h.initialized != 1) || h.method < 0 || h.method >= MBS_NMETHODS ||

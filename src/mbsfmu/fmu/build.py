@@ -36,6 +36,8 @@ KINDS = ("pythonfmu", "native")
 SCENE_FILE = "mbsfmu_scene.bin"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
 SHIM_SOURCE = Path(__file__).with_name("shim.c")
+# engine sources the shim shares with native FMUs: the resource-location parser and file reader, the FMI 2.0 guard
+SHIM_SHARED = ("fmu_files.c", "fmi2_guard.c")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
 ENGINE_DIR = PACKAGE_ROOT / "engine"
 
@@ -315,9 +317,9 @@ def compile_shim(out: Path, real_library: str, model_description: bytes, runtime
         + shim_model_defines(model_description)
         + f"#define MBSFMU_RESOURCE_FILES {', '.join(map(_c_string, resource_files)) or _c_string('')}\n"
         + SHIM_SOURCE.read_text(encoding="utf-8"), encoding="utf-8")
-    reader = ENGINE_DIR / "fmu_files.c"  # the resource-location parser and file reader of native FMUs too
+    shared = [str(ENGINE_DIR / f) for f in SHIM_SHARED]
     cmd = [cc, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-fvisibility=hidden", f"-I{ENGINE_DIR}", "-o", str(out),
-           str(src), str(reader), "-ldl", "-lpthread"]
+           str(src), *shared, "-ldl", "-lpthread"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         warnings.warn(f"compiling the FMU loader shim failed ({' '.join(cmd)}): {r.stderr.strip()[:2000]}; "

@@ -46,6 +46,7 @@
 #include <unistd.h>
 #include <wchar.h>
 
+#include "fmi2_guard.h"
 #include "fmu_files.h"
 #ifndef MBSFMU_RESOURCE_FILES
 #define MBSFMU_RESOURCE_FILES ""
@@ -268,13 +269,11 @@ static int load_real(void) {
 }
 
 /* ------------------------------------------------------------------------- instances and messages */
-enum Phase { INSTANTIATED, INIT_MODE, STEP, TERMINATED, FAILED, BROKEN };
-#define P(phase) (1u << (phase))
+/* the phases of the co-simulation state machine (fmi2_guard.h, shared with the native FMU) */
+enum Phase { INSTANTIATED = P_INSTANTIATED, INIT_MODE = P_INIT, STEP = P_STEP, TERMINATED = P_TERMINATED,
+             FAILED = P_ERROR, BROKEN = P_FATAL };
+#define P(phase) (phase)
 #define LIVE (P(INSTANTIATED) | P(INIT_MODE) | P(STEP) | P(TERMINATED) | P(FAILED))
-static const char* const phase_text[] = {
-    "before fmi2EnterInitializationMode", "in initialization mode", "in step mode",
-    "after fmi2Terminate", "after a failed call (only fmi2Reset, fmi2SetFMUstate, getters, fmi2FreeInstance)",
-    "after a fatal error"};
 
 typedef struct {
     fmi2FMUstate handle;  /* pythonfmu's */
@@ -294,38 +293,9 @@ typedef struct {
     size_t nstates, capacity;
 } Inst;
 
-static Inst** live = NULL;     /* the registry of instances handed out and not yet freed */
-static size_t nlive = 0, live_capacity = 0;
+static MbsRegistry live;       /* the instances handed out and not yet freed (fmi2_guard.h) */
 
-static Inst* find(fmi2Component c) {
-    Inst* in = NULL;
-    pthread_mutex_lock(&lock);
-    for (size_t i = 0; i < nlive && !in; i++)
-        if (live[i] == c) in = live[i];
-    pthread_mutex_unlock(&lock);
-    return in;
-}
-
-static int add_live(Inst* in) {
-    int ok = 1;
-    pthread_mutex_lock(&lock);
-    if (nlive == live_capacity) {
-        size_t cap = live_capacity ? 2 * live_capacity : 8;
-        Inst** grown = realloc(live, cap * sizeof *grown);
-        if (grown) live = grown, live_capacity = cap;
-        else ok = 0;
-    }
-    if (ok) live[nlive++] = in;
-    pthread_mutex_unlock(&lock);
-    return ok;
-}
-
-static void drop_live(Inst* in) {
-    pthread_mutex_lock(&lock);
-    for (size_t i = 0; i < nlive; i++)
-        if (live[i] == in) live[i] = live[--nlive];
-    pthread_mutex_unlock(&lock);
-}
+static Inst* find(fmi2Component c) { return mbs_reg_find(&live, c) ? (Inst*)c : NULL; }
 
 /* Log text through the host's logger (stderr without one). The text is passed as the format with no arguments,
    so any '%' in it (a variable name, a string value, a Python error) is doubled. */
@@ -368,9 +338,9 @@ static fmi2Status enter(fmi2Component c, const char* fn, unsigned allowed, Inst*
         say(in, fmi2Error, "%s: pythonfmu reported a fatal error before; this instance is unusable, free it", fn);
         return fmi2Error;
     }
-    if (!(allowed & P(in->phase))) {
-        say(in, fmi2Error, "%s is not allowed %s (FMI 2.0 co-simulation calling sequence)", fn,
-            phase_text[in->phase]);
+    char why[256];
+    if (mbs_phase_refuses((int)allowed, in->phase, I_CS, fn, why, sizeof why)) {
+        say(in, fmi2Error, "%s (FMI 2.0 co-simulation calling sequence)", why);
         return fmi2Error;
     }
     *out = in;
@@ -578,7 +548,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
         return NULL;
     }
     Inst* in = calloc(1, sizeof *in);
-    if (!in || !add_live(in)) {
+    if (!in || !mbs_reg_add(&live, in)) {
         free(in);
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: out of memory");
         return NULL;
@@ -589,7 +559,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     if (!in->slot) {
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: the Python slave could not be created from %s "
                "(pythonfmu logs the Python error with loggingOn)", dir);
-        drop_live(in);
+        mbs_reg_drop(&live, in);
         free(in);
         return NULL;
     }
@@ -597,7 +567,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     why = refusal(in, __func__);   /* a slave that could not load its scene says why */
     if (why && !*why) return in;
     say_cb(cb, name, fmi2Error, "fmi2Instantiate: %s", why ? why : "the Python slave failed");
-    drop_live(in);
+    mbs_reg_drop(&live, in);
     in->slot->owner = NULL;
     if (in->phase != BROKEN) R.free_instance(in->real), free(in->slot);   /* else leaked, as after any fatal */
     free(in);
@@ -610,7 +580,7 @@ EXPORT void fmi2FreeInstance(fmi2Component c) {
         if (c) fprintf(stderr, "mbsfmu: %s: not a live instance of this FMU (freed, or another FMU's)\n", __func__);
         return;
     }
-    drop_live(in);
+    mbs_reg_drop(&live, in);
     in->slot->owner = NULL;
     if (in->phase != BROKEN) {   /* a broken instance is leaked: pythonfmu already released part of it */
         for (size_t i = 0; i < in->nstates; i++) R.free_state(in->real, &in->states[i].handle);
@@ -914,14 +884,20 @@ static fmi2Status unknown_state(Inst* in, const char* fn) {
 
 /* The live instance that holds state handle s (in itself first) and its entry; NULL if none does. A state of
    another instance of this FMU is as good as one's own (same model); handles are compared, never followed. */
+typedef struct { fmi2FMUstate handle; State* state; } Held;
+static int holds(void* item, void* ctx) {
+    Inst* in = item;
+    Held* h = ctx;
+    return in->phase != BROKEN && (h->state = find_state(in, h->handle)) != NULL;
+}
+
 static Inst* holder(Inst* in, fmi2FMUstate s, State** state) {
-    Inst* owner = NULL;
+    Held h = {s, NULL};
+    Inst* owner;
     if (!s) return NULL;
     if ((*state = find_state(in, s))) return in;
-    pthread_mutex_lock(&lock);
-    for (size_t i = 0; i < nlive && !owner; i++)
-        if (live[i]->phase != BROKEN && (*state = find_state(live[i], s))) owner = live[i];
-    pthread_mutex_unlock(&lock);
+    owner = mbs_reg_first(&live, holds, &h);
+    *state = h.state;
     return owner;
 }
 
@@ -1018,35 +994,9 @@ EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byt
     return done(owner, __func__, R.serialize(owner->real, s, bytes, need));  /* pythonfmu copies n bytes */
 }
 
-/* The engine's state bytes (sim.c, mbs_state_save): "MBSS", uint32 format version, char guid[64],
-   uint64 payload length, uint64 FNV-1a-64 of the payload; the payload starts with its Head
-   {double time, rtol, atol, max_step, step; int32 initialized, method, q_in_active, params_dirty}. */
-#define STATE_VERSION 1u
-#define STATE_HEADER (4 + 4 + 64 + 8 + 8)
+/* The engine's state bytes (sim.c, mbs_state_save): the header of fmi2_guard.h, then the payload, which starts
+   with its Head {double time, rtol, atol, max_step, step; int32 initialized, method, q_in_active, params_dirty}. */
 #define STATE_HEAD (5 * 8 + 4 * 4)
-
-static uint64_t fnv1a(const unsigned char* p, size_t n) {
-    uint64_t h = 1469598103934665603ull;
-    for (size_t i = 0; i < n; i++) h = (h ^ p[i]) * 1099511628211ull;
-    return h;
-}
-
-/* NULL if b[0..n) has this model's state header, a matching length and checksum; else why not. */
-static const char* bad_state(const unsigned char* b, size_t n) {
-    uint32_t version;
-    uint64_t length, sum;
-    if (n < STATE_HEADER + STATE_HEAD) return "too short for an mbsfmu FMU state";
-    if (memcmp(b, "MBSS", 4)) return "not an mbsfmu FMU state (bad magic)";
-    memcpy(&version, b + 4, 4);
-    memcpy(&length, b + 72, 8);
-    memcpy(&sum, b + 80, 8);
-    if (version != STATE_VERSION) return "unsupported FMU state format version";
-    if (!memchr(b + 8, 0, 64) || strcmp((const char*)b + 8, MBSFMU_GUID))
-        return "the state belongs to another model (GUID differs)";
-    if (length != n - STATE_HEADER) return "truncated, or trailing bytes (length field disagrees)";
-    if (fnv1a(b + STATE_HEADER, n - STATE_HEADER) != sum) return "checksum mismatch (corrupt bytes)";
-    return NULL;
-}
 
 EXPORT fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t n, fmi2FMUstate* s) {
     Inst* in;
@@ -1055,11 +1005,11 @@ EXPORT fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[
     fmi2Status st = enter(c, __func__, LIVE, &in);
     if (st) return st;
     if (!s || (n && !bytes)) return say(in, fmi2Error, "%s: NULL %s", __func__, s ? "bytes" : "state pointer"), fmi2Error;
-    const char* why = bad_state((const unsigned char*)bytes, n);
+    const char* why = mbs_state_header_problem(bytes, n, STATE_HEAD, MBSFMU_GUID);
     if (why) return say(in, fmi2Error, "%s: %zu bytes refused: %s; instance unchanged", __func__, n, why), fmi2Error;
     if ((st = done(in, __func__, R.deserialize(in->real, bytes, n, &got))) > fmi2Warning) return st;
     if (!got) return say(in, fmi2Error, "%s: pythonfmu returned no state", __func__), fmi2Error;
-    memcpy(&initialized, bytes + STATE_HEADER + 5 * 8, 4);
+    memcpy(&initialized, bytes + MBS_STATE_HEADER + 5 * 8, 4);
     if (keep_state(in, __func__, got, initialized == 1 ? STEP : INSTANTIATED)) return fmi2Error;
     *s = got;
     return st;

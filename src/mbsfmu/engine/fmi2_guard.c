@@ -1,0 +1,129 @@
+/* The FMI 2.0 guard both FMU kinds compile (fmi2_guard.h). */
+#include "fmi2_guard.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ---- phases ---- */
+const char *mbs_phase_name(int phase) {
+    switch (phase) {
+    case P_INSTANTIATED: return "instantiated";
+    case P_INIT: return "initialization mode";
+    case P_STEP: return "step mode";
+    case P_EVENT: return "event mode";
+    case P_CONT: return "continuous-time mode";
+    case P_TERMINATED: return "terminated";
+    case P_ERROR: return "error";
+    default: return "fatal";
+    }
+}
+
+int mbs_phase_refuses(int mask, int phase, int iface, const char *fn, char *buf, size_t len) {
+    if ((mask & (I_CS | I_ME)) && !(mask & iface))
+        snprintf(buf, len, "%s: a %s function, but this instance is %s", fn,
+                 mask & I_CS ? "co-simulation" : "model-exchange", iface == I_CS ? "co-simulation" : "model exchange");
+    else if (!(mask & phase))
+        snprintf(buf, len, "%s: not allowed in phase '%s'%s", fn, mbs_phase_name(phase),
+                 phase == P_ERROR ? " (after a failed call: only fmi2Reset, fmi2SetFMUstate, getters and "
+                                    "fmi2FreeInstance)" : "");
+    else
+        return 0;
+    return 1;
+}
+
+/* ---- registries: one small lock for all ---- */
+#if defined(_MSC_VER)
+#include <windows.h>
+static volatile LONG registry_lock = 0;
+#define LOCK() while (InterlockedExchange(&registry_lock, 1)) {}
+#define UNLOCK() InterlockedExchange(&registry_lock, 0)
+#else
+static volatile int registry_lock = 0;
+#define LOCK() while (__atomic_exchange_n(&registry_lock, 1, __ATOMIC_ACQUIRE)) {}
+#define UNLOCK() __atomic_store_n(&registry_lock, 0, __ATOMIC_RELEASE)
+#endif
+
+int mbs_reg_find(MbsRegistry *r, const void *p) {
+    int found = 0;
+    size_t i;
+    if (!p) return 0;
+    LOCK();
+    for (i = 0; i < r->n && !found; i++) found = r->item[i] == p;
+    UNLOCK();
+    return found;
+}
+
+int mbs_reg_add(MbsRegistry *r, void *p) {
+    int ok = 1;
+    LOCK();
+    if (r->n == r->cap) {
+        size_t cap = r->cap ? 2 * r->cap : 8;
+        void **grown = (void **)realloc(r->item, cap * sizeof *grown);
+        if (grown) r->item = grown, r->cap = cap;
+        else ok = 0;
+    }
+    if (ok) r->item[r->n++] = p;
+    UNLOCK();
+    return ok;
+}
+
+int mbs_reg_drop(MbsRegistry *r, const void *p) {
+    int found = 0;
+    size_t i;
+    LOCK();
+    for (i = 0; i < r->n && !found; i++)
+        if (r->item[i] == p) r->item[i] = r->item[--r->n], found = 1;
+    UNLOCK();
+    return found;
+}
+
+void *mbs_reg_first(MbsRegistry *r, int (*match)(void *item, void *ctx), void *ctx) {
+    void *found = NULL;
+    size_t i;
+    LOCK();
+    for (i = 0; i < r->n && !found; i++)
+        if (match(r->item[i], ctx)) found = r->item[i];
+    UNLOCK();
+    return found;
+}
+
+void mbs_reg_drop_all(MbsRegistry *r, int (*match)(void *item, void *ctx), void *ctx, void (*release)(void *item)) {
+    size_t i;
+    LOCK();
+    for (i = 0; i < r->n;) {
+        void *item = r->item[i];
+        if (match(item, ctx)) {
+            r->item[i] = r->item[--r->n];
+            release(item);
+        } else
+            i++;
+    }
+    UNLOCK();
+}
+
+/* ---- FMU state header ---- */
+uint64_t mbs_state_checksum(const unsigned char *payload, size_t n) {
+    uint64_t h = 1469598103934665603ull;  /* FNV-1a-64 */
+    size_t i;
+    for (i = 0; i < n; i++) h = (h ^ payload[i]) * 1099511628211ull;
+    return h;
+}
+
+const char *mbs_state_header_problem(const void *bytes, size_t n, size_t min_payload, const char *guid) {
+    const unsigned char *b = (const unsigned char *)bytes;
+    uint32_t version;
+    uint64_t length, sum;
+    if (!b || n < MBS_STATE_HEADER + min_payload) return "not an mbsfmu FMU state (too short for its header)";
+    if (memcmp(b, "MBSS", 4)) return "not an mbsfmu FMU state (bad magic)";
+    memcpy(&version, b + 4, 4);
+    memcpy(&length, b + 72, 8);
+    memcpy(&sum, b + 80, 8);
+    if (version != MBS_STATE_VERSION) return "the FMU state has another format version";
+    if (!memchr(b + 8, 0, 64) || strcmp((const char *)b + 8, guid))
+        return "the FMU state belongs to another model (GUID differs)";
+    if (length != n - MBS_STATE_HEADER) return "the FMU state is truncated or has trailing bytes (length field disagrees)";
+    if (mbs_state_checksum(b + MBS_STATE_HEADER, n - MBS_STATE_HEADER) != sum)
+        return "FMU state checksum mismatch (corrupt bytes)";
+    return NULL;
+}
