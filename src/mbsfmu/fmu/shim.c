@@ -548,6 +548,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
         return NULL;
     }
     Inst* in = calloc(1, sizeof *in);
+    if (in) in->phase = INSTANTIATED;
     if (!in || !mbs_reg_add(&live, in)) {
         free(in);
         say_cb(cb, name, fmi2Error, "fmi2Instantiate: out of memory");
