@@ -1,6 +1,6 @@
-"""Native FMUs (``kind="native"``): the engine's C sources and the FMI 2.0 layer (``engine/fmi2.c``) compiled
-into ``binaries/<platform>/<modelIdentifier>``; the scene is data (``resources/scene.bin``). No Python at run
-time: the binary needs only the C library and libm.
+"""Native FMUs (``kind="native"``): the engine's C sources and the FMI 2.0 layer (``engine/fmi2.c``: co-simulation
+and model exchange) compiled into ``binaries/<platform>/<modelIdentifier>``; the scene is data
+(``resources/scene.bin``). No Python at run time: the binary needs only the C library and libm.
 
 An FMU holds
 
@@ -135,7 +135,8 @@ endif()
 
 
 def readme(identifier: str, c_names: list[str], notes: list[str]) -> str:
-    return (f"Sources of the native FMU '{identifier}' (mbsfmu engine + FMI 2.0 co-simulation layer).\n\n"
+    return (f"Sources of the native FMU '{identifier}' (mbsfmu engine + FMI 2.0 co-simulation and model-exchange "
+            "layer).\n\n"
             "Compiling all *.c files of this folder into a shared library gives a working FMU binary, e.g.\n\n"
             f"  cc -O2 -std=c99 -shared -fPIC -fvisibility=hidden -I. -o {identifier}.so {' '.join(c_names)} -lm\n"
             f"  x86_64-w64-mingw32-gcc -O2 -std=c99 -shared -static-libgcc -I. -o {identifier}.dll {' '.join(c_names)}\n\n"
