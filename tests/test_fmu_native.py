@@ -288,7 +288,8 @@ def test_wrong_call_order_is_refused_with_a_message(built, tmp_path):
     fails(3, f.setReal, [f.vr["q.phi1"]], [1.0])
     assert f.getReal([f.vr["y.phi1"]])            # reading is allowed
     errors = [m for s, c, m in f.log if s == 3 and c == "logStatusError"]
-    assert len(errors) >= 16 and any("not allowed in phase 'terminated'" in m for m in errors), errors
+    # one message per refusal above (15); the log may hold earlier tests' too
+    assert len(errors) >= 15 and any("not allowed in phase 'terminated'" in m for m in errors), errors
     f.reset()                                     # back to instantiated
     start(f)
     f.doStep(0.0, 0.01)
