@@ -1,0 +1,72 @@
+/* The engine's right-hand side in a C loop (bench/tree_speed.py): the cost of mbs_rhs without Python.
+ *
+ *   rhs_loop ENGINE.so SCENE.bin X.bin CALLS   → prints "RHS <best µs per call over 5 batches of CALLS>"
+ *
+ * X.bin: the state [y; ẏ] as little-endian doubles. The engine library is opened with dlopen (the in-process
+ * one of mbsfmu.engine.build.library_path), so that this loop runs exactly the code ctypes calls. */
+#include <dlfcn.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+
+typedef void *(*load_fn)(const char *, char *, size_t);
+typedef void *(*new_fn)(const void *, void *, void *);
+typedef int (*init_fn)(void *, double);
+typedef int (*rhs_fn)(void *, double, const double *, double *);
+typedef int (*count_fn)(const void *);
+
+static double now(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+
+int main(int argc, char **argv) {
+    if (argc != 5) {
+        fprintf(stderr, "usage: rhs_loop ENGINE.so SCENE.bin X.bin CALLS\n");
+        return 2;
+    }
+    void *lib = dlopen(argv[1], RTLD_NOW);
+    if (!lib) {
+        fprintf(stderr, "%s\n", dlerror());
+        return 1;
+    }
+    load_fn load = (load_fn)dlsym(lib, "mbs_model_load_file");
+    new_fn inst_new = (new_fn)dlsym(lib, "mbs_instance_new");
+    init_fn init = (init_fn)dlsym(lib, "mbs_initialize");
+    rhs_fn rhs = (rhs_fn)dlsym(lib, "mbs_rhs");
+    count_fn npos = (count_fn)dlsym(lib, "mbs_model_npos"), nvel = (count_fn)dlsym(lib, "mbs_model_nvel");
+    char err[1024];
+    void *m = load(argv[2], err, sizeof err);
+    if (!m) {
+        fprintf(stderr, "%s\n", err);
+        return 1;
+    }
+    void *s = inst_new(m, NULL, NULL);
+    if (!s || init(s, 0.0) > 1) {
+        fprintf(stderr, "instance\n");
+        return 1;
+    }
+    int n = npos(m) + nvel(m);
+    double *x = malloc(n * sizeof *x), *xdot = malloc(n * sizeof *xdot);
+    FILE *f = fopen(argv[3], "rb");
+    if (!x || !xdot || !f || fread(x, sizeof *x, n, f) != (size_t)n) {
+        fprintf(stderr, "state: %d doubles expected\n", n);
+        return 1;
+    }
+    fclose(f);
+    long calls = atol(argv[4]);
+    double best = 1e300;
+    for (int b = 0; b < 5; b++) {
+        double t0 = now();
+        for (long k = 0; k < calls; k++)
+            if (rhs(s, 0.0, x, xdot) > 1) {
+                fprintf(stderr, "mbs_rhs failed\n");
+                return 1;
+            }
+        double dt = (now() - t0) / calls;
+        if (dt < best) best = dt;
+    }
+    printf("RHS %.6g\n", best * 1e6);
+    return 0;
+}
