@@ -275,3 +275,51 @@ def test_example_robot_matches_pinocchio_aba(file):
         if tree_speed.base_of(file) == "fixed":
             Mp = pin.crba(pm, pd, qp)
             assert_close(M, (np.triu(Mp) + np.triu(Mp, 1).T)[np.ix_(P, P)], 1e-10, "M")
+
+
+# ---- a long chain ----------------------------------------------------------------------------------------
+# Issue 26: a 10,000-body chain compiles and steps within 200 MB. Today's engine (dense M, per-body Jacobian
+# rows: O(N²) memory, O(N³) per right-hand side) refuses it (test_engine.py); this test runs the longest chain
+# that takes it a second. The O(N) path sets LONG_CHAIN = 10_000.
+LONG_CHAIN = 200
+MEMORY_MB = 200
+STEPS, H = 10, 1e-3
+_CHILD = """
+import json, sys
+import numpy as np
+from mbsfmu.bench.tree_speed import chain_scene, peak_rss_mb
+from mbsfmu.simulation import Simulation
+before = peak_rss_mb()
+sim = Simulation(chain_scene(int(sys.argv[1])).spec)
+sim.set("integrator.method", "rk4")
+sim.set("integrator.step", float(sys.argv[3]))
+sim.initialize(0.0)
+x0 = sim.x.copy()
+for k in range(int(sys.argv[2])):
+    sim.do_step(k * float(sys.argv[3]), float(sys.argv[3]))
+print(json.dumps({"grown_mb": peak_rss_mb() - before, "x0": x0.tolist(), "x": sim.x.tolist()}))
+"""
+
+
+def test_long_chain_steps_within_its_memory_bound_as_pinocchio_does():
+    """A random revolute chain compiled and stepped (rk4) in a fresh process: the peak resident set grows by at
+    most MEMORY_MB over the process with mbsfmu imported, and the state after STEPS steps equals rk4 over
+    pin.aba's accelerations (the same steps in numpy) to 1e-10."""
+    r = subprocess.run([sys.executable, "-c", textwrap.dedent(_CHILD), str(LONG_CHAIN), str(STEPS), str(H)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    got = json.loads(r.stdout)
+    assert got["grown_mb"] <= MEMORY_MB, f"{LONG_CHAIN} bodies: the resident set grew by {got['grown_mb']:.0f} MB"
+    ev = mbsfmu.compile(tree_speed.chain_scene(LONG_CHAIN))
+    pm = pinocchio_model(ev)
+    pd = pm.createData()
+    n = len(ev.coordinates)
+    f = lambda x: np.r_[x[n:], pin.aba(pm, pd, x[:n], x[n:], np.zeros(n))]  # noqa: E731 revolute: q, v are ours
+    x = np.array(got["x0"])
+    for _ in range(STEPS):
+        k1 = f(x)
+        k2 = f(x + H / 2 * k1)
+        k3 = f(x + H / 2 * k2)
+        k4 = f(x + H * k3)
+        x = x + H / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    assert_close(np.array(got["x"]), x, 1e-10, "state after the steps")

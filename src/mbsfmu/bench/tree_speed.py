@@ -80,8 +80,8 @@ def load_robot(file):
 
 
 def chain_scene(n, seed=0):
-    """A random revolute chain of n bodies under gravity: random unit axes, 0.1 m links, masses 0.5–2 kg,
-    physical inertias."""
+    """A random revolute chain of n bodies under gravity: random axes, 0.1 m links, masses 0.5–2 kg, physical
+    inertias; it starts from random angles and rates (in ±0.5)."""
     import mbsfmu
     rng = np.random.default_rng(seed)
     lines = ["mbsfmu: 1", f"name: chain{n}", "gravity: [0, 0, -9.81]", "bodies:"]
@@ -89,9 +89,10 @@ def chain_scene(n, seed=0):
         axis = rng.normal(size=3).round(4).tolist()
         d = rng.uniform(0.01, 0.05, 3).round(4)
         inertia = np.diag([d[1] + d[2], d[0] + d[2], d[0] + d[1]]).tolist()  # a box's: physical
+        a, w = rng.uniform(-0.5, 0.5, 2).round(4)
         lines.append(f"  b{i}: {{parent: {'world' if i == 0 else f'b{i - 1}'}, joint: {{type: revolute, axis: {axis}, "
-                     f"at: [0, 0, -0.1]}}, mass: {rng.uniform(0.5, 2):.4f}, center_of_mass: [0, 0, -0.05], "
-                     f"inertia: {inertia}}}")
+                     f"at: [0, 0, -0.1], initial: {{b{i}.angle: {a}}}, initial_velocity: {{b{i}.angle: {w}}}}}, "
+                     f"mass: {rng.uniform(0.5, 2):.4f}, center_of_mass: [0, 0, -0.05], inertia: {inertia}}}")
     return mbsfmu.loads("\n".join(lines))
 
 
@@ -197,7 +198,7 @@ def robots(names=None, rounds=7, seconds=0.5, progress=True):
 # ------------------------------------------------------------------------------------------------ (b) chains
 def chain_child(n, rounds, seconds):
     """One chain size, in this (fresh) process: RSS before and after the engine's part, then the timing."""
-    rss0 = _rss_mb()
+    rss0 = peak_rss_mb()
     scene = chain_scene(n)
     from ..simulation import Simulation
     try:
@@ -207,7 +208,7 @@ def chain_child(n, rounds, seconds):
         sim.engine.rhs(0.0, x)
     except ValueError as e:
         return {"n": n, "refused": str(e)}
-    rss = _rss_mb()
+    rss = peak_rss_mb()
     del sim
     pair = Pair(scene)
     row = {"n": n, "rss_mb": rss, "rss_python_mb": rss0, **time_pair(pair, rounds, seconds)}
@@ -215,7 +216,7 @@ def chain_child(n, rounds, seconds):
     return row
 
 
-def _rss_mb():
+def peak_rss_mb():
     """Peak resident set of this process in MB: VmHWM (Linux; ru_maxrss would keep the parent's across exec)."""
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith("VmHWM:"):
