@@ -1,7 +1,8 @@
 /* The engine's right-hand side in a C loop (bench/tree_speed.py): the cost of mbs_rhs without Python.
  *
- *   rhs_loop ENGINE.so SCENE.bin X.bin CALLS   → prints "RHS <best µs per call over 5 batches of CALLS>"
+ *   rhs_loop ENGINE.so SCENE.bin X.bin CALLS BATCHES   → prints "RHS <µs per call of the best batch>"
  *
+ * Many short batches: on a shared machine the best one is the one no other process interrupted.
  * X.bin: the state [y; ẏ] as little-endian doubles. The engine library is opened with dlopen (the in-process
  * one of mbsfmu.engine.build.library_path), so that this loop runs exactly the code ctypes calls. */
 #include <dlfcn.h>
@@ -22,8 +23,8 @@ static double now(void) {
 }
 
 int main(int argc, char **argv) {
-    if (argc != 5) {
-        fprintf(stderr, "usage: rhs_loop ENGINE.so SCENE.bin X.bin CALLS\n");
+    if (argc != 6) {
+        fprintf(stderr, "usage: rhs_loop ENGINE.so SCENE.bin X.bin CALLS BATCHES\n");
         return 2;
     }
     void *lib = dlopen(argv[1], RTLD_NOW);
@@ -55,9 +56,9 @@ int main(int argc, char **argv) {
         return 1;
     }
     fclose(f);
-    long calls = atol(argv[4]);
+    long calls = atol(argv[4]), batches = atol(argv[5]);
     double best = 1e300;
-    for (int b = 0; b < 5; b++) {
+    for (long b = 0; b < batches; b++) {
         double t0 = now();
         for (long k = 0; k < calls; k++)
             if (rhs(s, 0.0, x, xdot) > 1) {

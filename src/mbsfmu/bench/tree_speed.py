@@ -50,6 +50,9 @@ FLOATING = ("a1_", "alexander_", "anymal_", "b1_", "bolt_", "borinot_", "centaur
             "solo_", "talos_data/robots/talos_reduced", "talos_data/robots/talos_full")
 RC_SOURCE = Path(__file__).resolve().parent / "rhs_loop.c"
 TARGETS = {"robot": 1.0, 100: 1.5, 1000: 2.0}
+# Pinocchio 4.1's Data of an N-body chain grows as N³ (measured: 0.07, 0.5, 4 GB at N = 100, 200, 400): no
+# Pinocchio beyond this size (1000 bodies would take about 60 GB)
+PIN_MAX_CHAIN = 300
 
 
 # ------------------------------------------------------------------------------------------------ scenes
@@ -98,34 +101,61 @@ def chain_scene(n, seed=0):
 
 # ------------------------------------------------------------------------------------------------ calls
 class Pair:
-    """One scene's right-hand side (mbsfmu, through ctypes into a preallocated array) and Pinocchio's aba on
-    the same tree at the same random state, both as no-argument calls; `deviation`: max |ÿ − ÿ_pin| relative."""
+    """One scene's right-hand side (mbsfmu, through ctypes into a preallocated array) at a random state as a
+    no-argument call, and its peers on the same tree at the same state (add_pinocchio, add_mujoco): `calls`
+    {name: call}, `deviations` {peer: max |ÿ − ÿ_peer| / max(1, |ÿ_peer|)}."""
 
     def __init__(self, scene, seed=0):
-        import pinocchio as pin
-
         import mbsfmu
         from ..simulation import Simulation
-        from .pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin
         self.sim = sim = Simulation(scene.spec)
         sim.initialize(0.0)
-        ev = mbsfmu.compile(scene)
-        rng = np.random.default_rng(seed)
-        y, yd = random_state(ev, rng)
-        self.x, self.out = np.r_[y, yd], np.empty(sim.engine.n)
+        self.ev = mbsfmu.compile(scene)
+        self.y, self.yd = random_state(self.ev, np.random.default_rng(seed))
+        self.x, self.out = np.r_[self.y, self.yd], np.empty(sim.engine.n)
         lib, ptr, xp, op = sim.engine.lib, sim.engine.ptr, self.x.ctypes.data, self.out.ctypes.data
         sim.engine.rhs(0.0, self.x, self.out)  # once through the checked path: a failing state raises here
-        self.ours = lambda: lib.mbs_rhs(ptr, 0.0, xp, op)
+        self.ydd = self.out[sim.npos:]
+        self.calls = {"mbsfmu": lambda: lib.mbs_rhs(ptr, 0.0, xp, op)}
         self.empty = lambda: lib.mbs_time(ptr)
         self.nv = sim.nvel
+        self.deviations = {}
+
+    def add_pinocchio(self):
+        """pin.aba(model, data, q, v, tau) on preallocated arrays (a floating base as Pinocchio's free flyer, the
+        URDF's joint damping as tau); the MB its model and data add to the peak resident set."""
+        import pinocchio as pin
+
+        from .pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin
+        ev, before = self.ev, peak_rss_mb()
         model = pinocchio_model(ev, free_flyer=True)
         data = model.createData()
-        q, v, _, P = to_pin(ev, y, yd, free_flyer=True)
-        tau = joint_dampers(ev, yd, P, model.nv)
-        self.theirs = lambda: pin.aba(model, data, q, v, tau)
-        ydd = from_pin_acceleration(ev, y, v, self.theirs(), P, free_flyer=True)
-        ours = self.out[sim.npos:]
-        self.deviation = float(np.max(np.abs(ours - ydd)) / max(1.0, np.max(np.abs(ydd))))
+        q, v, _, P = to_pin(ev, self.y, self.yd, free_flyer=True)
+        tau = joint_dampers(ev, self.yd, P, model.nv)
+        self.calls["pinocchio"] = call = lambda: pin.aba(model, data, q, v, tau)
+        self.deviations["pinocchio"] = _deviation(self.ydd, from_pin_acceleration(ev, self.y, v, call(), P, free_flyer=True))
+        return peak_rss_mb() - before
+
+    def add_mujoco(self):
+        """MuJoCo's mj_forward (contacts and constraints off: forward dynamics only) on the MJCF of the scene
+        (bench/fmu_peers.py: chains of hinges without joint rotations); False where no MJCF can be made or
+        MuJoCo is not installed."""
+        try:
+            import mujoco
+
+            from .fmu_peers import _mujoco
+            M, D = _mujoco(self.sim.spec, 1e-3)
+        except (ImportError, NotImplementedError):
+            return False
+        D.qpos[:], D.qvel[:] = self.y, self.yd
+        self.calls["mujoco"] = call = lambda: mujoco.mj_forward(M, D)
+        call()
+        self.deviations["mujoco"] = _deviation(self.ydd, D.qacc)
+        return True
+
+
+def _deviation(ours, theirs):
+    return float(np.max(np.abs(ours - theirs)) / max(1.0, np.max(np.abs(theirs))))
 
 
 def random_state(ev, rng):
@@ -169,11 +199,15 @@ def alternate(fns, rounds=7, seconds=0.5):
 
 
 def time_pair(pair, rounds, seconds):
-    t = alternate({"mbsfmu": pair.ours, "pinocchio": pair.theirs}, rounds, seconds)
-    empty = alternate({"ctypes": pair.empty}, 3, 0.05)["ctypes"][0]
-    return {"nv": pair.nv, "mbsfmu_us": t["mbsfmu"][0], "mbsfmu_median_us": t["mbsfmu"][1],
-            "pin_us": t["pinocchio"][0], "pin_median_us": t["pinocchio"][1], "ratio": t["mbsfmu"][0] / t["pinocchio"][0],
-            "ctypes_us": empty, "deviation": pair.deviation}
+    """Row of µs per call: `<name>_us` (best batch) and `<name>_median_us` of every call of the pair, alternating;
+    `ratio_<peer>` = mbsfmu's best / the peer's; deviations; the empty ctypes call."""
+    t = alternate(pair.calls, rounds, seconds * len(pair.calls) / 2)
+    row = {"nv": pair.nv, "ctypes_us": alternate({"ctypes": pair.empty}, 3, 0.05)["ctypes"][0]}
+    for name, (best, median) in t.items():
+        row[f"{name}_us"], row[f"{name}_median_us"] = best, median
+    for peer, dev in pair.deviations.items():
+        row[f"ratio_{peer}"], row[f"deviation_{peer}"] = t["mbsfmu"][0] / t[peer][0], dev
+    return row
 
 
 # ------------------------------------------------------------------------------------------------ (a) robots
@@ -189,6 +223,7 @@ def robots(names=None, rounds=7, seconds=0.5, progress=True):
             refused.append({"robot": file, "reason": str(e).split(": ", 1)[-1].split(" (")[0]})
             continue
         pair = Pair(scene)
+        pair.add_pinocchio()
         row = {"robot": file, "base": base_of(file), "repaired": repaired, **time_pair(pair, rounds, seconds)}
         row["c_us"] = c_loop(pair, row["mbsfmu_us"])
         rows.append(row)
@@ -211,7 +246,11 @@ def chain_child(n, rounds, seconds):
     rss = peak_rss_mb()
     del sim
     pair = Pair(scene)
-    row = {"n": n, "rss_mb": rss, "rss_python_mb": rss0, **time_pair(pair, rounds, seconds)}
+    row = {"n": n, "rss_mb": rss, "rss_python_mb": rss0}
+    if n <= PIN_MAX_CHAIN:
+        row["pin_data_mb"] = pair.add_pinocchio()
+    pair.add_mujoco()
+    row.update(time_pair(pair, rounds, seconds))
     row["c_us"] = c_loop(pair, row["mbsfmu_us"])
     return row
 
@@ -239,9 +278,9 @@ def chains(sizes, rounds=7, seconds=0.5, progress=True):
 _C_LOOP = {}
 
 
-def c_loop(pair, python_us, seconds=0.3):
-    """µs per mbs_rhs of the pair's scene and state called in a C loop (rhs_loop.c), best of 5 batches; None
-    without a C compiler."""
+def c_loop(pair, python_us, seconds=0.3, batch=2e-3):
+    """µs per mbs_rhs of the pair's scene and state called in a C loop (rhs_loop.c): the best of batches of about
+    `batch` seconds (at least one call) over `seconds`; None without a C compiler."""
     from ..engine.build import library_path
     from ..fmu.native import compiler
     if "exe" not in _C_LOOP:
@@ -255,27 +294,31 @@ def c_loop(pair, python_us, seconds=0.3):
             _C_LOOP["exe"] = exe
     if _C_LOOP["exe"] is None:
         return None
-    calls = max(1, int(seconds / 5 / max(python_us * 1e-6, 1e-7)))
+    calls = max(1, int(batch / (python_us * 1e-6)))
+    batches = max(5, int(seconds / (calls * python_us * 1e-6)))
     with tempfile.TemporaryDirectory(prefix="mbsfmu_rhs_loop_") as d:
         (Path(d) / "scene.bin").write_bytes(pair.sim.blob)
         pair.x.astype("<f8").tofile(Path(d) / "x.bin")
         r = subprocess.run([str(_C_LOOP["exe"]), str(library_path()), str(Path(d) / "scene.bin"), str(Path(d) / "x.bin"),
-                            str(calls)], capture_output=True, text=True, timeout=3600)
+                            str(calls), str(batches)], capture_output=True, text=True, timeout=3600)
     if r.returncode != 0:
         raise RuntimeError(f"rhs_loop: exit {r.returncode}: {r.stdout[-500:]} {r.stderr[-500:]}")
     return float(r.stdout.split()[-1])
 
 
 # ------------------------------------------------------------------------------------------------ report
+PEERS = {"pinocchio": "Pinocchio aba", "mujoco": "MuJoCo mj_forward"}
+
+
 def slope(rows, lo=100, hi=10000):
-    """Growth exponent of the mbsfmu and Pinocchio times between the sizes lo and the largest timed ≤ hi."""
-    timed = [r for r in rows if "mbsfmu_us" in r and lo <= r["n"] <= hi]
-    if len(timed) < 2:
-        return None
-    a, b = timed[0], timed[-1]
-    k = math.log(b["n"] / a["n"])
-    return {"from": a["n"], "to": b["n"], "mbsfmu": math.log(b["mbsfmu_us"] / a["mbsfmu_us"]) / k,
-            "pinocchio": math.log(b["pin_us"] / a["pin_us"]) / k}
+    """{name: growth exponent of its time from size lo to the largest size ≤ hi it was timed at, (lo, that)}."""
+    out = {}
+    for name in ("mbsfmu", *PEERS):
+        timed = [r for r in rows if f"{name}_us" in r and lo <= r["n"] <= hi]
+        if len(timed) >= 2:
+            a, b = timed[0], timed[-1]
+            out[name] = (math.log(b[f"{name}_us"] / a[f"{name}_us"]) / math.log(b["n"] / a["n"]), (a["n"], b["n"]))
+    return out
 
 
 def plot(robot_rows, chain_rows, path):
@@ -284,22 +327,23 @@ def plot(robot_rows, chain_rows, path):
     import matplotlib.pyplot as plt
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.5))
     timed = [r for r in chain_rows if "mbsfmu_us" in r]
+    curves = (("mbsfmu_us", "mbsfmu mbs_rhs (from Python)", "o-"), ("c_us", "mbsfmu mbs_rhs (C loop)", "o:"),
+              ("pinocchio_us", "Pinocchio aba (from Python)", "s-"), ("mujoco_us", "MuJoCo mj_forward (from Python)", "^-"))
+    for key, label, style in curves:
+        pts = [(r["n"], r[key]) for r in timed if r.get(key) is not None]
+        if pts:
+            ax.loglog(*zip(*pts), style, label=label)
     if timed:
-        n = np.array([r["n"] for r in timed], float)
-        for key, label, style in (("mbsfmu_us", "mbsfmu mbs_rhs (from Python)", "o-"), ("c_us", "mbsfmu mbs_rhs (C loop)", "o:"),
-                                  ("pin_us", "Pinocchio aba (from Python)", "s-")):
-            vals = [r.get(key) for r in timed]
-            if all(v is not None for v in vals):
-                ax.loglog(n, vals, style, label=label)
-        t0 = timed[0]["pin_us"]
-        grid = np.geomspace(n[0], max(n[-1], 10000), 20)
+        n0, t0 = timed[0]["n"], timed[0]["mbsfmu_us"]
+        grid = np.geomspace(n0, 10000, 20)
         for p, ls in ((1, "--"), (2, "-."), (3, ":")):
-            ax.loglog(grid, t0 * (grid / n[0]) ** p, "k" + ls, lw=0.8, alpha=0.5, label=f"∝ N^{p}")
-        for r in chain_rows:
-            if "refused" in r:
-                ax.axvline(r["n"], color="r", lw=0.8, alpha=0.5)
-                ax.text(r["n"], ax.get_ylim()[0] * 2, f" N = {r['n']} refused", color="r", rotation=90, fontsize=7, va="bottom")
-        ax.set_ylim(top=max(max(r["mbsfmu_us"] for r in timed), t0) * 3)
+            ax.loglog(grid, t0 * (grid / n0) ** p, "k" + ls, lw=0.8, alpha=0.4, label=f"∝ N^{p}")
+        ax.set_ylim(min(r["ctypes_us"] for r in timed), max(r["mbsfmu_us"] for r in timed) * 5)
+    for r in chain_rows:
+        if "refused" in r:
+            ax.axvline(r["n"], color="r", lw=0.8, alpha=0.5)
+            ax.annotate(f"N = {r['n']}: refused", (r["n"], 0.05), xycoords=("data", "axes fraction"), color="r",
+                        rotation=90, fontsize=7, ha="right")
     ax.set_xlabel("bodies in the chain (N)")
     ax.set_ylabel("µs per right-hand side")
     ax.set_title("Random revolute chains")
@@ -308,7 +352,7 @@ def plot(robot_rows, chain_rows, path):
     if robot_rows:
         nv = [r["nv"] for r in robot_rows]
         bx.loglog(nv, [r["mbsfmu_us"] for r in robot_rows], "o", label="mbsfmu mbs_rhs (from Python)")
-        bx.loglog(nv, [r["pin_us"] for r in robot_rows], "s", mfc="none", label="Pinocchio aba (from Python)")
+        bx.loglog(nv, [r["pinocchio_us"] for r in robot_rows], "s", mfc="none", label="Pinocchio aba (from Python)")
         bx.set_xlabel("degrees of freedom")
         bx.set_title("example-robot-data robots")
         bx.grid(True, which="both", alpha=0.3)
@@ -317,56 +361,71 @@ def plot(robot_rows, chain_rows, path):
     output.save_figure(fig, path, dpi=120)
 
 
+def _peer(r, name, digits=4):
+    """'best (median) | ratio | deviation' of a peer in a row, or dashes."""
+    if f"{name}_us" not in r:
+        return "– | – | –"
+    return (f"{r[f'{name}_us']:.{digits}g} ({r[f'{name}_median_us']:.{digits}g}) | {r[f'ratio_{name}']:.2f} | "
+            f"{r[f'deviation_{name}']:.0e}")
+
+
 def markdown(robot_rows, refused, chain_rows, cmd):
     def met(ok):
         return "met" if ok else "NOT met"
-    lines = ["# Right-hand side against the size of the tree: mbsfmu and Pinocchio's aba", "",
-             f"Generated by `{cmd}` (Pinocchio {_pin_version()}). One right-hand side of the engine (`mbs_rhs` through "
-             "ctypes into a preallocated array: ẏ and ÿ) against `pin.aba(model, data, q, v, tau)` on preallocated "
-             "arrays, both from Python, alternating batches; best and median batch. C loop: the same `mbs_rhs` "
-             "called from C (bench/rhs_loop.c), best of 5 batches. Empty ctypes call: `mbs_time`, the floor of a "
-             "call from Python. Deviation: max |ÿ − ÿ_Pinocchio| / max(1, |ÿ_Pinocchio|) at the timed state "
-             "(the same tree, bench/pinocchio_twin.py).", "", "![time against size](tree_speed.png)", ""]
+    lines = ["# Right-hand side against the size of the tree: mbsfmu, Pinocchio's aba, MuJoCo", "",
+             f"Generated by `{cmd}` (Pinocchio {_version('pinocchio')}, MuJoCo {_version('mujoco')}). One right-hand "
+             "side of the engine (`mbs_rhs` through ctypes into a preallocated array: ẏ and ÿ) against "
+             "`pin.aba(model, data, q, v, tau)` on preallocated arrays and MuJoCo's `mj_forward` (contacts and "
+             "constraints off), all from Python, alternating batches; best and median batch; ratio = mbsfmu's best / "
+             "the peer's best. C loop: the same `mbs_rhs` called from C (bench/rhs_loop.c), best of 5 batches. Empty "
+             "ctypes call: `mbs_time`, the floor of a call from Python. Deviation: max |ÿ − ÿ_peer| / max(1, |ÿ_peer|) "
+             "at the timed state (the same tree: bench/pinocchio_twin.py, the MJCF of bench/fmu_peers.py). Timed on a "
+             "shared 2-core machine: the best batch is the cost, the medians show the load.", "",
+             "![time against size](tree_speed.png)", ""]
     if chain_rows:
         lines += ["## Random revolute chains", "",
                   "Each size in a fresh process. RSS: peak resident set after compiling the scene, creating the "
-                  "instance and one right-hand side (Pinocchio not yet imported); the Python process with numpy "
-                  "and mbsfmu loaded is the first number.", "",
-                  "| N | mbsfmu µs (median) | Pinocchio aba µs (median) | ratio | mbsfmu C loop µs | empty ctypes call µs | "
-                  "RSS MB (Python alone) | deviation |", "|---|---|---|---|---|---|---|---|"]
+                  "instance and one right-hand side (no peer loaded yet), beside the process before the scene "
+                  f"(Python, numpy, mbsfmu). Pinocchio's data: what its model and `Data` add to the peak; "
+                  f"its `Data` grows as N³ (Pinocchio 4.1), so it is left out beyond N = {PIN_MAX_CHAIN}.", "",
+                  "| N | mbsfmu µs (median) | mbsfmu C loop µs | empty ctypes call µs | RSS MB (before) | "
+                  "Pinocchio aba µs (median) | ratio | deviation | Pinocchio's data MB | "
+                  "MuJoCo mj_forward µs (median) | ratio | deviation |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in chain_rows:
             if "refused" in r:
-                lines.append(f"| {r['n']} | refused by the engine: {r['refused']} | | | | | | |")
+                lines.append(f"| {r['n']} | refused by the engine: {r['refused']} |" + " |" * 10)
                 continue
-            lines.append(f"| {r['n']} | {r['mbsfmu_us']:.4g} ({r['mbsfmu_median_us']:.4g}) | {r['pin_us']:.4g} "
-                         f"({r['pin_median_us']:.4g}) | {r['ratio']:.2f} | {_num(r.get('c_us'))} | {r['ctypes_us']:.2f} | "
-                         f"{r['rss_mb']:.0f} ({r['rss_python_mb']:.0f}) | {r['deviation']:.1e} |")
-        by_n = {r["n"]: r for r in chain_rows if "ratio" in r}
-        s = slope(chain_rows)
-        lines += [""] + [f"Target N = {n}: ratio ≤ {TARGETS[n]} → " + (f"{by_n[n]['ratio']:.2f} ({met(by_n[n]['ratio'] <= TARGETS[n])})"
-                                                                      if n in by_n else "not timed") + "." for n in (100, 1000)]
-        if s:
-            lines.append(f"Growth from N = {s['from']} to {s['to']}: mbsfmu ∝ N^{s['mbsfmu']:.2f}, Pinocchio ∝ "
-                         f"N^{s['pinocchio']:.2f} (target: at most linear up to N = 10,000"
-                         + (", which the engine refuses today" if any("refused" in r for r in chain_rows) else "") + ").")
+            lines.append(f"| {r['n']} | {r['mbsfmu_us']:.4g} ({r['mbsfmu_median_us']:.4g}) | {_num(r.get('c_us'))} | "
+                         f"{r['ctypes_us']:.2f} | {r['rss_mb']:.0f} ({r['rss_python_mb']:.0f}) | {_peer(r, 'pinocchio')} | "
+                         f"{_num(r.get('pin_data_mb'))} | {_peer(r, 'mujoco')} |")
+        by_n = {r["n"]: r for r in chain_rows}
+        lines.append("")
+        for n in (100, 1000):
+            r = by_n.get(n, {})
+            got = (f"{r['ratio_pinocchio']:.2f} ({met(r['ratio_pinocchio'] <= TARGETS[n])})" if "ratio_pinocchio" in r
+                   else "not measured" + (f" (MuJoCo: {r['ratio_mujoco']:.2f})" if "ratio_mujoco" in r else ""))
+            lines.append(f"Target N = {n}: ratio to Pinocchio ≤ {TARGETS[n]} → {got}.")
+        grow = slope(chain_rows)
+        if grow:
+            lines.append("Growth of the time (target: mbsfmu at most linear from N = 100 to 10,000): " + "; ".join(
+                f"{'mbsfmu' if k == 'mbsfmu' else PEERS[k]} ∝ N^{e:.2f} (N = {a}…{b})" for k, (e, (a, b)) in grow.items()) + ".")
     if robot_rows:
-        worst = max(robot_rows, key=lambda r: r["ratio"])
+        worst = max(robot_rows, key=lambda r: r["ratio_pinocchio"])
         lines += ["", "## example-robot-data robots", "",
                   "Floating base: the ones that stand, walk or fly (their free joint is Pinocchio's free flyer). "
                   "Repaired: loaded with `repair` (`--repair`) because the plain load refuses an unphysical or "
                   "massless link.", "",
-                  "| robot | base | dof | mbsfmu µs (median) | Pinocchio aba µs (median) | ratio | mbsfmu C loop µs | "
-                  "empty ctypes call µs | deviation |", "|---|---|---|---|---|---|---|---|---|"]
+                  "| robot | base | dof | mbsfmu µs (median) | mbsfmu C loop µs | empty ctypes call µs | "
+                  "Pinocchio aba µs (median) | ratio | deviation |", "|---|---|---|---|---|---|---|---|---|"]
         for r in sorted(robot_rows, key=lambda r: (r["nv"], r["robot"])):
             lines.append(f"| {r['robot']}{' (repaired)' if r['repaired'] else ''} | {r['base']} | {r['nv']} | "
-                         f"{r['mbsfmu_us']:.3g} ({r['mbsfmu_median_us']:.3g}) | {r['pin_us']:.3g} ({r['pin_median_us']:.3g}) | "
-                         f"{r['ratio']:.2f} | {_num(r.get('c_us'))} | {r['ctypes_us']:.2f} | {r['deviation']:.1e} |")
-        met_all = sum(r["ratio"] <= TARGETS["robot"] for r in robot_rows)
+                         f"{r['mbsfmu_us']:.3g} ({r['mbsfmu_median_us']:.3g}) | {_num(r.get('c_us'))} | "
+                         f"{r['ctypes_us']:.2f} | {_peer(r, 'pinocchio', 3)} |")
+        met_all = sum(r["ratio_pinocchio"] <= TARGETS["robot"] for r in robot_rows)
         lines += ["", f"Target: ratio ≤ {TARGETS['robot']} on every robot → met on {met_all} of {len(robot_rows)}; "
-                  f"worst {worst['robot']} ({worst['nv']} dof) {worst['ratio']:.2f}."]
+                  f"worst {worst['robot']} ({worst['nv']} dof) {worst['ratio_pinocchio']:.2f}."]
     if refused:
-        lines += ["", "Refused by the scene format (not trees of independent joints, or not robots):", ""]
-        lines += [f"- {r['robot']}: {r['reason']}" for r in refused]
+        lines += ["", "Refused by the scene format:", ""] + [f"- {r['robot']}: {r['reason']}" for r in refused]
     return "\n".join(lines) + "\n"
 
 
@@ -374,9 +433,11 @@ def _num(x):
     return "–" if x is None else f"{x:.4g}"
 
 
-def _pin_version():
-    import pinocchio as pin
-    return pin.__version__
+def _version(module):
+    try:
+        return __import__(module).__version__
+    except ImportError:
+        return "not installed"
 
 
 def main(argv=None):
@@ -399,11 +460,10 @@ def main(argv=None):
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     cmd = "python -m mbsfmu.bench.tree_speed " + " ".join(argv if argv is not None else sys.argv[1:])
-    if robot_rows:
-        output.write_csv(robot_rows, out / "tree_speed_robots.csv", list(robot_rows[0]), 4)
-    timed = [r for r in chain_rows if "mbsfmu_us" in r]
-    if timed:
-        output.write_csv(timed, out / "tree_speed_chains.csv", list(timed[0]), 4)
+    for rows, name in ((robot_rows, "robots"), ([r for r in chain_rows if "mbsfmu_us" in r], "chains")):
+        if rows:
+            columns = list(dict.fromkeys(k for r in rows for k in r))  # peers missing at some sizes: empty cells
+            output.write_csv([{k: r.get(k, "") for k in columns} for r in rows], out / f"tree_speed_{name}.csv", columns, 4)
     plot(robot_rows, chain_rows, out / "tree_speed.png")
     md = out / "tree_speed.md"
     files.write_text(md, markdown(robot_rows, refused, chain_rows, cmd.strip()))
