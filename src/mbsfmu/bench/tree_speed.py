@@ -107,9 +107,7 @@ class Pair:
 
     def __init__(self, scene, seed=0):
         import mbsfmu
-        from ..simulation import Simulation
-        self.sim = sim = Simulation(scene.spec)
-        sim.initialize(0.0)
+        self.sim = sim = engine_of(scene)
         self.ev = mbsfmu.compile(scene)
         self.y, self.yd = random_state(self.ev, np.random.default_rng(seed))
         self.x, self.out = np.r_[self.y, self.yd], np.empty(sim.engine.n)
@@ -137,21 +135,58 @@ class Pair:
         return peak_rss_mb() - before
 
     def add_mujoco(self):
-        """MuJoCo's mj_forward (contacts and constraints off: forward dynamics only) on the MJCF of the scene
-        (bench/fmu_peers.py: chains of hinges without joint rotations); False where no MJCF can be made or
-        MuJoCo is not installed."""
+        """MuJoCo's mj_forward (contacts and constraints off: forward dynamics only) on the same tree at the
+        same state; else the reason: not installed, not mapped (mujoco_model), refused by MuJoCo's compiler
+        (trees deeper than 1024 bodies)."""
         try:
             import mujoco
-
-            from .fmu_peers import _mujoco
-            M, D = _mujoco(self.sim.spec, 1e-3)
-        except (ImportError, NotImplementedError):
-            return False
+            M = mujoco_model(self.ev)
+        except (ImportError, NotImplementedError, ValueError) as e:
+            return f"{type(e).__name__}: {e}".splitlines()[0]
+        D = mujoco.MjData(M)
         D.qpos[:], D.qvel[:] = self.y, self.yd
         self.calls["mujoco"] = call = lambda: mujoco.mj_forward(M, D)
         call()
         self.deviations["mujoco"] = _deviation(self.ydd, D.qacc)
-        return True
+        return None
+
+
+_MUJOCO_OFF = ("CONTACT", "CONSTRAINT", "LIMIT", "EQUALITY", "FRICTIONLOSS", "SPRING", "DAMPER", "ACTUATION",
+               "WARMSTART", "SENSOR")
+
+
+def mujoco_model(ev):
+    """MuJoCo's model of a tree of hinges without joint rotations, drives or force elements (the chains),
+    built through MjSpec, not MJCF text: MuJoCo's XML reader refuses bodies nested deeper than about 500. The
+    same masses, centres of mass, inertias and gravity; contacts, constraints and the rest off, as the MJCF of
+    bench/fmu_peers.py has them."""
+    import mujoco
+    if ev.model.spec["forces"]:
+        raise NotImplementedError("force elements")
+    spec = mujoco.MjSpec()
+    spec.option.gravity = ev.model.g if ev.model.g is not None else np.zeros(3)
+    for flag in _MUJOCO_OFF:
+        spec.option.disableflags |= getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}")
+    bodies = {-1: spec.worldbody}
+    for i, b in enumerate(ev.model.bodies):
+        if b.kind != "revolute" or b.R0 is not None or b.elastic or any(b.driven):
+            raise NotImplementedError(f"body '{b.name}' ({b.kind})")
+        I = np.asarray(b.I, float)
+        bodies[i] = body = bodies[b.parent].add_body(
+            pos=b.at if b.at is not None else np.zeros(3), mass=b.m, explicitinertial=True,
+            ipos=b.c if b.c is not None else np.zeros(3), fullinertia=[I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])
+        body.add_joint(type=mujoco.mjtJoint.mjJNT_HINGE, axis=b.joint.a)
+    return spec.compile()
+
+
+def engine_of(scene):
+    """The scene's engine instance, initialized with an explicit integrator (the right-hand side does not
+    depend on it; auto's radau5 workspace is refused for thousands of states)."""
+    from ..simulation import Simulation
+    sim = Simulation(scene.spec)
+    sim.set("integrator.method", "dopri5")
+    sim.initialize(0.0)
+    return sim
 
 
 def _deviation(ours, theirs):
@@ -235,10 +270,8 @@ def chain_child(n, rounds, seconds):
     """One chain size, in this (fresh) process: RSS before and after the engine's part, then the timing."""
     rss0 = peak_rss_mb()
     scene = chain_scene(n)
-    from ..simulation import Simulation
     try:
-        sim = Simulation(scene.spec)
-        sim.initialize(0.0)
+        sim = engine_of(scene)
         x = np.zeros(sim.engine.n)
         sim.engine.rhs(0.0, x)
     except ValueError as e:
@@ -249,7 +282,9 @@ def chain_child(n, rounds, seconds):
     row = {"n": n, "rss_mb": rss, "rss_python_mb": rss0}
     if n <= PIN_MAX_CHAIN:
         row["pin_data_mb"] = pair.add_pinocchio()
-    pair.add_mujoco()
+    why = pair.add_mujoco()
+    if why:
+        row["mujoco_refused"] = why
     row.update(time_pair(pair, rounds, seconds))
     row["c_us"] = c_loop(pair, row["mbsfmu_us"])
     return row
@@ -268,8 +303,10 @@ def chains(sizes, rounds=7, seconds=0.5, progress=True):
     for n in output.progress(list(sizes), "chains", lambda n: f"N = {n}", progress):
         r = subprocess.run([sys.executable, "-m", "mbsfmu.bench.tree_speed", "--chain", str(n), "--rounds", str(rounds),
                             "--seconds", str(seconds)], capture_output=True, text=True, timeout=3600)
-        if r.returncode != 0:
-            raise RuntimeError(f"chain of {n}: exit {r.returncode}: {r.stderr[-2000:]}")
+        if r.returncode != 0:  # reported in its row: the other sizes still count
+            last = (r.stderr.strip().splitlines() or [f"exit {r.returncode}"])[-1]
+            rows.append({"n": n, "failed": last})
+            continue
         rows.append(json.loads(r.stdout.strip().splitlines()[-1]))
     return rows
 
@@ -387,13 +424,16 @@ def markdown(robot_rows, refused, chain_rows, cmd):
                   "Each size in a fresh process. RSS: peak resident set after compiling the scene, creating the "
                   "instance and one right-hand side (no peer loaded yet), beside the process before the scene "
                   f"(Python, numpy, mbsfmu). Pinocchio's data: what its model and `Data` add to the peak; "
-                  f"its `Data` grows as N³ (Pinocchio 4.1), so it is left out beyond N = {PIN_MAX_CHAIN}.", "",
+                  f"its `Data` grows as N³ (Pinocchio 4.1), so it is left out beyond N = {PIN_MAX_CHAIN}. MuJoCo's "
+                  "model is built through `MjSpec` (its XML reader refuses bodies nested deeper than about 500); its "
+                  "compiler refuses trees deeper than 1024 bodies.", "",
                   "| N | mbsfmu µs (median) | mbsfmu C loop µs | empty ctypes call µs | RSS MB (before) | "
                   "Pinocchio aba µs (median) | ratio | deviation | Pinocchio's data MB | "
                   "MuJoCo mj_forward µs (median) | ratio | deviation |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in chain_rows:
-            if "refused" in r:
-                lines.append(f"| {r['n']} | refused by the engine: {r['refused']} |" + " |" * 10)
+            if "refused" in r or "failed" in r:
+                why = f"refused by the engine: {r['refused']}" if "refused" in r else f"the run failed: {r['failed']}"
+                lines.append(f"| {r['n']} | {why} |" + " |" * 10)
                 continue
             lines.append(f"| {r['n']} | {r['mbsfmu_us']:.4g} ({r['mbsfmu_median_us']:.4g}) | {_num(r.get('c_us'))} | "
                          f"{r['ctypes_us']:.2f} | {r['rss_mb']:.0f} ({r['rss_python_mb']:.0f}) | {_peer(r, 'pinocchio')} | "
