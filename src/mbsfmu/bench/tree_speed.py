@@ -84,17 +84,17 @@ def load_robot(file):
 
 def chain_scene(n, seed=0):
     """A random revolute chain of n bodies under gravity: random axes, 0.1 m links, masses 0.5–2 kg, physical
-    inertias; it starts from random angles and rates (in ±0.5)."""
+    inertias; it starts at rest from random angles (in ±0.5). Few numbers per body: a scene holds at most
+    400,000 (scene/limits.py), and 10,000 bodies must fit."""
     import mbsfmu
     rng = np.random.default_rng(seed)
     lines = ["mbsfmu: 1", f"name: chain{n}", "gravity: [0, 0, -9.81]", "bodies:"]
     for i in range(n):
         axis = rng.normal(size=3).round(4).tolist()
-        d = rng.uniform(0.01, 0.05, 3).round(4)
-        inertia = np.diag([d[1] + d[2], d[0] + d[2], d[0] + d[1]]).tolist()  # a box's: physical
-        a, w = rng.uniform(-0.5, 0.5, 2).round(4)
+        d = rng.uniform(0.01, 0.05, 3).round(4)  # a box's moments: physical
+        inertia = f"{{xx: {d[1] + d[2]:.4f}, yy: {d[0] + d[2]:.4f}, zz: {d[0] + d[1]:.4f}}}"
         lines.append(f"  b{i}: {{parent: {'world' if i == 0 else f'b{i - 1}'}, joint: {{type: revolute, axis: {axis}, "
-                     f"at: [0, 0, -0.1], initial: {{b{i}.angle: {a}}}, initial_velocity: {{b{i}.angle: {w}}}}}, "
+                     f"at: [0, 0, -0.1], initial: {{b{i}.angle: {rng.uniform(-0.5, 0.5):.4f}}}}}, "
                      f"mass: {rng.uniform(0.5, 2):.4f}, center_of_mass: [0, 0, -0.05], inertia: {inertia}}}")
     return mbsfmu.loads("\n".join(lines))
 
@@ -125,7 +125,8 @@ class Pair:
         import pinocchio as pin
 
         from .pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin
-        ev, before = self.ev, peak_rss_mb()
+        ev, before = self.ev, rss_mb()
+        reset_peak_rss()
         model = pinocchio_model(ev, free_flyer=True)
         data = model.createData()
         q, v, _, P = to_pin(ev, self.y, self.yd, free_flyer=True)
@@ -267,19 +268,19 @@ def robots(names=None, rounds=7, seconds=0.5, progress=True):
 
 # ------------------------------------------------------------------------------------------------ (b) chains
 def chain_child(n, rounds, seconds):
-    """One chain size, in this (fresh) process: RSS before and after the engine's part, then the timing."""
-    rss0 = peak_rss_mb()
+    """One chain size, in this (fresh) process: the engine's peak resident set (compiling the loaded scene,
+    creating the instance, one right-hand side) over the process before, then the timing."""
     scene = chain_scene(n)
+    rss0 = rss_mb()
+    reset_peak_rss()  # the loader's own peak (Python objects of the scene) is not the engine's
     try:
         sim = engine_of(scene)
-        x = np.zeros(sim.engine.n)
-        sim.engine.rhs(0.0, x)
+        sim.engine.rhs(0.0, np.zeros(sim.engine.n))
     except ValueError as e:
         return {"n": n, "refused": str(e)}
-    rss = peak_rss_mb()
+    row = {"n": n, "rss_mb": peak_rss_mb(), "rss_python_mb": rss0}
     del sim
     pair = Pair(scene)
-    row = {"n": n, "rss_mb": rss, "rss_python_mb": rss0}
     if n <= PIN_MAX_CHAIN:
         row["pin_data_mb"] = pair.add_pinocchio()
     why = pair.add_mujoco()
@@ -291,11 +292,25 @@ def chain_child(n, rounds, seconds):
 
 
 def peak_rss_mb():
-    """Peak resident set of this process in MB: VmHWM (Linux; ru_maxrss would keep the parent's across exec)."""
+    """Peak resident set of this process in MB since it started or since reset_peak_rss: VmHWM (Linux;
+    ru_maxrss would keep the parent's across exec)."""
+    return _status_mb("VmHWM")
+
+
+def rss_mb():
+    return _status_mb("VmRSS")
+
+
+def reset_peak_rss():
+    """Start the peak resident set afresh from the current one (Linux ≥ 4.0: /proc/self/clear_refs)."""
+    Path("/proc/self/clear_refs").write_text("5")
+
+
+def _status_mb(key):
     for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
+        if line.startswith(key + ":"):
             return int(line.split()[1]) / 1024
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    raise OSError(f"no {key} in /proc/self/status")
 
 
 def chains(sizes, rounds=7, seconds=0.5, progress=True):
@@ -414,16 +429,17 @@ def markdown(robot_rows, refused, chain_rows, cmd):
              "side of the engine (`mbs_rhs` through ctypes into a preallocated array: ẏ and ÿ) against "
              "`pin.aba(model, data, q, v, tau)` on preallocated arrays and MuJoCo's `mj_forward` (contacts and "
              "constraints off), all from Python, alternating batches; best and median batch; ratio = mbsfmu's best / "
-             "the peer's best. C loop: the same `mbs_rhs` called from C (bench/rhs_loop.c), best of 5 batches. Empty "
+             "the peer's best. C loop: the same `mbs_rhs` called from C (bench/rhs_loop.c), best of batches "
+             "of about 2 ms. Empty "
              "ctypes call: `mbs_time`, the floor of a call from Python. Deviation: max |ÿ − ÿ_peer| / max(1, |ÿ_peer|) "
-             "at the timed state (the same tree: bench/pinocchio_twin.py, the MJCF of bench/fmu_peers.py). Timed on a "
+             "at the timed state (the same tree: bench/pinocchio_twin.py, `mujoco_model`). Timed on a "
              "shared 2-core machine: the best batch is the cost, the medians show the load.", "",
              "![time against size](tree_speed.png)", ""]
     if chain_rows:
         lines += ["## Random revolute chains", "",
-                  "Each size in a fresh process. RSS: peak resident set after compiling the scene, creating the "
-                  "instance and one right-hand side (no peer loaded yet), beside the process before the scene "
-                  f"(Python, numpy, mbsfmu). Pinocchio's data: what its model and `Data` add to the peak; "
+                  "Each size in a fresh process. RSS: peak resident set while compiling the loaded scene, creating "
+                  "the instance and calling the right-hand side once (no peer loaded yet), beside the process "
+                  f"before that (Python, numpy, mbsfmu and the loaded scene). Pinocchio's data: what its model and `Data` add to the peak; "
                   f"its `Data` grows as N³ (Pinocchio 4.1), so it is left out beyond N = {PIN_MAX_CHAIN}. MuJoCo's "
                   "model is built through `MjSpec` (its XML reader refuses bodies nested deeper than about 500); its "
                   "compiler refuses trees deeper than 1024 bodies.", "",
