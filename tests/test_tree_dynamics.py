@@ -14,12 +14,11 @@ import numpy as np
 import pytest
 
 import mbsfmu
+from mbsfmu.engine import layout as L
+from mbsfmu.kinematics.joints import JOINTS as TABLE, joint_type
 from mbsfmu.simulation import Simulation
 
-# (joint type, parameterization): every joint type of scene/load.py, both rotation parameterizations
-JOINTS = [("fixed", None), ("revolute", None), ("prismatic", None), ("cylindrical", None), ("universal", None),
-          ("planar", None), ("spherical", "quaternion"), ("spherical", "cardan"), ("free", "quaternion"),
-          ("free", "cardan")]
+JOINTS = list(TABLE)  # (joint type, parameterization or None): every row of the joint table
 DRIVE = "{a}*sin({w}*t + {p})"  # a rheonomic drive: position, velocity and acceleration all vary with t
 
 
@@ -35,14 +34,16 @@ def _inertia(rng):
 
 
 def _joint(rng, kind, param):
+    """A joint of the table's row (kind, param) with random axes (as its axes rule asks), offset and rotation."""
+    row = TABLE[(kind, param)]
     j = {"type": kind, "at": _vec(rng, 0.3), "rotation": {"axis": _vec(rng), "angle": round(float(rng.uniform(-3, 3)), 4)}}
-    if kind in ("revolute", "prismatic", "cylindrical"):
+    if "axis" in row.fields:
         j["axis"] = _vec(rng)
-    elif kind == "universal":
-        j["axes"] = [_vec(rng), _vec(rng)]
-    elif kind == "planar":
+    elif row.axes_rule == L.R_PERPENDICULAR:
         a, b = np.linalg.qr(rng.normal(size=(3, 2)))[0].T.round(6)
-        j["axes"] = [a.tolist(), np.cross(np.cross(a, b), a).tolist()]  # in-plane axes, perpendicular once rounded
+        j["axes"] = [a.tolist(), np.cross(np.cross(a, b), a).tolist()]  # perpendicular once rounded
+    elif "axes" in row.fields:
+        j["axes"] = [_vec(rng), _vec(rng)]
     if param:
         j["parameterization"] = param
     return j
@@ -67,10 +68,9 @@ def _modal(body, n):
 
 def _suffixes(kind, param):
     """Suffixes of a joint's coordinates that joint springs may name (not quaternion ones)."""
-    return {"fixed": [], "revolute": ["angle"], "prismatic": ["s"], "cylindrical": ["s", "angle"],
-            "universal": ["angle1", "angle2"], "planar": ["x", "y", "angle"],
-            "spherical": [] if param == "quaternion" else ["a", "b", "c"],
-            "free": ["x", "y", "z"] + ([] if param == "quaternion" else ["a", "b", "c"])}[kind]
+    row = TABLE[(kind, param)]
+    quat = range(len(row.positions))[row.quaternion] if row.quaternion else ()
+    return [c for i, c in enumerate(row.positions) if i not in quat]
 
 
 def random_tree(seed, n=12, rigid=False, forces=True, drives=True, gravity=True):
@@ -93,8 +93,8 @@ def random_tree(seed, n=12, rigid=False, forces=True, drives=True, gravity=True)
         else:
             parent = f"b{rng.integers(0, i)}"
         kind, param = kinds[i % len(kinds)]
-        if i == 0 and kind == "fixed":
-            kind, param = "revolute", None  # the root must move
+        if i == 0 and not TABLE[(kind, param)].nvel:
+            kind, param = kinds[(i + 1) % len(kinds)]  # the root must move
         body = {"parent": parent, "joint": _joint(rng, kind, param)}
         if parent in nodes:  # on an elastic body: at one of its nodes
             del body["joint"]["at"]
@@ -108,7 +108,7 @@ def random_tree(seed, n=12, rigid=False, forces=True, drives=True, gravity=True)
             nodes[name] = BEAM["beam"]["elements"] + 1
         else:
             body.update(mass=round(float(rng.uniform(0.5, 3)), 4), center_of_mass=_vec(rng, 0.3), inertia=_inertia(rng))
-        drivable = _suffixes(kind, param) if param != "quaternion" else []  # the loader refuses drives there
+        drivable = [] if TABLE[(kind, param)].quaternion else _suffixes(kind, param)  # the loader refuses drives there
         if drives and drivable and rng.uniform() < 0.35:
             c = f"{name}.{drivable[rng.integers(0, len(drivable))]}"
             body["joint"]["drive"] = {c: DRIVE.format(a=round(float(rng.uniform(0.2, 0.8)), 3),
@@ -193,7 +193,7 @@ def compare_with_reference(scene, seed, states=3):
 def test_random_tree_with_elastic_bodies_matches_the_reference(seed):
     scene = random_tree(seed, n=8 + seed, gravity=seed % 3 != 2)
     ev = compare_with_reference(scene, seed)
-    kinds = {(b.kind, b.param if b.kind in ("spherical", "free") else None) for b in ev.model.bodies}
+    kinds = {joint_type(b.kind, b.param) for b in ev.model.bodies}
     assert sum(1 for b in ev.model.bodies if b.elastic) == 2 and len(kinds) >= min(8 + seed, len(JOINTS)) - 1
 
 
