@@ -6,9 +6,10 @@
     listed with their reason. Pinocchio gets the same tree (bench/pinocchio_twin.py, its own free flyer for a
     floating base) and its ÿ is checked against ours at the timed state.
 (b) Random revolute chains of N = 10 … 10,000 bodies (random axes, offsets, masses, inertias; gravity), each
-    size in a fresh process, so that its peak resident set (RSS) is the size's: the engine's after compiling the
-    scene, creating the instance and calling the right-hand side, before Pinocchio is imported. Sizes the
-    engine refuses (its workspace) are listed as refused.
+    size in a fresh process, so that its peak resident set (RSS) is the size's: the engine's while compiling the
+    loaded scene, creating the instance and calling the right-hand side, before any peer is loaded. Sizes the
+    engine refuses (its workspace) are listed as refused. Peers: Pinocchio up to PIN_MAX_CHAIN bodies (its Data
+    grows as N³) and MuJoCo's mj_forward (`mujoco_model`; its compiler stops at depth 1024).
 
 Timing: the right-hand side ẋ = f(t, x) through ctypes (`mbs_rhs`) into a preallocated array, against
 `pin.aba(model, data, q, v, tau)` on preallocated arrays: both called the same way from Python, in alternating
@@ -19,15 +20,13 @@ loop (bench/rhs_loop.c over the engine library): the engine without Python.
 Targets (issue 26): ratio ≤ 1.0 on every robot; chains N = 100 ≤ 1.5, N = 1000 ≤ 2; time at most linear in N
 from 100 to 10,000.
 
-    python -m mbsfmu.bench.tree_speed --out reports                 (about 5 minutes)
+    python -m mbsfmu.bench.tree_speed --out reports                 (about 20 minutes: N = 3000 takes most)
     python -m mbsfmu.bench.tree_speed --out /tmp/x --sizes 10,30 --robots ur5_robot,solo12 --seconds 0.05
 """
 
 import argparse
-import ctypes
 import json
 import math
-import resource
 import statistics
 import subprocess
 import sys
