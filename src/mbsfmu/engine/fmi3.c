@@ -4,8 +4,9 @@
  * One fmi3Instance = one engine instance plus the FMI bookkeeping: the host's environment and logger, the
  * instance name, the interface (co-simulation or model exchange), the phase of its FMI 3.0 state machine and
  * the logging switches. The compiled scene is read from <resourcePath>scene.bin at instantiation. What does not
- * depend on the FMI version (the registries of live instances and FMU states, loading the scene, FMU state
- * bytes) is fmi_common.c's, shared with fmi2.c.
+ * depend on the FMI version is shared with fmi2.c: the phases, the "allowed in" check and the registries of live
+ * instances and FMU states (fmi2_guard.c), the logging switches, loading the scene and FMU state bytes
+ * (fmi_common.c).
  *
  * Variables: the engine's variable table by value reference, Float64 and String scalars only, plus the
  * independent variable `time` after the table's last row (value reference = its row count, as the
@@ -801,7 +802,7 @@ fmi3Status fmi3GetContinuousStateDerivatives(fmi3Instance instance, fmi3Float64 
 
 fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance instance, fmi3Float64 nominals[], size_t nContinuousStates) {
     size_t i;
-    CHECK(P_ANY, "fmi3GetNominalsOfContinuousStates");
+    CHECK(I_ME | P_ANY, "fmi3GetNominalsOfContinuousStates");
     if (bad_states(f, nominals, nContinuousStates, "fmi3GetNominalsOfContinuousStates"))
         return fmi3Error;
     for (i = 0; i < nContinuousStates; i++)
@@ -811,7 +812,7 @@ fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance instance, fmi3Float64 
 
 fmi3Status fmi3GetEventIndicators(fmi3Instance instance, fmi3Float64 eventIndicators[], size_t nEventIndicators) {
     (void)eventIndicators;
-    CHECK(P_ANY, "fmi3GetEventIndicators");
+    CHECK(I_ME | P_ANY, "fmi3GetEventIndicators");
     if (nEventIndicators == 0)
         return fmi3OK;
     logf_(f, fmi3Error, "fmi3GetEventIndicators: %lu event indicators asked for, the model has none",
@@ -820,7 +821,7 @@ fmi3Status fmi3GetEventIndicators(fmi3Instance instance, fmi3Float64 eventIndica
 }
 
 fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance instance, size_t *nEventIndicators) {
-    CHECK(P_ANY, "fmi3GetNumberOfEventIndicators");
+    CHECK(I_ME | P_ANY, "fmi3GetNumberOfEventIndicators");
     if (null_outputs(f, nEventIndicators, f, f, f, "fmi3GetNumberOfEventIndicators"))
         return fmi3Error;
     *nEventIndicators = 0;
@@ -828,7 +829,7 @@ fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance instance, size_t *nEventI
 }
 
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *nContinuousStates) {
-    CHECK(P_ANY, "fmi3GetNumberOfContinuousStates");
+    CHECK(I_ME | P_ANY, "fmi3GetNumberOfContinuousStates");
     if (null_outputs(f, nContinuousStates, f, f, f, "fmi3GetNumberOfContinuousStates"))
         return fmi3Error;
     *nContinuousStates = (size_t)nstates(f);
