@@ -2,9 +2,9 @@
 
 References: fmpy's validation (the FMI 3.0 schema and rules); the FMI 2.0 native FMU of the same scene (the same
 engine: co-simulation equal to 1e-12); the in-process engine (`mbsfmu.simulate`, dop853 at rtol 1e-13, atol 1e-16,
-which radau5 there matches to 6e-8 of each signal's range) for model exchange under fmpy's CVode; the FMI 3.0 standard for the
-state machines; an explicit Euler step in numpy over the in-process right-hand side for the C host's model
-exchange path. Skipped without a C compiler.
+which radau5 there matches to 6e-8 of each signal's range) for model exchange under fmpy's CVode; the FMI 3.0
+standard for the state machines; an explicit Euler step in numpy over the in-process right-hand side for the C
+host's model exchange path. Skipped without a C compiler.
 """
 from __future__ import annotations
 
@@ -129,7 +129,8 @@ def test_model_exchange_under_cvode_matches_simulate(built, model):
     scale = _scale(ref)
     err = np.abs(got - ref).max(axis=0)
     zero = scale == 0  # identically zero in the reference (an unexcited mode): zero here too, to 1e-9
-    assert (err[~zero] <= 1e-6 * scale[~zero]).all(), (model, dict(zip(np.array(states)[~zero], err[~zero] / scale[~zero])))
+    worst = dict(zip(np.array(states)[~zero], err[~zero] / scale[~zero]))
+    assert (err[~zero] <= 1e-6 * scale[~zero]).all(), (model, worst)
     assert (err[zero] <= 1e-9).all(), model
 
 
@@ -304,7 +305,8 @@ def vrs(*v): return (U * len(v))(*v)
 def dbl(*v): return (D * len(v))(*v)
 bools = [B() for _ in range(5)]
 last = D()
-def do_step(c, t, h): return step(c, t, h, True, ctypes.byref(bools[0]), ctypes.byref(bools[1]), ctypes.byref(bools[2]), ctypes.byref(last))
+def do_step(c, t, h):
+    return step(c, t, h, True, *[ctypes.byref(b) for b in bools[:3]], ctypes.byref(last))
 def init(c): return enter(c, False, 0.0, 0.0, False, 0.0) or exit_(c)
 def outputs(c):
     v = (D * NOUT)(); getf(c, vrs(*range(FIRST_OUT, FIRST_OUT + NOUT)), NOUT, v, NOUT); return list(v)
@@ -350,8 +352,8 @@ raw = bytearray(good.raw)
 flipped = bytearray(raw); flipped[-1] ^= 1
 guid = bytearray(raw); guid[9] ^= 1
 fresh = P()
-for label, data in [("random bytes", bytes(range(256)) * 3), ("truncated", bytes(raw[:-8])), ("checksum", bytes(flipped)),
-                    ("other model's GUID", bytes(guid)), ("too short", b"MBSS")]:
+for label, data in [("random bytes", bytes(range(256)) * 3), ("truncated", bytes(raw[:-8])),
+                    ("checksum", bytes(flipped)), ("other model's GUID", bytes(guid)), ("too short", b"MBSS")]:
     case("deserialize " + label, lambda: deser(a, data, len(data), ctypes.byref(fresh)))
 case("SetFMUState with a made-up handle", lambda: setst(a, P(0x1234)))
 # NaN input: the step is discarded, the instance stays at its last good point
@@ -373,7 +375,8 @@ assert init(m) == 0
 case("SetContinuousStates in event mode", lambda: setx(m, dbl(0.0), 1))
 case("EnterEventMode in event mode", lambda: event(m))
 assert upd(m, *[ctypes.byref(b) for b in bools], ctypes.byref(last)) == 0 and cont(m) == 0
-case("UpdateDiscreteStates in continuous-time mode", lambda: upd(m, *[ctypes.byref(b) for b in bools], ctypes.byref(last)))
+case("UpdateDiscreteStates in continuous-time mode",
+     lambda: upd(m, *[ctypes.byref(b) for b in bools], ctypes.byref(last)))
 nx = S(); nx_(m, ctypes.byref(nx)); N = nx.value
 case("SetTime NaN", lambda: settime(m, math.nan))
 case("SetContinuousStates NaN", lambda: setx(m, dbl(*([math.nan] * N)), N))
@@ -388,9 +391,11 @@ case("GetFloat64 on a made-up pointer", lambda: getf(P(0xdeadbeef), vrs(0), 1, d
 case("SetContinuousStates on NULL", lambda: setx(None, dbl(0.0), 1))
 free(m); free(P(0xdeadbeef))
 out["scheduled execution"] = se_new(b"s", TOKEN, RES, False, False, None, logger, None, None, None) is None
-out["wrong token"] = cs_new(b"t", b"{not-the-token}", RES, False, False, False, False, None, 0, None, logger, None) is None
-out["relative resources"] = cs_new(b"t", TOKEN, b"resources/", False, False, False, False, None, 0, None, logger, None) is None
-out["no resources"] = cs_new(b"t", TOKEN, None, False, False, False, False, None, 0, None, logger, None) is None
+def refused(token, res):
+    return cs_new(b"t", token, res, False, False, False, False, None, 0, None, logger, None) is None
+out["wrong token"] = refused(b"{not-the-token}", RES)
+out["relative resources"] = refused(TOKEN, b"resources/")
+out["no resources"] = refused(TOKEN, None)
 out["instantiation messages"] = messages[-4:]
 free(a)
 print("RESULT " + json.dumps(out))
@@ -466,8 +471,9 @@ def test_fmi3_is_native_only(tmp_path):
         mbsfmu.build_fmu(REPO / "models" / "pendulum.yaml", tmp_path, fmi="3")
     with pytest.raises(ValueError, match="unknown FMI version"):
         mbsfmu.build_fmu(REPO / "models" / "pendulum.yaml", tmp_path, kind="native", fmi="4")
-    r = subprocess.run([sys.executable, "-m", "mbsfmu.cli", "build", "--fmi", "3", str(REPO / "models" / "pendulum.yaml"),
-                        "-o", str(tmp_path)], capture_output=True, text=True, timeout=120, env=os.environ)
+    r = subprocess.run([sys.executable, "-m", "mbsfmu.cli", "build", "--fmi", "3",
+                        str(REPO / "models" / "pendulum.yaml"), "-o", str(tmp_path)], capture_output=True, text=True,
+                       timeout=120, env=os.environ)
     assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1 and "--kind native" in r.stderr, r.stderr
     assert not list(tmp_path.iterdir())
 

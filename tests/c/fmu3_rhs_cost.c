@@ -20,7 +20,8 @@ int main(int argc, char **argv) {
     if (argc < 6) { fprintf(stderr, "usage: %s FMU_LIB RESOURCES TOKEN ENGINE_LIB SCENE_BIN\n", argv[0]); return 2; }
     void *so = dlopen(argv[1], RTLD_NOW | RTLD_LOCAL), *eng = dlopen(argv[4], RTLD_NOW | RTLD_LOCAL);
     if (!so || !eng) { printf("dlopen %s\n", dlerror()); return 2; }
-    void *(*inst)(const char *, const char *, const char *, int, int, void *, LogMessage) = dlsym(so, "fmi3InstantiateModelExchange");
+    void *(*inst)(const char *, const char *, const char *, int, int, void *, LogMessage) =
+        dlsym(so, "fmi3InstantiateModelExchange");
     int (*enter)(void *, int, double, double, int, double) = dlsym(so, "fmi3EnterInitializationMode");
     int (*exit_)(void *) = dlsym(so, "fmi3ExitInitializationMode");
     int (*upd)(void *, char *, char *, char *, char *, char *, double *) = dlsym(so, "fmi3UpdateDiscreteStates");

@@ -87,7 +87,8 @@ static fmi3Status engine_status(Fmu *f, int rc, const char *what) {
 static int allowed(Fmu *f, int mask, const char *fn) {
     char why[256];
     if (!mbs_reg_find(&instances, f)) {  /* no logger known: stderr */
-        fprintf(stderr, "mbsfmu: %s: %s\n", fn, f ? "not a live instance of this FMU (freed, or another FMU's)" : "NULL instance");
+        fprintf(stderr, "mbsfmu: %s: %s\n", fn,
+                f ? "not a live instance of this FMU (freed, or another FMU's)" : "NULL instance");
         return 0;
     }
     f->logged = 0;
@@ -433,7 +434,8 @@ static fmi3Status no_such_type(fmi3Instance instance, size_t nvr, const char *fn
         (void)vr, (void)values, (void)nValues;                                                                        \
         return no_such_type(instance, nvr, #GET);                                                                     \
     }                                                                                                                 \
-    fmi3Status SET(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, const T values[], size_t nValues) { \
+    fmi3Status SET(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, const T values[],             \
+                   size_t nValues) {                                                                              \
         (void)vr, (void)values, (void)nValues;                                                                        \
         return no_such_type(instance, nvr, #SET);                                                                     \
     }
@@ -514,7 +516,8 @@ fmi3Status fmi3GetIntervalDecimal(fmi3Instance instance, const fmi3ValueReferenc
     NOT_PROVIDED(fmi3GetIntervalDecimal, "no clocks");
 }
 fmi3Status fmi3GetIntervalFraction(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
-                                   fmi3UInt64 counters[], fmi3UInt64 resolutions[], fmi3IntervalQualifier qualifiers[]) {
+                                   fmi3UInt64 counters[], fmi3UInt64 resolutions[],
+                                   fmi3IntervalQualifier qualifiers[]) {
     (void)vr, (void)nvr, (void)counters, (void)resolutions, (void)qualifiers;
     NOT_PROVIDED(fmi3GetIntervalFraction, "no clocks");
 }

@@ -1,6 +1,7 @@
 """Native FMUs (``kind="native"``): the engine's C sources and an FMI layer (``engine/fmi2.c`` for FMI 2.0, the
 default, ``engine/fmi3.c`` for FMI 3.0: co-simulation and model exchange each) compiled into
-``binaries/<platform>/<modelIdentifier>``; the scene is data (``resources/scene.bin``). No Python at run time: the binary needs only the C library and libm.
+``binaries/<platform>/<modelIdentifier>``; the scene is data (``resources/scene.bin``). No Python at run time:
+the binary needs only the C library and libm.
 
 An FMU holds
 
@@ -74,7 +75,8 @@ def collect_sources(c_files) -> dict[str, bytes]:
         out[path.name] = data
         for inc in _INCLUDE.findall(data):
             name = inc.decode()
-            found = next((d / name for d in (path.parent, ENGINE, ENGINE / "fmi2", ENGINE / "fmi3") if (d / name).is_file()), None)
+            found = next((d / name for d in (path.parent, ENGINE, ENGINE / "fmi2", ENGINE / "fmi3")
+                          if (d / name).is_file()), None)
             if found is None:
                 raise FileNotFoundError(f"{path.name} includes \"{name}\", which is not in {ENGINE}")
             todo.append(found)
