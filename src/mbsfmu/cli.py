@@ -138,7 +138,7 @@ def _build(args):
         t0 = time.perf_counter()
         if n > 1:
             print(f"[{i}/{n}] {path} ...", end=" ", flush=True)
-        out = build_fmu(scene, args.output, kind=args.kind)
+        out = build_fmu(scene, args.output, kind=args.kind, fmi=args.fmi)
         print(f"{out}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
 
 
@@ -419,6 +419,8 @@ def parser():
     p.add_argument("--kind", choices=("pythonfmu", "native"), default="pythonfmu",
                    help="pythonfmu (default; runs the engine through Python) or native (C only, no Python "
                         "needed where the FMU runs; needs a C compiler here)")
+    p.add_argument("--fmi", choices=("2", "3"), default="2",
+                   help="FMI version: 2 (default) or 3 (co-simulation and model exchange; --kind native only)")
     _allow_outside(p)
     p.set_defaults(run=_build)
     p = sub.add_parser("check", help="validate a scene and list its coordinates and inputs")

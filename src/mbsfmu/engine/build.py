@@ -18,8 +18,8 @@ from pathlib import Path
 from ..errors import EngineUnavailable
 
 HERE = Path(__file__).parent
-CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "fmu_files.c", "fmi2_guard.c") + tuple(sorted(p.name for p in HERE.glob("integ_*.c")))
-HEADERS = ("mbs_engine.h", "fmu_files.h", "fmi2_guard.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
+CORE = ("model.c", "tree.c", "sim.c", "linalg.c", "fmu_files.c", "fmi2_guard.c", "fmi_common.c") + tuple(sorted(p.name for p in HERE.glob("integ_*.c")))
+HEADERS = ("mbs_engine.h", "fmu_files.h", "fmi2_guard.h", "fmi_common.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
            "integ_internal.h", "linalg.h")
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
@@ -74,7 +74,7 @@ def linked_sources(roots, defs, cc=None):
     with tempfile.TemporaryDirectory(prefix="mbsfmu_nm_") as tmp:
         for k, f in enumerate(files):
             obj = Path(tmp) / f"{k}.o"
-            r = subprocess.run([cc, "-c", "-O0", "-std=c99", *defs, f"-I{HERE}", f"-I{HERE / 'fmi2'}", "-o", str(obj),
+            r = subprocess.run([cc, "-c", "-O0", "-std=c99", *defs, f"-I{HERE}", f"-I{HERE / 'fmi2'}", f"-I{HERE / 'fmi3'}", "-o", str(obj),
                                 str(f)], capture_output=True, text=True)
             if r.returncode:
                 raise EngineUnavailable(f"compiling {f.name} failed: {r.stderr.strip()[:2000]}")

@@ -27,17 +27,13 @@
 
 #include "fmi2Functions.h"
 #include "fmi2_guard.h"
+#include "fmi_common.h"
 #include "fmu_files.h"
 #include "mbs_engine.h"
 
 /* phases and "allowed in" masks: fmi2_guard.h */
 #define P_STATUS (I_CS | P_STEP | P_TERMINATED | P_ERROR)  /* FMI 2.0 co-simulation: after initialization */
 #define P_STATES (I_ME | P_EVENT | P_CONT | P_TERMINATED | P_ERROR)  /* model exchange: states and derivatives */
-
-/* log categories, indexed by fmi2Status (OK .. Fatal); the names are those of the modelDescription */
-#define NCAT 5
-static const char *const CATEGORY[NCAT] = {"logAll", "logStatusWarning", "logStatusDiscard",
-                                           "logStatusError", "logStatusFatal"};
 
 typedef struct {
     MbsModel *model;
@@ -46,8 +42,7 @@ typedef struct {
     char *name;
     int iface;                 /* I_CS or I_ME */
     int phase;
-    int logging_on;
-    int category_on[NCAT];
+    MbsLogSwitches log_switches;  /* fmi_common.h */
     int logged;                /* the engine logged during the current call */
     int discarded;             /* the last fmi2DoStep was discarded: fmi2Terminated reads true (masters such as
                                   fmpy's simulate_fmu then end the run instead of retrying the same step forever) */
@@ -56,26 +51,19 @@ typedef struct {
     char refused[256];         /* (-1: none); its message fails fmi2ExitInitializationMode */
 } Fmu;
 
-typedef struct {
-    Fmu *owner;                /* freed with its instance (fmi2FreeInstance frees everything) */
-    size_t len;
-    unsigned char bytes[];     /* mbs_state_save's layout (header with version, GUID, length, checksum) */
-} FmuState;
-
-/* the live instances and FMU states this library handed out (fmi2_guard.h) */
+/* the live instances and FMU states (MbsFmuState, fmi_common.h) this library handed out (fmi2_guard.h) */
 static MbsRegistry instances, states;
 
 /* ---- logging ---- */
 static void emit(const fmi2CallbackFunctions *cb, const char *name, fmi2Status st, const char *msg) {
     if (cb && cb->logger)  /* the message is data, never a format string */
-        cb->logger(cb->componentEnvironment, name ? name : "", st, CATEGORY[st <= fmi2Fatal ? st : 0], "%s", msg);
+        cb->logger(cb->componentEnvironment, name ? name : "", st, mbs_fmi_category[st <= fmi2Fatal ? st : 0], "%s", msg);
 }
 
 static void logf_(Fmu *f, fmi2Status st, const char *fmt, ...) {
     char buf[1024];
     va_list ap;
-    int cat = st <= fmi2Fatal ? (int)st : 0;
-    if (st == fmi2Pending || !f->category_on[cat] || (st == fmi2OK && !f->logging_on))
+    if (!mbs_log_wanted(&f->log_switches, (int)st))
         return;
     va_start(ap, fmt);
     vsnprintf(buf, sizeof buf, fmt, ap);
@@ -126,41 +114,22 @@ const char *fmi2GetVersion(void) { return fmi2Version; }
 
 fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
                                const fmi2String categories[]) {
-    size_t i;
-    int j;
+    char err[256];
     CHECK(P_ANY, "fmi2SetDebugLogging");
-    if (nCategories > 0 && !categories) {
-        logf_(f, fmi2Error, "fmi2SetDebugLogging: NULL category list");
+    if (mbs_log_set(&f->log_switches, loggingOn != fmi2False, nCategories, categories, err, sizeof err)) {
+        logf_(f, fmi2Error, "fmi2SetDebugLogging: %s", err);
         return fmi2Error;
     }
-    for (i = 0; i < nCategories; i++) {  /* check all before changing anything */
-        for (j = 0; j < NCAT && !(categories[i] && strcmp(categories[i], CATEGORY[j]) == 0); j++)
-            ;
-        if (j == NCAT) {
-            logf_(f, fmi2Error, "fmi2SetDebugLogging: unknown log category '%s'",
-                  categories[i] ? categories[i] : "(null)");
-            return fmi2Error;
-        }
-    }
-    f->logging_on = loggingOn != fmi2False;
-    for (j = 0; j < NCAT; j++)
-        if (nCategories == 0)
-            f->category_on[j] = f->logging_on;
-    for (i = 0; i < nCategories; i++)
-        for (j = 0; j < NCAT; j++)
-            if (strcmp(categories[i], CATEGORY[j]) == 0)
-                f->category_on[j] = f->logging_on;
     return fmi2OK;
 }
 
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
-    char path[4096], err[512], msg[1024];
+    char path[4096], err[1024], msg[1200];
     const char *name = instanceName ? instanceName : "";
     MbsModel *model;
     Fmu *f;
-    int j;
     (void)visible;
     if (!functions || !functions->logger) {  /* no logger to tell: stderr (FMI 2.0 requires one) */
         fprintf(stderr, "mbsfmu: fmi2Instantiate: no callback functions or no logger\n");
@@ -187,17 +156,10 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         emit(functions, name, fmi2Error, msg);
         return NULL;
     }
-    model = mbs_model_load_file(path, err, sizeof err);
+    model = mbs_fmi_load_scene(path, fmuGUID, err, sizeof err);
     if (!model) {
-        snprintf(msg, sizeof msg, "fmi2Instantiate: cannot load the compiled scene %s: %s", path, err);
+        snprintf(msg, sizeof msg, "fmi2Instantiate: %s", err);
         emit(functions, name, fmi2Error, msg);
-        return NULL;
-    }
-    if (strcmp(mbs_model_guid(model), fmuGUID) != 0) {
-        snprintf(msg, sizeof msg, "fmi2Instantiate: GUID %s does not match this FMU's %s", fmuGUID,
-                 mbs_model_guid(model));
-        emit(functions, name, fmi2Error, msg);
-        mbs_model_free(model);
         return NULL;
     }
     f = (Fmu *)calloc(1, sizeof *f);
@@ -215,9 +177,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     f->iface = fmuType == fmi2ModelExchange ? I_ME : I_CS;
     f->phase = P_INSTANTIATED;
     f->refused_vr = -1;
-    f->logging_on = loggingOn != fmi2False;
-    for (j = 0; j < NCAT; j++)
-        f->category_on[j] = 1;
+    mbs_log_init(&f->log_switches, loggingOn != fmi2False);
     f->sim = mbs_instance_new(model, engine_log, f);
     if (!f->sim || !mbs_reg_add(&instances, f)) {
         mbs_instance_free(f->sim);
@@ -230,8 +190,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     return f;
 }
 
-static int owned_by(void *state, void *f) { return ((FmuState *)state)->owner == f; }
-
 void fmi2FreeInstance(fmi2Component c) {
     Fmu *f = (Fmu *)c;
     if (!mbs_reg_drop(&instances, f)) {  /* NULL, freed before, or not ours: nothing to free */
@@ -239,7 +197,7 @@ void fmi2FreeInstance(fmi2Component c) {
             fprintf(stderr, "mbsfmu: fmi2FreeInstance: not a live instance of this FMU (freed, or another FMU's)\n");
         return;
     }
-    mbs_reg_drop_all(&states, owned_by, f, free);  /* the states it handed out go with it */
+    mbs_fmu_states_free_owned(&states, f);  /* the states it handed out go with it */
     mbs_instance_free(f->sim);
     mbs_model_free(f->model);
     free(f->name);
@@ -417,55 +375,35 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
     return no_such_type(c, nvr, "fmi2SetBoolean");
 }
 
-/* ---- FMU state: the engine's byte layout, in memory and serialized ---- */
+/* ---- FMU state: the engine's byte layout, in memory and serialized (fmi_common.c) ---- */
 /* A state handed out by any live instance of this FMU (same model: it restores into any of them). */
-static FmuState *state_of(Fmu *f, fmi2FMUstate s, const char *fn) {
+static MbsFmuState *state_of(Fmu *f, fmi2FMUstate s, const char *fn) {
     if (mbs_reg_find(&states, s))
-        return (FmuState *)s;
+        return (MbsFmuState *)s;
     logf_(f, fmi2Error, "%s: not an FMU state of this FMU's live instances (never handed out, or freed)", fn);
     return NULL;
 }
 
-/* A new state of `len` bytes owned by f, not yet registered; NULL if out of memory. */
-static FmuState *state_new(Fmu *f, size_t len) {
-    FmuState *st = len <= (size_t)-1 - sizeof *st ? (FmuState *)malloc(sizeof *st + len) : NULL;
-    if (st) {
-        st->owner = f;
-        st->len = len;
-    }
-    return st;
-}
-
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    size_t len;
-    FmuState *st;
+    MbsFmuState *st;
     CHECK(P_ANY, "fmi2GetFMUstate");
     if (!FMUstate) {
         logf_(f, fmi2Error, "fmi2GetFMUstate: NULL pointer");
         return fmi2Error;
     }
-    len = mbs_state_size(f->sim);
-    st = (FmuState *)*FMUstate;
+    st = (MbsFmuState *)*FMUstate;
     if (st && !state_of(f, st, "fmi2GetFMUstate"))
         return fmi2Error;
-    if (!st || st->len != len) {  /* new, or an old one of another size: replace */
-        FmuState *fresh = state_new(f, len);
-        if (!fresh || !mbs_reg_add(&states, fresh)) {
-            free(fresh);
-            logf_(f, fmi2Error, "fmi2GetFMUstate: out of memory");
-            return fmi2Error;
-        }
-        if (st && mbs_reg_drop(&states, st))
-            free(st);
-        st = fresh;
-        *FMUstate = st;
+    if (!(st = mbs_fmu_state_sized(&states, st, f, mbs_state_size(f->sim)))) {
+        logf_(f, fmi2Error, "fmi2GetFMUstate: out of memory");
+        return fmi2Error;
     }
-    st->owner = f;  /* a state passed in may have been another instance's */
+    *FMUstate = st;
     return engine_status(f, mbs_state_save(f->sim, st->bytes, st->len), "fmi2GetFMUstate");
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
-    FmuState *st;
+    MbsFmuState *st;
     CHECK(P_ANY, "fmi2SetFMUstate");
     if (!(st = state_of(f, FMUstate, "fmi2SetFMUstate")))
         return fmi2Error;
@@ -484,7 +422,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    FmuState *st;
+    MbsFmuState *st;
     CHECK(P_ANY, "fmi2FreeFMUstate");
     if (!FMUstate) {
         logf_(f, fmi2Error, "fmi2FreeFMUstate: NULL state pointer");
@@ -500,7 +438,7 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
 }
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
-    FmuState *st;
+    MbsFmuState *st;
     CHECK(P_ANY, "fmi2SerializedFMUstateSize");
     if (!(st = state_of(f, FMUstate, "fmi2SerializedFMUstateSize")))
         return fmi2Error;
@@ -513,7 +451,7 @@ fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, si
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {
-    FmuState *st;
+    MbsFmuState *st;
     CHECK(P_ANY, "fmi2SerializeFMUstate");
     if (!(st = state_of(f, FMUstate, "fmi2SerializeFMUstate")))
         return fmi2Error;
@@ -530,44 +468,35 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
     return fmi2OK;
 }
 
-/* The host's bytes are checked by loading them into this instance and restoring its own state afterwards (the
- * engine's load checks magic, version, GUID and length before it reads further, then the checksum and sizes,
- * and changes nothing on failure); only bytes that passed are copied into a new state. */
+/* Only bytes that load into this instance (mbs_fmu_state_check: its own state restored afterwards) are copied
+ * into a new state. */
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate) {
-    FmuState *mine, *st;
+    MbsFmuState *st;
     int rc;
     CHECK(P_ANY, "fmi2DeSerializeFMUstate");
     if (!FMUstate || !serializedState) {
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: NULL pointer");
         return fmi2Error;
     }
-    mine = state_new(f, mbs_state_size(f->sim));
-    if (!mine) {
-        logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
-        return fmi2Error;
-    }
-    rc = mbs_state_save(f->sim, mine->bytes, mine->len);
-    if (rc == MBS_OK && (rc = mbs_state_load(f->sim, serializedState, size)) == MBS_OK &&
-        mbs_state_load(f->sim, mine->bytes, mine->len) != MBS_OK) {
-        free(mine);
+    rc = mbs_fmu_state_check(f->sim, serializedState, size);
+    if (rc == -1) {
         f->phase = P_FATAL;
         logf_(f, fmi2Fatal, "fmi2DeSerializeFMUstate: the instance's own state did not load back: %s",
               mbs_message(f->sim));
         return fmi2Fatal;
     }
-    free(mine);
     if (rc != MBS_OK) {
-        engine_status(f, MBS_ERROR, "fmi2DeSerializeFMUstate");
+        if (rc == -2)
+            logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
+        else
+            engine_status(f, MBS_ERROR, "fmi2DeSerializeFMUstate");
         return fmi2Error;
     }
-    st = state_new(f, size);
-    if (!st || !mbs_reg_add(&states, st)) {
-        free(st);
+    if (!(st = mbs_fmu_state_copy(&states, f, serializedState, size))) {
         logf_(f, fmi2Error, "fmi2DeSerializeFMUstate: out of memory");
         return fmi2Error;
     }
-    memcpy(st->bytes, serializedState, size);
     *FMUstate = st;  /* an output argument: whatever it held is not ours to free */
     return fmi2OK;
 }

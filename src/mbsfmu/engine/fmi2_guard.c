@@ -25,8 +25,8 @@ int mbs_phase_refuses(int mask, int phase, int iface, const char *fn, char *buf,
                  mask & I_CS ? "co-simulation" : "model-exchange", iface == I_CS ? "co-simulation" : "model exchange");
     else if (!(mask & phase))
         snprintf(buf, len, "%s: not allowed in phase '%s'%s", fn, mbs_phase_name(phase),
-                 phase == P_ERROR ? " (after a failed call: only fmi2Reset, fmi2SetFMUstate, getters and "
-                                    "fmi2FreeInstance)" : "");
+                 phase == P_ERROR ? " (after a failed call: only Reset, SetFMUstate, getters and "
+                                    "FreeInstance)" : "");
     else
         return 0;
     return 1;

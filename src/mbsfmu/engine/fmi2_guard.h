@@ -1,5 +1,5 @@
 /* One FMI 2.0 guard for both FMU kinds: engine/fmi2.c (native FMUs) and fmu/shim.c (the pythonfmu kind's loader
- * shim) compile fmi2_guard.c alike. It holds
+ * shim) compile fmi2_guard.c alike; the FMI 3.0 layer engine/fmi3.c too (its phases are the same). It holds
  *   - the phases of the FMI 2.0 state machines as bit masks, their names and the "allowed in" check with its
  *     message,
  *   - the registries of the instances and FMU states a library handed out (a host's pointer is compared with

@@ -33,6 +33,7 @@ from .. import files
 from .common import drawing_resource, mbsfmu_version, model_description, write_zip
 
 KINDS = ("pythonfmu", "native")
+FMI_VERSIONS = ("2", "3")
 SCENE_FILE = "mbsfmu_scene.bin"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
 SHIM_SOURCE = Path(__file__).with_name("shim.c")
@@ -142,22 +143,29 @@ def _load_scene(scene_or_path):
     return scene_or_path
 
 
-def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", runtime_root=None, shim=True) -> Path:
+def build_fmu(scene_or_path, outdir=".", *, kind="pythonfmu", fmi="2", runtime_root=None, shim=True) -> Path:
     """Build ``<outdir>/<name>.fmu`` from a scene (a YAML path or a loaded scene with ``.spec``).
 
     ``kind``: "pythonfmu" (default) or "native" (C engine + FMI layer, no Python at run time; native.py).
+    ``fmi``: "2" (default) or "3" (FMI 3.0 co-simulation and model exchange: native only).
     ``runtime_root`` (for tests) replaces the directory the runtime sources are copied from.
     ``shim=False`` keeps pythonfmu's plain linux64 binary (needs libpython preloaded in C hosts).
     Returns the path of the written FMU.
     """
     if kind not in KINDS:
         raise ValueError(f"unknown FMU kind {kind!r}: {' or '.join(KINDS)}")
+    fmi = str(fmi)
+    if fmi not in FMI_VERSIONS:
+        raise ValueError(f"unknown FMI version {fmi!r}: {' or '.join(FMI_VERSIONS)}")
+    if fmi != "2" and kind != "native":
+        raise ValueError(f"FMI {fmi}.0 FMUs are of the native kind only (--kind native): pythonfmu makes FMI 2.0 "
+                         "co-simulation FMUs")
     scene = _load_scene(scene_or_path)
     dest = fmu_path(scene, outdir)
     files.check({"the FMU": dest}, {"the scene": getattr(scene, "path", None)})
     if kind == "native":
         from .native import build_native
-        return build_native(scene, dest)
+        return build_native(scene, dest, fmi)
     spec = scene.spec if hasattr(scene, "spec") else scene
     spec = json.loads(json.dumps(spec))  # plain JSON data, exactly what the FMU will read
     name = dest.stem

@@ -1,5 +1,6 @@
-"""What both FMU kinds share (build.py: pythonfmu kind, native.py: native kind): the one FMI 2.0
-modelDescription writer, the drawing description, the archive writer and the version they carry."""
+"""What both FMU kinds share (build.py: pythonfmu kind, native.py: native kind): one modelDescription writer per
+FMI version (2.0: both kinds; 3.0: the native kind) over the one list of variables (variables.py), the drawing
+description, the archive writer and the version they carry."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from .variables import continuous_states
 DRAWING_FILE = "mbsfmu_drawing.json"  # in resources/: what `mbsfmu animate FMU` draws from (animation/trajectory.py)
 
 LOG_CATEGORIES = {
-    "logStatusWarning": "Log messages with fmi2Warning status.",
+    "logStatusWarning": "Log messages with fmi2Warning status.",  # fmi3... in FMI 3.0 (_log_categories)
     "logStatusDiscard": "Log messages with fmi2Discard status.",
     "logStatusError": "Log messages with fmi2Error status.",
     "logStatusFatal": "Log messages with fmi2Fatal status.",
@@ -93,6 +94,73 @@ MODEL_EXCHANGE = {
 }
 
 
+def _guid(spec: dict, version: str) -> str:
+    return "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "mbsfmu:" + json.dumps(spec, sort_keys=True) + ":" + version)) + "}"
+
+
+def _root(fmi: str, spec: dict, name: str, version: str, token: dict) -> Element:
+    """<fmiModelDescription> with the attributes every version has (``token``: the FMI 2 guid or the FMI 3
+    instantiationToken)."""
+    return Element("fmiModelDescription", {
+        "fmiVersion": fmi,
+        "modelName": name,
+        **token,
+        "description": spec.get("description") or name,
+        "generationTool": f"mbsfmu {version}",
+        "generationDateAndTime": datetime.datetime.now(datetime.timezone.utc)
+        .replace(microsecond=0).isoformat().replace("+00:00", "Z"),
+        "variableNamingConvention": "structured",
+    })
+
+
+def _units(root: Element, variables, used_units=()) -> None:
+    """<UnitDefinitions> of ``used_units`` and the units the Real variables use (the same elements in FMI 2.0
+    and 3.0)."""
+    used_units = list(used_units)
+    for v in variables:
+        u = v.unit
+        if getattr(v, "type", "Real") == "Real" and u and u not in used_units:
+            used_units.append(u)
+    if used_units:
+        ud = SubElement(root, "UnitDefinitions")
+        for u in used_units:
+            unit = SubElement(ud, "Unit", {"name": u})
+            exps = UNITS.get(u)
+            if exps is not None:
+                SubElement(unit, "BaseUnit", {k: str(e) for k, e in exps.items()})
+
+
+def _log_categories(root: Element, fmi: str) -> None:
+    cats = SubElement(root, "LogCategories")
+    for cat, desc in LOG_CATEGORIES.items():
+        SubElement(cats, "Category", {"name": cat, "description": desc.replace("fmi2", f"fmi{fmi[0]}")})
+
+
+def _default_experiment(root: Element, spec: dict) -> None:
+    exp = spec.get("experiment") or {}
+    de = {}
+    for key, attr in (("start", "startTime"), ("stop", "stopTime"), ("step", "stepSize")):
+        if exp.get(key) is not None:
+            de[attr] = _fmt(exp[key])
+    rtol = (spec.get("integrator") or {}).get("rtol")
+    if rtol is not None:
+        de["tolerance"] = _fmt(rtol)
+    if de:
+        SubElement(root, "DefaultExperiment", de)
+
+
+def _variability(v) -> str:
+    return "fixed" if getattr(v, "type", "Real") == "String" and v.causality == "parameter" else v.variability
+
+
+def _initial(v) -> str | None:
+    return {"parameter": "exact", "output": "calculated"}.get(v.causality)
+
+
+def _xml(root: Element) -> bytes:
+    return parseString(tostring(root, "UTF-8")).toprettyxml(indent="  ", encoding="UTF-8")
+
+
 def model_description(spec: dict, name: str, variables, version: str, guid: str | None = None,
                       cosimulation: dict | None = None, source_files=(), model_exchange: bool = False) -> bytes:
     """The complete FMI 2.0 modelDescription.xml for the given variables (variables.py; value reference = index).
@@ -101,20 +169,8 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
     (native FMUs), ``model_exchange`` adds ``<ModelExchange>`` (the variables then carry their derivatives:
     ``variables(spec, derivatives=True)``); everything else is the same for both kinds."""
     states = continuous_states(variables)
-    guid = guid or "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "mbsfmu:" + json.dumps(spec, sort_keys=True)
-                                        + ":" + version)) + "}"
-    attrib = {
-        "fmiVersion": "2.0",
-        "modelName": name,
-        "guid": guid,
-        "description": spec.get("description") or name,
-        "generationTool": f"mbsfmu {version}",
-        "generationDateAndTime": datetime.datetime.now(datetime.timezone.utc)
-        .replace(microsecond=0).isoformat().replace("+00:00", "Z"),
-        "variableNamingConvention": "structured",
-        "numberOfEventIndicators": "0",
-    }
-    root = Element("fmiModelDescription", attrib)
+    root = _root("2.0", spec, name, version, {"guid": guid or _guid(spec, version)})
+    root.set("numberOfEventIndicators", "0")
     interfaces = []
     if model_exchange:
         interfaces.append(SubElement(root, "ModelExchange", {"modelIdentifier": name, **MODEL_EXCHANGE}))
@@ -136,34 +192,9 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
         sf = SubElement(interface, "SourceFiles")
         for f in source_files:
             SubElement(sf, "File", {"name": f})
-
-    used_units = []
-    for v in variables:
-        u = v.unit
-        if getattr(v, "type", "Real") == "Real" and u and u not in used_units:
-            used_units.append(u)
-    if used_units:
-        ud = SubElement(root, "UnitDefinitions")
-        for u in used_units:
-            unit = SubElement(ud, "Unit", {"name": u})
-            exps = UNITS.get(u)
-            if exps is not None:
-                SubElement(unit, "BaseUnit", {k: str(e) for k, e in exps.items()})
-
-    cats = SubElement(root, "LogCategories")
-    for cat, desc in LOG_CATEGORIES.items():
-        SubElement(cats, "Category", {"name": cat, "description": desc})
-
-    exp = spec.get("experiment") or {}
-    de = {}
-    for key, attr in (("start", "startTime"), ("stop", "stopTime"), ("step", "stepSize")):
-        if exp.get(key) is not None:
-            de[attr] = _fmt(exp[key])
-    rtol = (spec.get("integrator") or {}).get("rtol")
-    if rtol is not None:
-        de["tolerance"] = _fmt(rtol)
-    if de:
-        SubElement(root, "DefaultExperiment", de)
+    _units(root, variables)
+    _log_categories(root, "2.0")
+    _default_experiment(root, spec)
 
     mv = SubElement(root, "ModelVariables")
     outputs, calculated = [], []  # indices (1-based) of the outputs, and of what initialization calculates
@@ -173,14 +204,10 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
             sv["description"] = str(v.description)
         sv["causality"] = v.causality
         is_string = getattr(v, "type", "Real") == "String"
-        variability = v.variability
-        if is_string and v.causality == "parameter":
-            variability = "fixed"
-        sv["variability"] = variability
-        if v.causality == "parameter":
-            sv["initial"] = "exact"
-        elif v.causality == "output":
-            sv["initial"] = "calculated"
+        sv["variability"] = _variability(v)
+        if _initial(v):
+            sv["initial"] = _initial(v)
+        if v.causality == "output":
             outputs.append(i + 1)
         if v.causality == "output" or v.derivative_of is not None:  # a local's initial is "calculated" by default
             calculated.append(i + 1)
@@ -200,33 +227,91 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
             SubElement(node, "Real", tattr)
 
     ms = SubElement(root, "ModelStructure")
-    state_indices = " ".join(str(s.vr + 1) for s, _ in states)
     if outputs:
         o = SubElement(ms, "Outputs")
         for idx in outputs:  # no direct feedthrough from inputs; under model exchange outputs follow the states
-            SubElement(o, "Unknown", {"index": str(idx), "dependencies": _state_dependencies(variables[idx - 1],
-                                                                                           state_indices)})
+            deps = _output_dependencies(variables[idx - 1], states)
+            SubElement(o, "Unknown", {"index": str(idx), "dependencies": " ".join(str(v.vr + 1) for v in deps)})
     if states:  # der(y.*): their states (variables.py); der(yd.*): every state and input (no attribute says that)
         d = SubElement(ms, "Derivatives")
         for _, der in states:
-            deps = {}
-            if der.depends_on is not None:
-                kind, on = der.depends_on
-                deps = {"dependencies": " ".join(str(v.vr + 1) for v in sorted(on, key=lambda v: v.vr)),
-                        "dependenciesKind": " ".join([kind] * len(on))}
-            SubElement(d, "Unknown", {"index": str(der.vr + 1), **deps})
+            SubElement(d, "Unknown", {"index": str(der.vr + 1), **_derivative_dependencies(der, 1)})
     if calculated:
         iu = SubElement(ms, "InitialUnknowns")
         for idx in calculated:
             SubElement(iu, "Unknown", {"index": str(idx)} if variables[idx - 1].derivative_of is not None
                        else {"index": str(idx), "dependencies": ""})
 
-    return parseString(tostring(root, "UTF-8")).toprettyxml(indent="  ", encoding="UTF-8")
+    return _xml(root)
 
 
-def _state_dependencies(output, state_indices: str) -> str:
-    """An output's dependencies on the knowns: none without continuous states (co-simulation: no input reaches an
+def _output_dependencies(output, states) -> list:
+    """The knowns an output depends on: none without continuous states (co-simulation: no input reaches an
     output within a step); with them, the state itself for y.*/yd.*, every state for a point's r and v."""
-    if not state_indices:
-        return ""
-    return str(output.vr + 1) if output.kind in (L.MBS_V_Y, L.MBS_V_YD) else state_indices
+    if not states:
+        return []
+    return [output] if output.kind in (L.MBS_V_Y, L.MBS_V_YD) else [s for s, _ in states]
+
+
+def _derivative_dependencies(der, base: int) -> dict:
+    """The dependencies attributes of a derivative (value reference + base: FMI 2.0 indices count from 1); none
+    (every state and input) when variables.py lists none."""
+    if der.depends_on is None:
+        return {}
+    kind, on = der.depends_on
+    return {"dependencies": " ".join(str(v.vr + base) for v in sorted(on, key=lambda v: v.vr)),
+            "dependenciesKind": " ".join([kind] * len(on))}
+
+
+# FMI 3.0: what an FMU offers beyond the defaults (all false), per interface
+FMI3_COSIMULATION = {"canHandleVariableCommunicationStepSize": "true", "canGetAndSetFMUState": "true",
+                     "canSerializeFMUState": "true", "providesIntermediateUpdate": "false", "hasEventMode": "false"}
+FMI3_MODEL_EXCHANGE = {"needsCompletedIntegratorStep": "false", "canGetAndSetFMUState": "true",
+                       "canSerializeFMUState": "true"}
+
+
+def model_description3(spec: dict, name: str, variables, version: str, token: str) -> bytes:
+    """The complete FMI 3.0 modelDescription.xml for the same variables (variables.py; value reference =
+    index), plus the independent variable ``time`` at value reference len(variables) (engine/fmi3.c answers
+    it). ``<ModelExchange>`` when the list carries the derivative variables (``variables(spec,
+    derivatives=True)``)."""
+    states = continuous_states(variables)
+    root = _root("3.0", spec, name, version, {"instantiationToken": token})
+    if states:
+        SubElement(root, "ModelExchange", {"modelIdentifier": name, **FMI3_MODEL_EXCHANGE})
+    SubElement(root, "CoSimulation", {"modelIdentifier": name, **FMI3_COSIMULATION})
+    _units(root, variables, ["s"])  # the independent variable's
+    _log_categories(root, "3.0")
+    _default_experiment(root, spec)
+
+    mv = SubElement(root, "ModelVariables")
+    SubElement(mv, "Float64", {"name": "time", "valueReference": str(len(variables)), "causality": "independent",
+                               "variability": "continuous", "unit": "s", "description": "simulation time"})
+    for i, v in enumerate(variables):
+        attr = {"name": v.name, "valueReference": str(i)}
+        if getattr(v, "description", None):
+            attr["description"] = str(v.description)
+        attr.update(causality=v.causality, variability=_variability(v))
+        if _initial(v):
+            attr["initial"] = _initial(v)
+        if getattr(v, "type", "Real") == "String":
+            SubElement(SubElement(mv, "String", attr), "Start", {"value": "" if v.start is None else str(v.start)})
+            continue
+        if v.unit:
+            attr["unit"] = v.unit
+        if v.causality in ("parameter", "input"):
+            attr["start"] = _fmt(0.0 if v.start is None else v.start)
+        if v.derivative_of is not None:
+            attr["derivative"] = str(v.derivative_of.vr)
+        SubElement(mv, "Float64", attr)
+
+    ms = SubElement(root, "ModelStructure")
+    outputs = [v for v in variables if v.causality == "output"]
+    for v in outputs:
+        deps = _output_dependencies(v, states)
+        SubElement(ms, "Output", {"valueReference": str(v.vr), "dependencies": " ".join(str(d.vr) for d in deps)})
+    for _, der in states:
+        SubElement(ms, "ContinuousStateDerivative", {"valueReference": str(der.vr), **_derivative_dependencies(der, 0)})
+    for v in outputs + [der for _, der in states]:  # no dependencies attribute: on every known
+        SubElement(ms, "InitialUnknown", {"valueReference": str(v.vr)})
+    return _xml(root)

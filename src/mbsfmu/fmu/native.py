@@ -1,16 +1,19 @@
-"""Native FMUs (``kind="native"``): the engine's C sources and the FMI 2.0 layer (``engine/fmi2.c``: co-simulation
-and model exchange) compiled into ``binaries/<platform>/<modelIdentifier>``; the scene is data
-(``resources/scene.bin``). No Python at run time: the binary needs only the C library and libm.
+"""Native FMUs (``kind="native"``): the engine's C sources and an FMI layer (``engine/fmi2.c`` for FMI 2.0, the
+default, ``engine/fmi3.c`` for FMI 3.0: co-simulation and model exchange each) compiled into
+``binaries/<platform>/<modelIdentifier>``; the scene is data (``resources/scene.bin``). No Python at run time:
+the binary needs only the C library and libm.
 
 An FMU holds
 
 * ``binaries/linux64/<id>.so`` (``cc``) and ``binaries/win64/<id>.dll`` when a MinGW-w64 cross compiler
-  (``x86_64-w64-mingw32-gcc``) is installed,
+  (``x86_64-w64-mingw32-gcc``) is installed (FMI 3.0: ``x86_64-linux``, ``x86_64-windows``),
 * ``resources/scene.bin``: the compiled scene (``engine.compile.compile_scene``) with the FMU's GUID,
 * ``resources/mbsfmu_drawing.json``: the scene for ``mbsfmu animate`` (``common.drawing_resource``),
-* ``sources/``: exactly the C files compiled into the binaries (the engine parts the scene needs, fmi2.c,
-  the headers they include), listed in ``<SourceFiles>``, plus a CMakeLists.txt and a README,
-* ``modelDescription.xml`` from the same writer as the pythonfmu kind (``common.model_description``).
+* ``sources/``: exactly the C files compiled into the binaries (the engine parts the scene needs, the FMI layer,
+  the headers they include), listed in ``<SourceFiles>`` (FMI 3.0: ``sources/buildDescription.xml``), plus a
+  CMakeLists.txt and a README,
+* ``modelDescription.xml`` from the FMI version's writer (``common.model_description``, the pythonfmu kind's
+  too, or ``common.model_description3``).
 """
 from __future__ import annotations
 
@@ -26,14 +29,16 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from .. import files
-from .common import drawing_resource, mbsfmu_version, model_description, write_zip
+from .common import drawing_resource, mbsfmu_version, model_description, model_description3, write_zip
 from .variables import variables as fmu_variables
 
 ENGINE = Path(__file__).resolve().parent.parent / "engine"
 FMI_LAYER = ENGINE / "fmi2.c"
+FMI_LAYERS = {"2": FMI_LAYER, "3": ENGINE / "fmi3.c"}  # FMI version → its layer
+PLATFORMS = {"2": ("linux64", "win64"), "3": ("x86_64-linux", "x86_64-windows")}  # binaries/ folders per version
 SHARED = ("-shared", "-fvisibility=hidden")  # with the engine's CFLAGS: the numbers of the in-process library
 MINGW = "x86_64-w64-mingw32-gcc"
-SCENE_FILE = "scene.bin"  # in resources/: the compiled scene fmi2.c reads
+SCENE_FILE = "scene.bin"  # in resources/: the compiled scene the FMI layer reads
 _INCLUDE = re.compile(rb'^\s*#\s*include\s+"([^"]+)"', re.M)
 
 # Co-simulation capabilities that differ from the pythonfmu kind.
@@ -41,14 +46,14 @@ COSIMULATION = {"needsExecutionTool": "false", "canGetAndSetFMUstate": "true", "
                 "canHandleVariableCommunicationStepSize": "true"}
 
 
-def source_files(blob: bytes) -> dict[str, bytes]:
-    """fmi2.c and the engine C sources it links with the scene's switches (engine.build.linked_sources),
-    with their headers (collect_sources). The
+def source_files(blob: bytes, fmi: str = "2") -> dict[str, bytes]:
+    """The FMI version's layer and the engine C sources it links with the scene's switches
+    (engine.build.linked_sources), with their headers (collect_sources). The
     engine's feature switches (-DMBS_WITH_...) are written at the top of each C file, so that compiling the
     files of sources/ needs no flags."""
     from ..engine import build as engine_build
     _, _, defs = engine_build.sources(engine_build.features(blob))
-    out = collect_sources(engine_build.linked_sources([FMI_LAYER], defs))
+    out = collect_sources(engine_build.linked_sources([FMI_LAYERS[fmi]], defs))
     if defs:
         banner = "/* this FMU's engine parts (mbsfmu engine/build.py) */\n" + "".join(
             f"#define {d[2:].replace('=', ' ', 1)}\n" for d in defs)
@@ -59,7 +64,7 @@ def source_files(blob: bytes) -> dict[str, bytes]:
 
 def collect_sources(c_files) -> dict[str, bytes]:
     """{flat file name: content} of the C files and every header they include, followed transitively
-    (looked up next to the including file, then in engine/ and engine/fmi2/)."""
+    (looked up next to the including file, then in engine/, engine/fmi2/ and engine/fmi3/)."""
     out: dict[str, bytes] = {}
     todo = list(c_files)
     while todo:
@@ -70,7 +75,8 @@ def collect_sources(c_files) -> dict[str, bytes]:
         out[path.name] = data
         for inc in _INCLUDE.findall(data):
             name = inc.decode()
-            found = next((d / name for d in (path.parent, ENGINE, ENGINE / "fmi2") if (d / name).is_file()), None)
+            found = next((d / name for d in (path.parent, ENGINE, ENGINE / "fmi2", ENGINE / "fmi3")
+                          if (d / name).is_file()), None)
             if found is None:
                 raise FileNotFoundError(f"{path.name} includes \"{name}\", which is not in {ENGINE}")
             todo.append(found)
@@ -134,15 +140,27 @@ endif()
 """
 
 
-def readme(identifier: str, c_names: list[str], notes: list[str]) -> str:
-    return (f"Sources of the native FMU '{identifier}' (mbsfmu engine + FMI 2.0 co-simulation and model-exchange "
-            "layer).\n\n"
+def build_description(identifier: str, c_names: list[str]) -> bytes:
+    """sources/buildDescription.xml (FMI 3.0's list of the sources, in place of FMI 2.0's <SourceFiles>)."""
+    from xml.etree.ElementTree import Element, SubElement, tostring
+    root = Element("fmiBuildDescription", {"fmiVersion": "3.0"})
+    files = SubElement(SubElement(root, "BuildConfiguration", {"modelIdentifier": identifier}), "SourceFileSet",
+                       {"language": "C99"})
+    for name in c_names:
+        SubElement(files, "SourceFile", {"name": name})
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root) + b"\n"
+
+
+def readme(identifier: str, c_names: list[str], notes: list[str], fmi: str = "2") -> str:
+    layer = f"FMI {fmi}.0 co-simulation and model-exchange"
+    binaries = "binaries/<platform>/" if fmi == "2" else "binaries/<platform tuple>/ (x86_64-linux, x86_64-windows)"
+    return (f"Sources of the native FMU '{identifier}' (mbsfmu engine + {layer} layer).\n\n"
             "Compiling all *.c files of this folder into a shared library gives a working FMU binary, e.g.\n\n"
             f"  cc -O2 -std=c99 -shared -fPIC -fvisibility=hidden -I. -o {identifier}.so {' '.join(c_names)} -lm\n"
             f"  x86_64-w64-mingw32-gcc -O2 -std=c99 -shared -static-libgcc -I. -o {identifier}.dll {' '.join(c_names)}\n\n"
-            "or use CMakeLists.txt. Put the library into binaries/<platform>/ of the FMU; it reads\n"
-            "resources/scene.bin at fmi2Instantiate. The FMI functions carry no prefix in a shared library;\n"
-            "define FMI2_FUNCTION_PREFIX to link the FMU statically under prefixed names.\n\n"
+            f"or use CMakeLists.txt. Put the library into {binaries} of the FMU; it reads\n"
+            f"resources/scene.bin at instantiation. The FMI functions carry no prefix in a shared library;\n"
+            f"define FMI{fmi}_FUNCTION_PREFIX to link the FMU statically under prefixed names.\n\n"
             + "".join(f"Build note: {n}\n" for n in notes))
 
 
@@ -154,9 +172,9 @@ def guid_for(spec: dict, version: str) -> str:
     return "{" + str(uuid.UUID(h.hexdigest()[:32])) + "}"
 
 
-def build_native(scene, dest: Path) -> Path:
-    """Write the FMU ``dest`` (``build.fmu_path``: ``<outdir>/<name>.fmu``, native kind) for a loaded scene;
-    returns its path."""
+def build_native(scene, dest: Path, fmi: str = "2") -> Path:
+    """Write the FMU ``dest`` (``build.fmu_path``: ``<outdir>/<name>.fmu``, native kind, FMI version ``fmi``)
+    for a loaded scene; returns its path."""
     from ..engine.compile import compile_scene
 
     spec = json.loads(json.dumps(scene.spec if hasattr(scene, "spec") else scene))
@@ -165,27 +183,33 @@ def build_native(scene, dest: Path) -> Path:
     guid = guid_for(spec, version)
     variables = fmu_variables(spec, derivatives=True)  # model exchange too
     blob = compile_scene(spec, variables, guid)
-    sources = source_files(blob)
-    xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
-                            source_files=c_names(sources), model_exchange=True)
-    for n in package(dest, name, sources, blob, xml, drawing_resource(spec)):
+    sources = source_files(blob, fmi)
+    extra = drawing_resource(spec)
+    if fmi == "3":
+        xml = model_description3(spec, name, variables, version, guid)
+        extra["sources/buildDescription.xml"] = build_description(name, c_names(sources))
+    else:
+        xml = model_description(spec, name, variables, version, guid=guid, cosimulation=COSIMULATION,
+                                source_files=c_names(sources), model_exchange=True)
+    for n in package(dest, name, sources, blob, xml, extra, fmi):
         warnings.warn(f"native FMU {name}: {n}", RuntimeWarning, stacklevel=3)
     return dest
 
 
 def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: bytes, xml: bytes,
-            extra: dict[str, bytes] | None = None) -> list[str]:
-    """Compile the sources into binaries/linux64 (and win64 with MinGW-w64) and write the FMU ``dest``
-    with sources/, resources/scene.bin, the modelDescription and the `extra` members. Returns build notes
-    (what is missing)."""
+            extra: dict[str, bytes] | None = None, fmi: str = "2") -> list[str]:
+    """Compile the sources into the FMI version's binaries/ folders (linux64, and win64 with MinGW-w64) and
+    write the FMU ``dest`` with sources/, resources/scene.bin, the modelDescription and the `extra` members.
+    Returns build notes (what is missing)."""
     cc = compiler()
     if cc is None:
         raise RuntimeError("a native FMU needs a C compiler (cc, gcc or clang, or $CC); none was found. "
                            "Install one (Debian: apt-get install gcc) or build the default (pythonfmu) kind")
     notes = []
+    linux, windows = PLATFORMS[fmi]
     mingw = shutil.which(MINGW)
     if mingw is None:
-        notes.append(f"no binaries/win64: {MINGW} (Debian gcc-mingw-w64-x86-64) was not found on the build machine")
+        notes.append(f"no binaries/{windows}: {MINGW} (Debian gcc-mingw-w64-x86-64) was not found on the build machine")
     names = c_names(sources)
     with tempfile.TemporaryDirectory(prefix="mbsfmu_native_") as tmp:
         src = Path(tmp) / "sources"  # compiled from the very files that ship
@@ -194,13 +218,13 @@ def package(dest: Path, identifier: str, sources: dict[str, bytes], scene_bin: b
             (src / fname).write_bytes(data)
         members = {"modelDescription.xml": xml, f"resources/{SCENE_FILE}": scene_bin, **(extra or {})}
         with ThreadPoolExecutor(2) as pool:  # the two compilers side by side
-            jobs = {f"binaries/linux64/{identifier}.so": pool.submit(_binary, src, sources, cc, False)}
+            jobs = {f"binaries/{linux}/{identifier}.so": pool.submit(_binary, src, sources, cc, False)}
             if mingw:
-                jobs[f"binaries/win64/{identifier}.dll"] = pool.submit(_binary, src, sources, mingw, True)
+                jobs[f"binaries/{windows}/{identifier}.dll"] = pool.submit(_binary, src, sources, mingw, True)
             members.update({member: job.result() for member, job in jobs.items()})
         members.update({f"sources/{f}": d for f, d in sorted(sources.items())})
         members["sources/CMakeLists.txt"] = cmake_lists(identifier, names).encode()
-        members["sources/README"] = readme(identifier, names, notes).encode()
+        members["sources/README"] = readme(identifier, names, notes, fmi).encode()
     with files.replacing(dest) as tmp:  # a build that fails or is killed leaves the previous FMU intact
         write_zip(tmp, members)
     return notes

@@ -1,0 +1,840 @@
+/* FMI 3.0 layer over the mbsfmu engine (native FMUs, `mbsfmu build --kind native --fmi 3`): Co-Simulation and
+ * Model Exchange, the counterpart of fmi2.c over the same engine API.
+ *
+ * One fmi3Instance = one engine instance plus the FMI bookkeeping: the host's environment and logger, the
+ * instance name, the interface (co-simulation or model exchange), the phase of its FMI 3.0 state machine and
+ * the logging switches. The compiled scene is read from <resourcePath>scene.bin at instantiation. What does not
+ * depend on the FMI version is shared with fmi2.c: the phases, the "allowed in" check and the registries of live
+ * instances and FMU states (fmi2_guard.c), the logging switches, loading the scene and FMU state bytes
+ * (fmi_common.c).
+ *
+ * Variables: the engine's variable table by value reference, Float64 and String scalars only, plus the
+ * independent variable `time` after the table's last row (value reference = its row count, as the
+ * modelDescription writer numbers it). Co-simulation without event mode, intermediate update or early return.
+ * Model exchange: the continuous states are the engine's [y; ẏ] (quaternions as the engine keeps them: the host
+ * integrates their four components, nothing renormalizes them); no event indicators, no time events.
+ *
+ * Status mapping and messages as in fmi2.c: calls in the wrong phase or with bad arguments get fmi3Error and
+ * change nothing, a failed step or evaluation fmi3Discard, every message through the host's logger with the
+ * modelDescription's categories (logStatusWarning .. logStatusFatal, logAll).
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi3Functions.h"
+#include "fmi_common.h"
+#include "fmu_files.h"
+#include "mbs_engine.h"
+
+/* phases and "allowed in" masks (fmi2_guard.h: the FMI state machines' phases are the same in 3.0) */
+#define P_SET (P_INSTANTIATED | P_INIT | P_RUNNING)                /* inputs and parameters may be set */
+#define P_STATES (I_ME | P_EVENT | P_CONT | P_TERMINATED | P_ERROR) /* model exchange: the host's states exist */
+
+typedef struct {
+    MbsModel *model;
+    MbsInstance *sim;
+    fmi3InstanceEnvironment env;
+    fmi3LogMessageCallback log;
+    char *name;
+    int iface;                 /* I_CS or I_ME */
+    int phase;
+    MbsLogSwitches log_switches;
+    int logged;                /* the engine logged during the current call */
+    double t_start;
+    long refused_vr;           /* a setting refused before initialization (-1: none): its message fails */
+    char refused[256];         /* fmi3ExitInitializationMode */
+} Fmu;
+
+/* the live instances and FMU states (MbsFmuState, fmi_common.h) this library handed out (fmi2_guard.h) */
+static MbsRegistry instances, states;
+
+/* ---- logging ---- */
+static void emit(fmi3LogMessageCallback log, fmi3InstanceEnvironment env, fmi3Status st, const char *msg) {
+    if (log)
+        log(env, st, mbs_fmi_category[st <= fmi3Fatal ? st : 0], msg);
+}
+
+static void logf_(Fmu *f, fmi3Status st, const char *fmt, ...) {
+    char buf[1024];
+    va_list ap;
+    if (!mbs_log_wanted(&f->log_switches, (int)st))
+        return;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    emit(f->log, f->env, st, buf);
+}
+
+static void engine_log(void *env, int status, const char *message) {
+    Fmu *f = (Fmu *)env;
+    f->logged = 1;
+    logf_(f, (fmi3Status)(status >= MBS_OK && status <= MBS_ERROR ? status : MBS_ERROR), "%s", message);
+}
+
+/* An engine return code as fmi3Status; the engine's message is logged unless the engine already did. */
+static fmi3Status engine_status(Fmu *f, int rc, const char *what) {
+    if (rc < MBS_OK || rc > MBS_ERROR)
+        rc = MBS_ERROR;
+    if (rc != MBS_OK && !f->logged)
+        logf_(f, (fmi3Status)rc, "%s: %s", what, mbs_message(f->sim));
+    return (fmi3Status)rc;
+}
+
+/* The call `fn` is allowed in the phases `mask`: otherwise fmi3Error with a message, nothing changes. */
+static int allowed(Fmu *f, int mask, const char *fn) {
+    char why[256];
+    if (!mbs_reg_find(&instances, f)) {  /* no logger known: stderr */
+        fprintf(stderr, "mbsfmu: %s: %s\n", fn,
+                f ? "not a live instance of this FMU (freed, or another FMU's)" : "NULL instance");
+        return 0;
+    }
+    f->logged = 0;
+    if (!mbs_phase_refuses(mask, f->phase, f->iface, fn, why, sizeof why))
+        return 1;
+    logf_(f, fmi3Error, "%s", why);
+    return 0;
+}
+#define CHECK(mask, fn) Fmu *f = (Fmu *)instance; if (!allowed(f, (mask), (fn))) return fmi3Error
+
+static int bad_array(Fmu *f, const void *a, const void *b, size_t n, const char *fn) {
+    if (n == 0 || (a && b))
+        return 0;
+    logf_(f, fmi3Error, "%s: NULL array for %lu values", fn, (unsigned long)n);
+    return 1;
+}
+
+/* Scalars only: as many values as value references. */
+static int bad_count(Fmu *f, size_t nvr, size_t nvalues, const char *fn) {
+    if (nvr == nvalues)
+        return 0;
+    logf_(f, fmi3Error, "%s: %lu values for %lu value references (this FMU's variables are scalars)", fn,
+          (unsigned long)nvalues, (unsigned long)nvr);
+    return 1;
+}
+
+static int nstates(const Fmu *f) { return mbs_model_npos(f->model) + mbs_model_nvel(f->model); }
+static fmi3ValueReference time_vr(const Fmu *f) { return (fmi3ValueReference)mbs_model_nvars(f->model); }
+
+/* ---- common functions ---- */
+const char *fmi3GetVersion(void) { return fmi3Version; }
+
+fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
+                               const fmi3String categories[]) {
+    char err[256];
+    CHECK(P_ANY, "fmi3SetDebugLogging");
+    if (mbs_log_set(&f->log_switches, loggingOn != fmi3False, nCategories, categories, err, sizeof err)) {
+        logf_(f, fmi3Error, "fmi3SetDebugLogging: %s", err);
+        return fmi3Error;
+    }
+    return fmi3OK;
+}
+
+/* <resourcePath>scene.bin: FMI 3.0 gives an absolute path ending in a separator (a file: URI, as FMI 2.0
+ * gave, is accepted too). 0, or 1 with the reason in err. */
+static int scene_path(const char *resources, char *out, size_t n, char *err, size_t errlen) {
+    size_t len;
+    int absolute;
+    if (!resources || !*resources) {
+        snprintf(err, errlen, "no resource path given (the FMU's resources folder holds scene.bin)");
+        return 1;
+    }
+    if (strncmp(resources, "file:", 5) == 0)
+        return mbs_resource_path(resources, "scene.bin", out, n, err, errlen);
+    len = strlen(resources);
+    absolute = resources[0] == '/' || resources[0] == '\\' ||
+               (len > 2 && resources[1] == ':' && (resources[2] == '\\' || resources[2] == '/'));
+    if (!absolute) {
+        snprintf(err, errlen, "resource path '%.200s' is not absolute", resources);
+        return 1;
+    }
+    if ((size_t)snprintf(out, n, "%s%sscene.bin", resources,
+                         resources[len - 1] == '/' || resources[len - 1] == '\\' ? "" : "/") >= n) {
+        snprintf(err, errlen, "resource path too long (%lu characters)", (unsigned long)len);
+        return 1;
+    }
+    return 0;
+}
+
+static fmi3Instance instantiate(const char *fn, int iface, fmi3String instanceName, fmi3String token,
+                                fmi3String resourcePath, fmi3Boolean loggingOn, fmi3InstanceEnvironment env,
+                                fmi3LogMessageCallback log) {
+    char path[4096], err[1024], msg[1200];
+    MbsModel *model;
+    Fmu *f;
+    if (!log) {  /* nobody to tell: stderr (FMI 3.0 allows no logger, this FMU wants one for its messages) */
+        fprintf(stderr, "mbsfmu: %s: no logMessage callback\n", fn);
+        return NULL;
+    }
+    if (!instanceName || !*instanceName) {
+        snprintf(msg, sizeof msg, "%s: no instance name", fn);
+        emit(log, env, fmi3Error, msg);
+        return NULL;
+    }
+    if (!token) {
+        snprintf(msg, sizeof msg, "%s: no instantiationToken given", fn);
+        emit(log, env, fmi3Error, msg);
+        return NULL;
+    }
+    if (scene_path(resourcePath, path, sizeof path, err, sizeof err) ||
+        !(model = mbs_fmi_load_scene(path, token, err, sizeof err))) {
+        snprintf(msg, sizeof msg, "%s: %s", fn, err);
+        emit(log, env, fmi3Error, msg);
+        return NULL;
+    }
+    f = (Fmu *)calloc(1, sizeof *f);
+    if (f)
+        f->name = (char *)malloc(strlen(instanceName) + 1);
+    if (!f || !f->name) {
+        snprintf(msg, sizeof msg, "%s: out of memory", fn);
+        emit(log, env, fmi3Error, msg);
+        free(f);
+        mbs_model_free(model);
+        return NULL;
+    }
+    strcpy(f->name, instanceName);
+    f->env = env;
+    f->log = log;
+    f->iface = iface;
+    f->model = model;
+    f->phase = P_INSTANTIATED;
+    f->refused_vr = -1;
+    mbs_log_init(&f->log_switches, loggingOn != fmi3False);
+    f->sim = mbs_instance_new(model, engine_log, f);
+    if (!f->sim || !mbs_reg_add(&instances, f)) {
+        mbs_instance_free(f->sim);
+        snprintf(msg, sizeof msg, "%s: cannot create the engine instance (out of memory?)", fn);
+        emit(log, env, fmi3Error, msg);
+        mbs_model_free(model);
+        free(f->name), free(f);
+        return NULL;
+    }
+    return f;
+}
+
+fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String instantiationToken,
+                                         fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                         fmi3Boolean eventModeUsed, fmi3Boolean earlyReturnAllowed,
+                                         const fmi3ValueReference requiredIntermediateVariables[],
+                                         size_t nRequiredIntermediateVariables,
+                                         fmi3InstanceEnvironment instanceEnvironment,
+                                         fmi3LogMessageCallback logMessage,
+                                         fmi3IntermediateUpdateCallback intermediateUpdate) {
+    /* hasEventMode, providesIntermediateUpdate and early return are false: the FMU never uses them, whatever
+     * the host could handle */
+    (void)visible, (void)eventModeUsed, (void)earlyReturnAllowed, (void)requiredIntermediateVariables;
+    (void)nRequiredIntermediateVariables, (void)intermediateUpdate;
+    return instantiate("fmi3InstantiateCoSimulation", I_CS, instanceName, instantiationToken, resourcePath, loggingOn,
+                       instanceEnvironment, logMessage);
+}
+
+fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
+                                          fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                          fmi3InstanceEnvironment instanceEnvironment,
+                                          fmi3LogMessageCallback logMessage) {
+    (void)visible;
+    return instantiate("fmi3InstantiateModelExchange", I_ME, instanceName, instantiationToken, resourcePath, loggingOn,
+                       instanceEnvironment, logMessage);
+}
+
+fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3String instantiationToken,
+                                               fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                               fmi3InstanceEnvironment instanceEnvironment,
+                                               fmi3LogMessageCallback logMessage, fmi3ClockUpdateCallback clockUpdate,
+                                               fmi3LockPreemptionCallback lockPreemption,
+                                               fmi3UnlockPreemptionCallback unlockPreemption) {
+    (void)instanceName, (void)instantiationToken, (void)resourcePath, (void)visible, (void)loggingOn;
+    (void)clockUpdate, (void)lockPreemption, (void)unlockPreemption;
+    emit(logMessage, instanceEnvironment, fmi3Error,
+         "fmi3InstantiateScheduledExecution: this FMU offers co-simulation and model exchange only");
+    return NULL;
+}
+
+void fmi3FreeInstance(fmi3Instance instance) {
+    Fmu *f = (Fmu *)instance;
+    if (!mbs_reg_drop(&instances, f)) {  /* NULL, freed before, or not ours: nothing to free */
+        if (f)
+            fprintf(stderr, "mbsfmu: fmi3FreeInstance: not a live instance of this FMU (freed, or another FMU's)\n");
+        return;
+    }
+    mbs_fmu_states_free_owned(&states, f);  /* the states it handed out go with it */
+    mbs_instance_free(f->sim);
+    mbs_model_free(f->model);
+    free(f->name);
+    free(f);
+}
+
+/* ---- life cycle ---- */
+fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
+                                       fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
+    CHECK(P_INSTANTIATED, "fmi3EnterInitializationMode");
+    /* The tolerance is the parameter integrator.rtol (as in FMI 2); the stop time is not needed: the
+     * integrator lands on every communication point. */
+    if (!isfinite(startTime) || (toleranceDefined && !(isfinite(tolerance) && tolerance > 0)) ||
+        (stopTimeDefined && !(isfinite(stopTime) && stopTime >= startTime))) {
+        logf_(f, fmi3Error, "fmi3EnterInitializationMode: need a finite start time, a tolerance > 0 and a finite "
+              "stop time >= start when defined (start %g, tolerance %g, stop %g)", startTime,
+              toleranceDefined ? tolerance : 0.0, stopTimeDefined ? stopTime : startTime);
+        return fmi3Error;
+    }
+    f->t_start = startTime;
+    f->phase = P_INIT;
+    return fmi3OK;
+}
+
+fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
+    fmi3Status st;
+    CHECK(P_INIT, "fmi3ExitInitializationMode");
+    if (f->refused_vr >= 0) {  /* the experiment the host asked for cannot run: no silent default */
+        logf_(f, fmi3Error, "fmi3ExitInitializationMode: value reference %ld was refused: %s", f->refused_vr,
+              f->refused);
+        f->phase = P_ERROR;
+        return fmi3Error;
+    }
+    st = engine_status(f, mbs_initialize(f->sim, f->t_start), "fmi3ExitInitializationMode");
+    if (st >= fmi3Discard) {
+        f->phase = P_ERROR;
+        return fmi3Error;
+    }
+    f->phase = f->iface == I_ME ? P_EVENT : P_STEP;  /* model exchange: event mode first (FMI 3.0, 3.1) */
+    return st;
+}
+
+fmi3Status fmi3Terminate(fmi3Instance instance) {
+    CHECK(P_RUNNING, "fmi3Terminate");
+    f->phase = P_TERMINATED;
+    return fmi3OK;
+}
+
+fmi3Status fmi3Reset(fmi3Instance instance) {
+    fmi3Status st;
+    CHECK(P_ANY, "fmi3Reset");
+    st = engine_status(f, mbs_reset(f->sim), "fmi3Reset");
+    f->phase = st >= fmi3Discard ? P_ERROR : P_INSTANTIATED;
+    f->t_start = 0.0;
+    f->refused_vr = -1;
+    return st >= fmi3Discard ? fmi3Error : st;
+}
+
+/* ---- variables ---- */
+/* Remember a refused setting before initialization (fmi3ExitInitializationMode fails); a later accepted
+ * setting of the same variable clears it. */
+static fmi3Status setting(Fmu *f, int vr, int rc, const char *fn) {
+    fmi3Status st = engine_status(f, rc, fn);
+    if (f->phase & (P_INSTANTIATED | P_INIT)) {
+        if (st >= fmi3Error) {
+            f->refused_vr = vr;
+            snprintf(f->refused, sizeof f->refused, "%s", mbs_message(f->sim));
+        } else if (f->refused_vr == vr)
+            f->refused_vr = -1;
+    }
+    return st >= fmi3Error ? fmi3Error : st;
+}
+
+/* Runs of engine value references through mbs_get_reals, the independent variable from the instance. */
+fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                          fmi3Float64 values[], size_t nValues) {
+    size_t i, j;
+    CHECK(P_ANY, "fmi3GetFloat64");
+    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3GetFloat64") ||
+        bad_count(f, nValueReferences, nValues, "fmi3GetFloat64"))
+        return fmi3Error;
+    for (i = 0; i < nValueReferences; i = j + 1) {
+        for (j = i; j < nValueReferences && valueReferences[j] != time_vr(f); j++)
+            ;
+        if (j > i && mbs_get_reals(f->sim, valueReferences + i, j - i, values + i) != MBS_OK)
+            return engine_status(f, MBS_ERROR, "fmi3GetFloat64");
+        if (j < nValueReferences)
+            values[j] = mbs_initialized(f->sim) ? mbs_time(f->sim) : f->t_start;
+    }
+    return fmi3OK;
+}
+
+/* All values at once (parameters that must change together: one call); on a refusal nothing is set. */
+fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                          const fmi3Float64 values[], size_t nValues) {
+    size_t i, bad = 0;
+    int rc;
+    CHECK(P_SET, "fmi3SetFloat64");
+    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3SetFloat64") ||
+        bad_count(f, nValueReferences, nValues, "fmi3SetFloat64"))
+        return fmi3Error;
+    for (i = 0; i < nValueReferences; i++)
+        if (valueReferences[i] >= time_vr(f)) {
+            logf_(f, fmi3Error, "fmi3SetFloat64: %s value reference %u", valueReferences[i] == time_vr(f) ?
+                  "the independent variable (time) cannot be set: fmi3SetTime or fmi3DoStep move it;" : "unknown",
+                  valueReferences[i]);
+            return fmi3Error;
+        }
+    rc = mbs_set_reals(f->sim, valueReferences, nValueReferences, values, &bad);
+    if (rc != MBS_OK)
+        return setting(f, (int)valueReferences[bad < nValueReferences ? bad : 0], rc, "fmi3SetFloat64");
+    for (i = 0; i < nValueReferences; i++)
+        setting(f, (int)valueReferences[i], MBS_OK, "fmi3SetFloat64");
+    return fmi3OK;
+}
+
+static int vr_int(Fmu *f, fmi3ValueReference vr, const char *fn) {
+    if (vr < (fmi3ValueReference)mbs_model_nvars(f->model))
+        return (int)vr;
+    logf_(f, fmi3Error, "%s: value reference %u is not a String", fn, vr);
+    return -1;
+}
+
+fmi3Status fmi3GetString(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                         fmi3String values[], size_t nValues) {
+    size_t i;
+    CHECK(P_ANY, "fmi3GetString");
+    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3GetString") ||
+        bad_count(f, nValueReferences, nValues, "fmi3GetString"))
+        return fmi3Error;
+    for (i = 0; i < nValueReferences; i++) {
+        int r = vr_int(f, valueReferences[i], "fmi3GetString");
+        if (r < 0)
+            return fmi3Error;
+        if (mbs_get_string(f->sim, r, &values[i]) != MBS_OK)
+            return engine_status(f, MBS_ERROR, "fmi3GetString");
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetString(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                         const fmi3String values[], size_t nValues) {
+    size_t i;
+    CHECK(P_SET, "fmi3SetString");
+    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3SetString") ||
+        bad_count(f, nValueReferences, nValues, "fmi3SetString"))
+        return fmi3Error;
+    for (i = 0; i < nValueReferences; i++) {
+        int r = vr_int(f, valueReferences[i], "fmi3SetString");
+        if (r < 0)
+            return fmi3Error;
+        if (!values[i]) {
+            logf_(f, fmi3Error, "fmi3SetString: NULL string for value reference %u", valueReferences[i]);
+            return fmi3Error;
+        }
+        if (setting(f, r, mbs_set_string(f->sim, r, values[i]), "fmi3SetString") >= fmi3Error)
+            return fmi3Error;
+    }
+    return fmi3OK;
+}
+
+/* The model has Float64 and String variables only. */
+static fmi3Status no_such_type(fmi3Instance instance, size_t nvr, const char *fn) {
+    CHECK(P_ANY, fn);
+    if (nvr == 0)
+        return fmi3OK;
+    logf_(f, fmi3Error, "%s: this model has no variables of that type (Float64 and String only)", fn);
+    return fmi3Error;
+}
+#define NO_SUCH_TYPE(GET, SET, T)                                                                                     \
+    fmi3Status GET(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, T values[], size_t nValues) {   \
+        (void)vr, (void)values, (void)nValues;                                                                        \
+        return no_such_type(instance, nvr, #GET);                                                                     \
+    }                                                                                                                 \
+    fmi3Status SET(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, const T values[],             \
+                   size_t nValues) {                                                                              \
+        (void)vr, (void)values, (void)nValues;                                                                        \
+        return no_such_type(instance, nvr, #SET);                                                                     \
+    }
+NO_SUCH_TYPE(fmi3GetFloat32, fmi3SetFloat32, fmi3Float32)
+NO_SUCH_TYPE(fmi3GetInt8, fmi3SetInt8, fmi3Int8)
+NO_SUCH_TYPE(fmi3GetUInt8, fmi3SetUInt8, fmi3UInt8)
+NO_SUCH_TYPE(fmi3GetInt16, fmi3SetInt16, fmi3Int16)
+NO_SUCH_TYPE(fmi3GetUInt16, fmi3SetUInt16, fmi3UInt16)
+NO_SUCH_TYPE(fmi3GetInt32, fmi3SetInt32, fmi3Int32)
+NO_SUCH_TYPE(fmi3GetUInt32, fmi3SetUInt32, fmi3UInt32)
+NO_SUCH_TYPE(fmi3GetInt64, fmi3SetInt64, fmi3Int64)
+NO_SUCH_TYPE(fmi3GetUInt64, fmi3SetUInt64, fmi3UInt64)
+NO_SUCH_TYPE(fmi3GetBoolean, fmi3SetBoolean, fmi3Boolean)
+
+fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, size_t valueSizes[],
+                         fmi3Binary values[], size_t nValues) {
+    (void)vr, (void)valueSizes, (void)values, (void)nValues;
+    return no_such_type(instance, nvr, "fmi3GetBinary");
+}
+fmi3Status fmi3SetBinary(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, const size_t valueSizes[],
+                         const fmi3Binary values[], size_t nValues) {
+    (void)vr, (void)valueSizes, (void)values, (void)nValues;
+    return no_such_type(instance, nvr, "fmi3SetBinary");
+}
+fmi3Status fmi3GetClock(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, fmi3Clock values[]) {
+    (void)vr, (void)values;
+    return no_such_type(instance, nvr, "fmi3GetClock");
+}
+fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, const fmi3Clock values[]) {
+    (void)vr, (void)values;
+    return no_such_type(instance, nvr, "fmi3SetClock");
+}
+
+/* ---- what this FMU does not provide: fmi3Error with a message ---- */
+static fmi3Status not_provided(fmi3Instance instance, const char *fn, const char *why) {
+    CHECK(P_ANY | P_FATAL, fn);
+    logf_(f, fmi3Error, "%s: not provided (%s)", fn, why);
+    return fmi3Error;
+}
+#define NOT_PROVIDED(fn, why) return not_provided(instance, #fn, why)
+
+fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance instance, fmi3ValueReference valueReference,
+                                               size_t *nDependencies) {
+    (void)valueReference, (void)nDependencies;
+    NOT_PROVIDED(fmi3GetNumberOfVariableDependencies, "the modelDescription lists no dependencies");
+}
+fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference dependent,
+                                       size_t elementIndicesOfDependent[], fmi3ValueReference independents[],
+                                       size_t elementIndicesOfIndependents[], fmi3DependencyKind dependencyKinds[],
+                                       size_t nDependencies) {
+    (void)dependent, (void)elementIndicesOfDependent, (void)independents, (void)elementIndicesOfIndependents;
+    (void)dependencyKinds, (void)nDependencies;
+    NOT_PROVIDED(fmi3GetVariableDependencies, "the modelDescription lists no dependencies");
+}
+fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
+                                        const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
+                                        size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
+    (void)unknowns, (void)nUnknowns, (void)knowns, (void)nKnowns, (void)seed, (void)nSeed, (void)sensitivity;
+    (void)nSensitivity;
+    NOT_PROVIDED(fmi3GetDirectionalDerivative, "providesDirectionalDerivatives=false");
+}
+fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
+                                    const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
+                                    size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
+    (void)unknowns, (void)nUnknowns, (void)knowns, (void)nKnowns, (void)seed, (void)nSeed, (void)sensitivity;
+    (void)nSensitivity;
+    NOT_PROVIDED(fmi3GetAdjointDerivative, "providesAdjointDerivatives=false");
+}
+fmi3Status fmi3EnterConfigurationMode(fmi3Instance instance) {
+    NOT_PROVIDED(fmi3EnterConfigurationMode, "no structural parameters");
+}
+fmi3Status fmi3ExitConfigurationMode(fmi3Instance instance) {
+    NOT_PROVIDED(fmi3ExitConfigurationMode, "no structural parameters");
+}
+fmi3Status fmi3GetIntervalDecimal(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                                  fmi3Float64 intervals[], fmi3IntervalQualifier qualifiers[]) {
+    (void)vr, (void)nvr, (void)intervals, (void)qualifiers;
+    NOT_PROVIDED(fmi3GetIntervalDecimal, "no clocks");
+}
+fmi3Status fmi3GetIntervalFraction(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                                   fmi3UInt64 counters[], fmi3UInt64 resolutions[],
+                                   fmi3IntervalQualifier qualifiers[]) {
+    (void)vr, (void)nvr, (void)counters, (void)resolutions, (void)qualifiers;
+    NOT_PROVIDED(fmi3GetIntervalFraction, "no clocks");
+}
+fmi3Status fmi3GetShiftDecimal(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 shifts[]) {
+    (void)vr, (void)nvr, (void)shifts;
+    NOT_PROVIDED(fmi3GetShiftDecimal, "no clocks");
+}
+fmi3Status fmi3GetShiftFraction(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                                fmi3UInt64 counters[], fmi3UInt64 resolutions[]) {
+    (void)vr, (void)nvr, (void)counters, (void)resolutions;
+    NOT_PROVIDED(fmi3GetShiftFraction, "no clocks");
+}
+fmi3Status fmi3SetIntervalDecimal(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                                  const fmi3Float64 intervals[]) {
+    (void)vr, (void)nvr, (void)intervals;
+    NOT_PROVIDED(fmi3SetIntervalDecimal, "no clocks");
+}
+fmi3Status fmi3SetIntervalFraction(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                                   const fmi3UInt64 counters[], const fmi3UInt64 resolutions[]) {
+    (void)vr, (void)nvr, (void)counters, (void)resolutions;
+    NOT_PROVIDED(fmi3SetIntervalFraction, "no clocks");
+}
+fmi3Status fmi3SetShiftDecimal(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                               const fmi3Float64 shifts[]) {
+    (void)vr, (void)nvr, (void)shifts;
+    NOT_PROVIDED(fmi3SetShiftDecimal, "no clocks");
+}
+fmi3Status fmi3SetShiftFraction(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                                const fmi3UInt64 counters[], const fmi3UInt64 resolutions[]) {
+    (void)vr, (void)nvr, (void)counters, (void)resolutions;
+    NOT_PROVIDED(fmi3SetShiftFraction, "no clocks");
+}
+fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance instance) {
+    NOT_PROVIDED(fmi3EvaluateDiscreteStates, "no clocks or discrete states");
+}
+fmi3Status fmi3ActivateModelPartition(fmi3Instance instance, fmi3ValueReference clockReference,
+                                      fmi3Float64 activationTime) {
+    (void)clockReference, (void)activationTime;
+    NOT_PROVIDED(fmi3ActivateModelPartition, "no scheduled execution");
+}
+fmi3Status fmi3EnterStepMode(fmi3Instance instance) {
+    NOT_PROVIDED(fmi3EnterStepMode, "hasEventMode=false: co-simulation goes to step mode at "
+                 "fmi3ExitInitializationMode");
+}
+fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr,
+                                    const fmi3Int32 orders[], fmi3Float64 values[], size_t nValues) {
+    (void)vr, (void)nvr, (void)orders, (void)values, (void)nValues;
+    NOT_PROVIDED(fmi3GetOutputDerivatives, "maxOutputDerivativeOrder=0");
+}
+
+/* ---- FMU state: the engine's byte layout, in memory and serialized (fmi_common.c) ---- */
+/* A state handed out by any live instance of this FMU (same model: it restores into any of them). */
+static MbsFmuState *state_of(Fmu *f, fmi3FMUState s, const char *fn) {
+    if (mbs_reg_find(&states, s))
+        return (MbsFmuState *)s;
+    logf_(f, fmi3Error, "%s: not an FMU state of this FMU's live instances (never handed out, or freed)", fn);
+    return NULL;
+}
+
+fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
+    MbsFmuState *st;
+    CHECK(P_ANY, "fmi3GetFMUState");
+    if (!FMUState) {
+        logf_(f, fmi3Error, "fmi3GetFMUState: NULL pointer");
+        return fmi3Error;
+    }
+    st = (MbsFmuState *)*FMUState;
+    if (st && !state_of(f, st, "fmi3GetFMUState"))
+        return fmi3Error;
+    if (!(st = mbs_fmu_state_sized(&states, st, f, mbs_state_size(f->sim)))) {
+        logf_(f, fmi3Error, "fmi3GetFMUState: out of memory");
+        return fmi3Error;
+    }
+    *FMUState = st;
+    return engine_status(f, mbs_state_save(f->sim, st->bytes, st->len), "fmi3GetFMUState");
+}
+
+fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState FMUState) {
+    MbsFmuState *st;
+    CHECK(P_ANY, "fmi3SetFMUState");
+    if (!(st = state_of(f, FMUState, "fmi3SetFMUState")))
+        return fmi3Error;
+    if (mbs_state_load(f->sim, st->bytes, st->len) != MBS_OK) {
+        engine_status(f, MBS_ERROR, "fmi3SetFMUState (instance unchanged)");
+        return fmi3Error;
+    }
+    if (!mbs_initialized(f->sim))  /* a state from before initialization: initialize again */
+        f->phase = P_INSTANTIATED;
+    else if (f->iface == I_CS)
+        f->phase = P_STEP;
+    else if (!(f->phase & (P_EVENT | P_CONT)))
+        f->phase = P_EVENT;
+    return fmi3OK;
+}
+
+fmi3Status fmi3FreeFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
+    MbsFmuState *st;
+    CHECK(P_ANY, "fmi3FreeFMUState");
+    if (!FMUState) {
+        logf_(f, fmi3Error, "fmi3FreeFMUState: NULL state pointer");
+        return fmi3Error;
+    }
+    if (!*FMUState)
+        return fmi3OK;  /* freeing NULL is a no-op */
+    if (!(st = state_of(f, *FMUState, "fmi3FreeFMUState")))
+        return fmi3Error;
+    if (mbs_reg_drop(&states, st))
+        free(st);
+    *FMUState = NULL;
+    return fmi3OK;
+}
+
+fmi3Status fmi3SerializedFMUStateSize(fmi3Instance instance, fmi3FMUState FMUState, size_t *size) {
+    MbsFmuState *st;
+    CHECK(P_ANY, "fmi3SerializedFMUStateSize");
+    if (!(st = state_of(f, FMUState, "fmi3SerializedFMUStateSize")))
+        return fmi3Error;
+    if (!size) {
+        logf_(f, fmi3Error, "fmi3SerializedFMUStateSize: NULL size pointer");
+        return fmi3Error;
+    }
+    *size = st->len;
+    return fmi3OK;
+}
+
+fmi3Status fmi3SerializeFMUState(fmi3Instance instance, fmi3FMUState FMUState, fmi3Byte serializedState[],
+                                 size_t size) {
+    MbsFmuState *st;
+    CHECK(P_ANY, "fmi3SerializeFMUState");
+    if (!(st = state_of(f, FMUState, "fmi3SerializeFMUState")))
+        return fmi3Error;
+    if (!serializedState) {
+        logf_(f, fmi3Error, "fmi3SerializeFMUState: NULL buffer");
+        return fmi3Error;
+    }
+    if (size < st->len) {
+        logf_(f, fmi3Error, "fmi3SerializeFMUState: buffer of %lu bytes for a state of %lu",
+              (unsigned long)size, (unsigned long)st->len);
+        return fmi3Error;
+    }
+    memcpy(serializedState, st->bytes, st->len);
+    return fmi3OK;
+}
+
+/* Only bytes that load into this instance (mbs_fmu_state_check: its own state restored afterwards) are
+ * copied into a new state. */
+fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte serializedState[], size_t size,
+                                   fmi3FMUState *FMUState) {
+    MbsFmuState *st;
+    int rc;
+    CHECK(P_ANY, "fmi3DeserializeFMUState");
+    if (!FMUState || !serializedState) {
+        logf_(f, fmi3Error, "fmi3DeserializeFMUState: NULL pointer");
+        return fmi3Error;
+    }
+    rc = mbs_fmu_state_check(f->sim, serializedState, size);
+    if (rc == -1) {
+        f->phase = P_FATAL;
+        logf_(f, fmi3Fatal, "fmi3DeserializeFMUState: the instance's own state did not load back: %s",
+              mbs_message(f->sim));
+        return fmi3Fatal;
+    }
+    if (rc != MBS_OK) {
+        if (rc == -2)
+            logf_(f, fmi3Error, "fmi3DeserializeFMUState: out of memory");
+        else
+            engine_status(f, MBS_ERROR, "fmi3DeserializeFMUState");
+        return fmi3Error;
+    }
+    if (!(st = mbs_fmu_state_copy(&states, f, serializedState, size))) {
+        logf_(f, fmi3Error, "fmi3DeserializeFMUState: out of memory");
+        return fmi3Error;
+    }
+    *FMUState = st;  /* an output argument: whatever it held is not ours to free */
+    return fmi3OK;
+}
+
+/* ---- co-simulation ---- */
+static int null_outputs(Fmu *f, const void *a, const void *b, const void *c, const void *d, const char *fn) {
+    if (a && b && c && d)
+        return 0;
+    logf_(f, fmi3Error, "%s: NULL output argument", fn);
+    return 1;
+}
+
+fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoint, fmi3Float64 communicationStepSize,
+                      fmi3Boolean noSetFMUStatePriorToCurrentPoint, fmi3Boolean *eventHandlingNeeded,
+                      fmi3Boolean *terminateSimulation, fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime) {
+    fmi3Status st;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    CHECK(I_CS | P_STEP, "fmi3DoStep");
+    if (null_outputs(f, eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime, "fmi3DoStep"))
+        return fmi3Error;
+    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0 ||
+        currentCommunicationPoint + communicationStepSize == currentCommunicationPoint) {
+        logf_(f, fmi3Error, "fmi3DoStep: bad step t=%g, h=%g (need finite t and h > 0 that advances t)",
+              currentCommunicationPoint, communicationStepSize);
+        return fmi3Error;
+    }
+    /* a refused or failed step leaves the instance at its last good point: the phase stays */
+    st = engine_status(f, mbs_do_step(f->sim, currentCommunicationPoint, communicationStepSize), "fmi3DoStep");
+    *eventHandlingNeeded = fmi3False;
+    *earlyReturn = fmi3False;
+    *terminateSimulation = st == fmi3Discard;  /* as fmi2Terminated after a discarded FMI 2 step */
+    *lastSuccessfulTime = mbs_time(f->sim);
+    return st;
+}
+
+/* ---- model exchange ---- */
+fmi3Status fmi3EnterEventMode(fmi3Instance instance) {
+    CHECK(I_ME | P_CONT, "fmi3EnterEventMode");
+    f->phase = P_EVENT;
+    return fmi3OK;
+}
+
+/* No discrete states, event indicators or time events: nothing changes at an event. */
+fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discreteStatesNeedUpdate,
+                                    fmi3Boolean *terminateSimulation, fmi3Boolean *nominalsOfContinuousStatesChanged,
+                                    fmi3Boolean *valuesOfContinuousStatesChanged, fmi3Boolean *nextEventTimeDefined,
+                                    fmi3Float64 *nextEventTime) {
+    CHECK(I_ME | P_EVENT, "fmi3UpdateDiscreteStates");
+    if (null_outputs(f, discreteStatesNeedUpdate, terminateSimulation, nominalsOfContinuousStatesChanged,
+                     valuesOfContinuousStatesChanged, "fmi3UpdateDiscreteStates") ||
+        null_outputs(f, nextEventTimeDefined, nextEventTime, f, f, "fmi3UpdateDiscreteStates"))
+        return fmi3Error;
+    *discreteStatesNeedUpdate = *terminateSimulation = fmi3False;
+    *nominalsOfContinuousStatesChanged = *valuesOfContinuousStatesChanged = *nextEventTimeDefined = fmi3False;
+    *nextEventTime = 0.0;
+    return fmi3OK;
+}
+
+fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance instance) {
+    CHECK(I_ME | P_EVENT, "fmi3EnterContinuousTimeMode");
+    f->phase = P_CONT;
+    return fmi3OK;
+}
+
+fmi3Status fmi3CompletedIntegratorStep(fmi3Instance instance, fmi3Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi3Boolean *enterEventMode, fmi3Boolean *terminateSimulation) {
+    (void)noSetFMUStatePriorToCurrentPoint;
+    CHECK(I_ME | P_CONT, "fmi3CompletedIntegratorStep");
+    if (null_outputs(f, enterEventMode, terminateSimulation, f, f, "fmi3CompletedIntegratorStep"))
+        return fmi3Error;
+    *enterEventMode = *terminateSimulation = fmi3False;
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetTime(fmi3Instance instance, fmi3Float64 time) {
+    CHECK(I_ME | P_EVENT | P_CONT, "fmi3SetTime");
+    return engine_status(f, mbs_set_time(f->sim, time), "fmi3SetTime") == fmi3OK ? fmi3OK : fmi3Error;
+}
+
+/* The host's array has exactly the model's length (fmi3GetNumberOfContinuousStates). */
+static int bad_states(Fmu *f, const void *x, size_t n, const char *fn) {
+    if (x && n == (size_t)nstates(f))
+        return 0;
+    logf_(f, fmi3Error, "%s: %s %lu states, the model has %d", fn, x ? "" : "NULL array for", (unsigned long)n,
+          nstates(f));
+    return 1;
+}
+
+fmi3Status fmi3SetContinuousStates(fmi3Instance instance, const fmi3Float64 continuousStates[],
+                                   size_t nContinuousStates) {
+    CHECK(I_ME | P_CONT, "fmi3SetContinuousStates");
+    return engine_status(f, mbs_set_state(f->sim, continuousStates, nContinuousStates), "fmi3SetContinuousStates")
+           == fmi3OK ? fmi3OK : fmi3Error;
+}
+
+fmi3Status fmi3GetContinuousStates(fmi3Instance instance, fmi3Float64 continuousStates[], size_t nContinuousStates) {
+    CHECK(P_STATES, "fmi3GetContinuousStates");
+    if (bad_states(f, continuousStates, nContinuousStates, "fmi3GetContinuousStates"))
+        return fmi3Error;
+    memcpy(continuousStates, mbs_state(f->sim), nContinuousStates * sizeof(double));
+    return fmi3OK;
+}
+
+/* ẋ at the time and states the host set: fmi3Discard where it is not defined (singular M, gimbal lock: the
+ * host's integrator may retry with a smaller step), fmi3Error for an input or parameter the engine refuses. */
+fmi3Status fmi3GetContinuousStateDerivatives(fmi3Instance instance, fmi3Float64 derivatives[],
+                                             size_t nContinuousStates) {
+    CHECK(P_STATES, "fmi3GetContinuousStateDerivatives");
+    return engine_status(f, mbs_derivatives(f->sim, derivatives, nContinuousStates),
+                         "fmi3GetContinuousStateDerivatives");
+}
+
+fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance instance, fmi3Float64 nominals[], size_t nContinuousStates) {
+    size_t i;
+    CHECK(I_ME | P_ANY, "fmi3GetNominalsOfContinuousStates");
+    if (bad_states(f, nominals, nContinuousStates, "fmi3GetNominalsOfContinuousStates"))
+        return fmi3Error;
+    for (i = 0; i < nContinuousStates; i++)
+        nominals[i] = 1.0;
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetEventIndicators(fmi3Instance instance, fmi3Float64 eventIndicators[], size_t nEventIndicators) {
+    (void)eventIndicators;
+    CHECK(I_ME | P_ANY, "fmi3GetEventIndicators");
+    if (nEventIndicators == 0)
+        return fmi3OK;
+    logf_(f, fmi3Error, "fmi3GetEventIndicators: %lu event indicators asked for, the model has none",
+          (unsigned long)nEventIndicators);
+    return fmi3Error;
+}
+
+fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance instance, size_t *nEventIndicators) {
+    CHECK(I_ME | P_ANY, "fmi3GetNumberOfEventIndicators");
+    if (null_outputs(f, nEventIndicators, f, f, f, "fmi3GetNumberOfEventIndicators"))
+        return fmi3Error;
+    *nEventIndicators = 0;
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *nContinuousStates) {
+    CHECK(I_ME | P_ANY, "fmi3GetNumberOfContinuousStates");
+    if (null_outputs(f, nContinuousStates, f, f, f, "fmi3GetNumberOfContinuousStates"))
+        return fmi3Error;
+    *nContinuousStates = (size_t)nstates(f);
+    return fmi3OK;
+}
