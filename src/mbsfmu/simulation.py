@@ -20,11 +20,12 @@ from .scene import domains
 from .fmu.variables import Variable, variables
 
 
-def compiled(spec, guid=None):
+def compiled(spec, guid=None, derivatives=False):
     """(compiled scene bytes, variables, model) of a normalized spec; guid: the FMU's, else one derived from the
-    scene (equal scenes accept each other's states)."""
+    scene (equal scenes accept each other's states); derivatives: with model exchange's derivative variables, as
+    the native FMUs compile them."""
     model = Model(spec)
-    var = variables(spec, model)
+    var = variables(spec, model, derivatives=derivatives)
     if guid is None:
         digest = hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()
         guid = "{" + str(uuid.UUID(digest[:32])) + "}"

@@ -37,13 +37,15 @@ def fmu_spec(path):
         with zipfile.ZipFile(path) as z:
             names = set(z.namelist())
             text = _read_member(z, member) if member in names else None
-            blob = next((_read_member(z, n) for n in (f"resources/{SCENE_FILE}", f"resources/{NATIVE_SCENE_FILE}")
-                         if n in names), None)
+            # the native kind's scene (resources/scene.bin) carries model exchange's derivative variables
+            found = next(((n == NATIVE_SCENE_FILE, _read_member(z, f"resources/{n}")) for n in
+                          (SCENE_FILE, NATIVE_SCENE_FILE) if f"resources/{n}" in names), (False, None))
+            native, blob = found
         if text is None:
             problem = f"carries no drawing description ({member})"
         else:
             spec = json.loads(text)
-            if blob is None or compiled(spec, read_model_description(path).guid)[0] != blob:
+            if blob is None or compiled(spec, read_model_description(path).guid, native)[0] != blob:
                 problem = "its drawing description is not the scene it runs (altered, or built by another mbsfmu version)"
             else:
                 check_shapes_again(spec, Path(path).parent, f"{path}:{member}")

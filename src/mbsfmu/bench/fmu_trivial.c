@@ -16,7 +16,7 @@
 #define H_INT 1e-3
 #define NMAX 64
 
-struct MbsModel { char guid[64]; int n; };
+struct MbsModel { char guid[64]; int n; char names[NMAX][8]; };
 struct MbsInstance {
     const MbsModel *m;
     double a, u, t, x[NMAX];
@@ -39,11 +39,21 @@ MbsModel *mbs_model_load_file(const char *path, char *err, size_t errlen) {
         return NULL;
     }
     memcpy(m->guid, text, (size_t)(nl - text));
+    for (int i = 0; i < m->n; i++) snprintf(m->names[i], sizeof m->names[i], "y.x%d", i + 1);
     return m;
 }
 void mbs_model_free(MbsModel *m) { free(m); }
 const char *mbs_model_guid(const MbsModel *m) { return m->guid; }
 int mbs_model_nvars(const MbsModel *m) { return 2 + m->n; }
+int mbs_model_var_kind(const MbsModel *m, int vr) {
+    return vr < 0 || vr >= 2 + m->n ? -1 : vr == 0 ? MBS_V_PARAM : vr == 1 ? MBS_V_QIN : MBS_V_Y;
+}
+const char *mbs_model_var_name(const MbsModel *m, int vr) {
+    return vr < 0 || vr >= 2 + m->n ? NULL : vr == 0 ? "a" : vr == 1 ? "u" : m->names[vr - 2];
+}
+/* model exchange (fmi2.c serves it too): the states are x_1 .. x_n, no velocities */
+int mbs_model_npos(const MbsModel *m) { return m->n; }
+int mbs_model_nvel(const MbsModel *m) { (void)m; return 0; }
 
 static void start(MbsInstance *s, const MbsModel *m) {
     memset(s, 0, sizeof *s);
@@ -102,6 +112,18 @@ int mbs_do_step(MbsInstance *s, double t, double h) {
     return MBS_OK;
 }
 double mbs_time(const MbsInstance *s) { return s->t; }
+const double *mbs_state(const MbsInstance *s) { return s->x; }
+int mbs_set_time(MbsInstance *s, double t) { s->t = t; return MBS_OK; }
+int mbs_set_state(MbsInstance *s, const double *x, size_t n) {
+    if (n != (size_t)s->m->n) return MBS_ERROR;
+    memcpy(s->x, x, n * sizeof *x);
+    return MBS_OK;
+}
+int mbs_derivatives(MbsInstance *s, double *xdot, size_t n) {
+    if (n != (size_t)s->m->n || !isfinite(s->u)) return MBS_ERROR;
+    for (size_t j = 0; j < n; j++) xdot[j] = f(s, s->x[j]);
+    return MBS_OK;
+}
 int mbs_initialized(const MbsInstance *s) { return s->initialized; }
 const char *mbs_message(const MbsInstance *s) { (void)s; return ""; }
 
