@@ -12,7 +12,8 @@ Methods and their reference frame condition (the body frame R is the FE model's 
   and the elastic modes are made exactly M-orthogonal to the rigid fields: ∫Φ dm = 0 and ∫R̃Φ dm = 0, the
   linearised mean axes (Buckens/Tisserand).  With a reference point the interface is tied to it rigidly (RBE2:
   the reference gains six DOFs u_R, θ_R, the interface nodes follow them) before the modes are found, and the
-  reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.
+  reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.  Optional static correction modes for named
+  load points follow the normal modes (correction_modes: inertia-relief residual attachment modes).
 Modes come from a sparse shift-invert Lanczos (eigsh) on the factor of K − σM (σ < 0, so K positive
 semi-definite makes it positive definite).  That factor is an LDLᵀ (diagonal pivots), so by Sylvester's law
 its negative pivots count the eigenvalues below σ: an indefinite K is refused, and a frequency cut-off is turned
@@ -47,7 +48,7 @@ SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positiv
 # λ_scale grows as 1/element size² while a slender part's first mode falls as (thickness/length²)²: a 2 m strip
 # 10 mm thick in 16 tet10 cells has its first free mode at 4e-10·λ_scale, so the bound sits near roundoff
 RIGID = 1e-13
-CACHE_VERSION = "cms-3"
+CACHE_VERSION = "cms-4"
 DEFAULT_MODES = 10
 CHECK_TOLERANCE = 0.01   # `mbsfmu check` notes a frequency of the claimed band off the full model's by more
 
@@ -161,6 +162,61 @@ def constraint_modes(model, interface, budget):
     return Psi
 
 
+def rigid_fit(X, point, weights=None):
+    """G (6 × 3n): the weighted least-squares rigid motion (u_P, θ_P) about `point` of nodes at X moving by u
+    (3n, node-major), G u = argmin Σ w_i |u_i − u_P − θ_P × (X_i − point)|²; equal weights by default.
+    Gᵀ distributes a force and moment at the point over the nodes (the same averaging, transposed).  Nodes on
+    one line leave the turn about it undetermined: the least-norm fit does not turn about it."""
+    A = rigid_fields(np.asarray(X, float) - np.asarray(point, float))
+    sw = np.sqrt(np.repeat(np.ones(len(X)) if weights is None else np.asarray(weights, float), 3))
+    return np.linalg.pinv(sw[:, None] * A, rcond=1e-9) * sw
+
+
+def load_patterns(model, points):
+    """Unit load patterns (3N × k) at load points: a node index gives its x, y, z forces; a node set (array of
+    indices) the six force and moment components at its centroid spread over its nodes as a kept set averages
+    (rigid_fit, transposed)."""
+    cols = []
+    for p in points:
+        nodes = np.atleast_1d(np.asarray(p, dtype=np.int64))
+        F = np.zeros((3 * model.n_nodes, 3 if np.ndim(p) == 0 else 6))
+        if np.ndim(p) == 0:
+            F[_dofs(nodes), np.arange(3)] = 1.0
+        else:
+            X = model.nodes[nodes]
+            _interface_frame(model, nodes)   # three nodes not on one line: else no moment can be spread
+            F[_dofs(nodes)] = rigid_fit(X, X.mean(axis=0)).T
+        cols.append(F)
+    return np.hstack(cols) if cols else np.zeros((3 * model.n_nodes, 0))
+
+
+def correction_modes(K, M, R, normal, loads, source):
+    """Residual attachment modes (static correction, inertia relief) of a free body for load patterns (columns
+    of `loads`): the static deflection under each load balanced by the rigid-body inertia it causes,
+    f − M R a with a = (RᵀMR)⁻¹Rᵀf, made M-orthogonal to the rigid fields R (mean axes) and to the kept normal
+    modes (whose share of the deflection the basis holds already).  With them the reduced body's static
+    deflection under these loads is the full model's."""
+    MR = M @ R
+    relieved = loads - MR @ np.linalg.solve(R.T @ MR, R.T @ loads)
+    # a self-equilibrated load needs no reaction: hold six DOFs that fix the rigid motions (statically
+    # determinate, chosen by pivoted QR of the rigid fields), solve, then remove the rigid part below
+    support = scipy.linalg.qr(R.T, pivoting=True, mode="r")[1][:6]
+    free = np.setdiff1d(np.arange(K.shape[0]), support)
+    lu, _ = _factor(K[free][:, free], source, "the stiffness held at six DOFs")
+    U = np.zeros(loads.shape)
+    U[free] = lu.solve(np.ascontiguousarray(relieved[free]))
+    B = np.hstack([R, normal])
+    MB = M @ B
+    U -= B @ np.linalg.solve(B.T @ MB, MB.T @ U)
+    gram = U.T @ (M @ U)
+    d = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
+    if np.linalg.eigvalsh(gram / np.outer(d, d)).min() < 1e-10:
+        raise ModelError(f"{source}: the load points give dependent static correction modes", key="load_points",
+                         hint="name each load point once; a node set and a node of it, or two sets that "
+                              "share their rigid motion, repeat a load")
+    return U
+
+
 def free_modes(K, M, R, source, modes=None, cutoff_hz=None):
     """Free-interface elastic modes of K, M, M-orthogonal to the rigid-body fields R (n×6): mean axes."""
     scale = _lam_scale(K, M)
@@ -194,15 +250,36 @@ def rbe2(model, interface, reference):
     return sp.csr_matrix((vals, (rows, cols)), shape=(3 * N, k + 6))
 
 
-def free_modes_rbe2(model, interface, reference, modes=None, cutoff_hz=None):
-    """Free modes with the interface tied rigidly to the reference point: the modes (3N×n) and the reference's
-    own motion u_R, θ_R in them (6×n)."""
+def _free_space(model, interface, reference):
+    """(T, R) of a free body: its DOFs (T = None: the model's own; else the RBE2 tie of the interface to the
+    reference point) and its six rigid-body fields in those DOFs."""
+    if reference is None:
+        return None, rigid_fields(model.nodes)
     T = rbe2(model, interface, reference)
     others = np.setdiff1d(np.arange(model.n_nodes), interface)
     R = np.vstack([rigid_fields(model.nodes[others]), rigid_fields(np.asarray(reference, float)[None, :]),
-                   np.hstack([np.zeros((3, 3)), np.eye(3)])])           # rigid fields in T's DOFs
-    red = free_modes(T.T @ model.K @ T, T.T @ model.M @ T, R, model.source, modes, cutoff_hz)
-    return T @ red, red[-6:]
+                   np.hstack([np.zeros((3, 3)), np.eye(3)])])
+    return T, R
+
+
+def free_basis(model, interface=None, reference=None, modes=None, cutoff_hz=None, load_points=()):
+    """Free-interface modes (3N × n), then the static correction modes of the load points (3N × k), and with
+    a reference point its own motion u_R, θ_R in all of them (6 × (n + k))."""
+    T, R = _free_space(model, interface, reference)
+    K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
+    normal = free_modes(K, M, R, model.source, modes, cutoff_hz)
+    basis = normal
+    if len(load_points):
+        loads = load_patterns(model, load_points)
+        if normal.shape[1] + loads.shape[1] > limits.FE_MODES:
+            raise ModelError(f"{model.source}: {normal.shape[1]} modes + {loads.shape[1]} static correction modes, "
+                             f"at most {limits.FE_MODES}", key="load_points",
+                             hint="fewer modes or load points (a node gives three, a node set six)")
+        corr = correction_modes(K, M, R, normal, loads if T is None else np.asarray(T.T @ loads), model.source)
+        basis = np.hstack([normal, corr])
+    if T is None:
+        return normal, basis[:, normal.shape[1]:], None
+    return T @ normal, T @ basis[:, normal.shape[1]:], basis[-6:]
 
 
 def _craig_bampton_space(model, interface, reference):
@@ -222,7 +299,7 @@ def full_frequencies(model, method, interface, reference, n):
     """The full model's n lowest elastic frequencies (Hz) under the reduced basis's boundary condition: what
     the retained modes approximate (Rayleigh–Ritz: each reduced frequency is an upper bound of its own)."""
     if method == "free":
-        T = None if reference is None else rbe2(model, interface, reference)
+        T = _free_space(model, interface, reference)[0]
     else:
         T = _craig_bampton_space(model, interface, reference)
     K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
@@ -267,7 +344,8 @@ def moments(model, Phi):
                        np.zeros((3, 3)), np.zeros((3, n)), np.zeros((n, n)))
 
 
-def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None):
+def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None,
+           load_points=()):
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
     Psi, modal stiffness, the mass moments, the frequencies (Hz) and the full model's in the band the reduction
     claims (full_frequencies: `mbsfmu check` compares them)."""
@@ -277,6 +355,10 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     if reference is None and not len(keep):
         raise ModelError("no node is kept: a reduced body needs at least one (the engine's nodes carry joints, "
                          "forces and outputs)", hint="keep: [node indices], or an interface reference point")
+    if len(load_points) and method != "free":
+        raise ModelError("static correction modes (load_points) complete free-interface modes",
+                         key="load_points", hint="method: free; Craig–Bampton's constraint modes already carry "
+                                                 "the interface loads (keep the load point as an interface)")
     if method == "craig-bampton":
         if interface is None:
             raise ModelError("craig-bampton needs an interface: a node set, optionally tied to a reference point",
@@ -289,14 +371,12 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
             raise ModelError(f"{model.source}: {Phi.shape[1]} + {statics.shape[1]} constraint modes, at most "
                              f"{limits.FE_MODES}", hint="lower cutoff_hz, or tie the interface to a reference point")
         Phi = np.hstack([Phi, statics])
-    elif method == "free" and reference is None:
-        Phi = normal = free_modes(model.K, model.M, rigid_fields(model.nodes), model.source, modes, cutoff_hz)
     elif method == "free":
-        if interface is None:
+        if reference is not None and interface is None:
             raise ModelError("a reference point needs its interface node set",
                              hint="interface: {node_set: name, reference: [x, y, z]}")
-        Phi, at_reference = free_modes_rbe2(model, interface, reference, modes, cutoff_hz)
-        normal = Phi
+        normal, corr, at_reference = free_basis(model, interface, reference, modes, cutoff_hz, load_points)
+        Phi = np.hstack([normal, corr])
     else:
         raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
     N, n = model.n_nodes, Phi.shape[1]
@@ -334,7 +414,7 @@ def kept_nodes(model, Phi, keep):
             continue
         X = model.nodes[np.asarray(k)]
         c = X.mean(axis=0)
-        fit = np.linalg.lstsq(rigid_fields(X - c), Phi[np.asarray(k)].reshape(-1, Phi.shape[2]), rcond=1e-9)[0]
+        fit = rigid_fit(X, c) @ Phi[np.asarray(k)].reshape(-1, Phi.shape[2])
         R.append(c)
         Phi_k.append(fit[:3])
         Psi_k.append(fit[3:])
@@ -422,7 +502,8 @@ def _resolve(model, params):
         return idx
     iface = params["interface"]
     return {"interface": None if iface is None else nodes(iface, "interface.node_set" if isinstance(iface, str) else "interface.nodes"),
-            "keep": [nodes(k, "keep") for k in params["keep"]]}
+            "keep": [nodes(k, "keep") for k in params["keep"]],
+            "load_points": [nodes(k, "load_points") for k in params.get("load_points", ())]}
 
 
 def reduce_cached(files, inputs, build):

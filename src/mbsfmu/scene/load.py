@@ -682,8 +682,8 @@ class _Checker:
             self.fail(node, "node_sets", path + ".node_sets", "expected a mapping name: [node indices]")
         for name in node.get("node_sets") or {}:
             sets[name] = self.fe_nodes(node["node_sets"], name, f"{path}.node_sets.{name}")
-        params = {"method": method, "keep": self.fe_keep(node, path + ".keep") if "keep" in node else [],
-                  "modes": None, "cutoff_hz": None, "interface": None, "reference": None}
+        params = {"method": method, "modes": None,
+                  **{k: self.fe_points(node, k, f"{path}.{k}") if k in node else [] for k in ("keep", "load_points")}, "cutoff_hz": None, "interface": None, "reference": None}
         if "cutoff_hz" in node:
             params["cutoff_hz"] = self.plain_number(node, "cutoff_hz", path + ".cutoff_hz", positive=True)
         else:
@@ -759,11 +759,11 @@ class _Checker:
         except ModelError as err:
             self.fail(node, key, f"{path}.{key}", err.message, err.hint)
 
-    def fe_keep(self, parent, path):
-        """`keep:` FE node indices and node set names (a set is kept as one node: its average motion)."""
-        v = parent["keep"]
+    def fe_points(self, parent, key, path):
+        """`keep:` or `load_points:` FE node indices and node set names (a set is one point: its average motion)."""
+        v = parent[key]
         if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, (int, str)) or (isinstance(x, int) and x < 0) for x in v):
-            self.fail(parent, "keep", path, f"a list of node indices (integers ≥ 0) and node set names was expected, got {_shown(v)}")
+            self.fail(parent, key, path, f"a list of node indices (integers ≥ 0) and node set names was expected, got {_shown(v)}")
         return [x if isinstance(x, str) else int(x) for x in v]
 
     def fe_nodes(self, parent, key, path):
@@ -1023,7 +1023,7 @@ class _Checker:
 
 
 _FE_MESH_KEYS = ("mesh", "material", "element")
-_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep", "check_tolerance") + _FE_MESH_KEYS
+_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep", "load_points", "check_tolerance") + _FE_MESH_KEYS
 _FE_FORMATS = ("matrix-market", "abaqus")
 
 
