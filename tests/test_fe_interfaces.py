@@ -163,3 +163,112 @@ def test_load_points_through_the_scene_and_their_refusals(tmp_path):
         with pytest.raises(ModelError, match=text) as err:
             scene(tmp_path, fe_yaml, joint="{type: revolute, axis: [0, 0, 1]}")
         assert err.value.key == f"bodies.part.elastic.fe.{key}", (extra, err.value.key)
+
+
+# -- RBE3 (averaging) interfaces ----------------------------------------------------------------------------
+
+def fit_rows(X, w, P):
+    """The 6 × 3n matrix of closed_fit (it is linear in u): its columns are the fits of unit displacements."""
+    cols = []
+    for k in range(3 * len(X)):
+        u = np.zeros(3 * len(X))
+        u[k] = 1
+        cols.append(np.concatenate(closed_fit(X, u.reshape(-1, 3), w, P)))
+    return np.array(cols).T
+
+
+def face_weights(X, face):
+    """Weights symmetric about the face's midlines: 3 at its corners, 1 elsewhere."""
+    Y = X[face][:, 1:]
+    corner = np.all((Y == Y.min(0)) | (Y == Y.max(0)), axis=1)
+    return np.where(corner, 3.0, 1.0)
+
+
+def test_rbe3_craig_bampton_holds_the_weighted_fit_and_matches_the_full_model():
+    """Craig–Bampton with the root face averaged (RBE3, corner weights 3) onto a point off the face: the normal
+    modes are the full model's with the six weighted-fit constraints (dense LAPACK on their null space, first
+    six to 1e-7); the reference point is the frame (Φ = Ψ = 0); the face nodes move, but their closed-form
+    weighted rigid fit about the reference is zero in every mode."""
+    X, M, K = bar(nx=6)
+    root = np.flatnonzero(X[:, 0] == 0)
+    w = face_weights(X, root)
+    P = np.array([-0.1, 0.05, 0.05])
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), interface=root, reference=P, coupling="rbe3", weights=w,
+                   keep=root.tolist(), modes=8)
+    C = np.zeros((6, K.shape[0]))
+    C[:, dofs(root)] = fit_rows(X[root], w, P)
+    Z = scipy.linalg.null_space(C)
+    lam = scipy.linalg.eigh(Z.T @ (K @ Z), Z.T @ (M @ Z), eigvals_only=True)[:6]
+    assert np.allclose(r["frequencies"][:6], np.sqrt(lam) / (2 * np.pi), rtol=1e-7)
+    assert np.allclose(r["full_frequencies"][:6], np.sqrt(lam) / (2 * np.pi), rtol=1e-7)
+    Phi = np.asarray(r["Phi"])
+    assert np.all(Phi[0] == 0) and np.all(np.asarray(r["Psi"])[0] == 0)
+    face = Phi[1:]                                                       # (n_I, 3, modes)
+    assert np.abs(face).max() > 0.01                                     # not clamped
+    for k in range(face.shape[2]):
+        assert np.abs(np.concatenate(closed_fit(X[root], face[:, :, k], w, P))).max() < 1e-10
+
+
+def test_rbe3_free_reference_is_the_weighted_fit_and_a_symmetric_load_gives_the_mean():
+    """Free modes with an RBE3 reference: the modes are the plain free modes (RBE3 adds no stiffness or mass:
+    dense full-model frequencies to 1e-8), the reference's Φ, Ψ are the closed-form weighted fit of the face
+    nodes' motion about it.  An axial tip load (static correction at the tip face): the reference at the
+    weighted centroid of the root face moves by the weighted mean of the full model's face displacements
+    (bordered inertia-relief solve), to 1e-8."""
+    X, M, K = bar(nx=6)
+    root, tip = np.flatnonzero(X[:, 0] == 0), np.flatnonzero(X[:, 0] == L)
+    w = face_weights(X, root)
+    full = dense_frequencies(K, M, skip=6, count=5)
+    for P in (np.array([0.0, 0.02, 0.07]), w @ X[root] / w.sum()):
+        r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), "free", interface=root, reference=P, coupling="rbe3",
+                       weights=w, keep=root.tolist() + [tip], modes=5, load_points=[tip])
+        assert np.allclose(r["frequencies"][:5], full, rtol=1e-8)
+        Phi, Psi = np.asarray(r["Phi"]), np.asarray(r["Psi"])
+        for k in range(Phi.shape[2]):
+            u_R, th = closed_fit(X[root], Phi[1:1 + len(root), :, k], w, P)
+            assert np.allclose(Phi[0, :, k], u_R, atol=1e-12) and np.allclose(Psi[0, :, k], th, atol=1e-12)
+    f = np.zeros(K.shape[0])
+    f[dofs(tip)] = rbe3_loads(X[tip], np.ones(len(tip)), X[tip].mean(0), np.array([1.0, 0, 0]), np.zeros(3)).ravel()
+    u = relieved_deflection(X, M, K, f).reshape(-1, 3)
+    F = np.zeros((len(Phi), 3))
+    F[-1, 0] = 1
+    t, rot = reduced_deflection(r, (F, np.zeros_like(F)))
+    mean = w @ u[root] / w.sum()
+    assert np.abs(t[0] - mean).max() < 1e-8 * np.abs(u).max() and abs(mean[0]) > 0.1 * np.abs(u).max()
+
+
+def test_rbe2_and_rbe3_agree_on_a_rigidly_moving_interface():
+    """Where the interface moves rigidly (free modes with the face tied by RBE2), any weighted fit of the face
+    nodes' motion is that rigid motion: the RBE3 closed form gives the RBE2 reference's Φ, Ψ (1e-12)."""
+    X, M, K = bar(p2=False, nx=6)
+    root = np.flatnonzero(X[:, 0] == 0)
+    P = np.array([-0.05, 0.03, 0.06])
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), "free", interface=root, reference=P, keep=root.tolist(), modes=4)
+    Phi, Psi = np.asarray(r["Phi"]), np.asarray(r["Psi"])
+    w = np.linspace(1, 4, len(root))
+    for k in range(4):
+        u_R, th = closed_fit(X[root], Phi[1:, :, k], w, P)
+        assert np.allclose(u_R, Phi[0, :, k], atol=1e-12) and np.allclose(th, Psi[0, :, k], atol=1e-12)
+
+
+def test_rbe3_through_the_scene_and_its_refusals(tmp_path):
+    X, M, K = bar(p2=False, nx=4)
+    write_mm(tmp_path, X, M, K)
+    root = np.flatnonzero(X[:, 0] == 0).tolist()
+    base = f"{MM}, node_sets: {{root: {root}}}, modes: 3"
+    iface = f"node_set: root, reference: [0, 0.05, 0.05], coupling: rbe3, weights: {[1.0] * len(root)}"
+    spec = scene(tmp_path, f"{{{base}, interface: {{{iface}}}}}", extra="outputs:\n  - {body: part, node: root, quantities: [position]}\n")
+    body = part_body(spec)
+    assert body.nodal.nodes == 1 and np.allclose(body.nodal.R_RP[0], [0, 0.05, 0.05])
+    for extra, key, text in (("coupling: rbe4", "interface.coupling", "did you mean 'rbe3'"),
+                             ("coupling: rbe2, weights: [1, 1, 1, 1]", "interface.weights", "RBE3"),
+                             ("coupling: rbe3, weights: [1, 2]", "interface.weights", "one positive weight per node"),
+                             ("coupling: rbe3, weights: [1, 0, 1, 1]", "interface.weights[1]", "positive"),
+                             ("coupling: rbe3, weights: 3", "interface.weights", "list of positive numbers")):
+        fe_yaml = f"{{{base}, interface: {{nodes: {root}, reference: [0, 0, 0], {extra}}}}}"
+        with pytest.raises(ModelError, match=text) as err:
+            scene(tmp_path, fe_yaml)
+        assert err.value.key == f"bodies.part.elastic.fe.{key}", (extra, err.value.key)
+    with pytest.raises(ModelError, match="averages the interface onto a reference point") as err:
+        scene(tmp_path, f"{{{base}, keep: [0], interface: {{nodes: {root}, coupling: rbe3}}}}")
+    assert err.value.key == "bodies.part.elastic.fe.interface.coupling"

@@ -8,11 +8,16 @@ Methods and their reference frame condition (the body frame R is the FE model's 
 - `craig-bampton` with a node set alone: the frame follows the interface's mean rigid motion (the interface
   displacements are orthogonal to its six rigid-body fields, equal node weights).  The basis is the
   fixed-interface modes plus the static constraint modes of the interface's 3·n_I − 6 deformation DOFs.
+- `craig-bampton` with a reference point averaging the node set (RBE3: its motion is the set's weighted
+  least-squares rigid motion): the frame moves with the reference, so that fit is zero; the interface nodes
+  keep their deformation and the normal modes are the full model's under those six conditions (rbe3_modes).
+  Its six constraint modes are the frame's rigid motion: none is added.
 - `free`: free-interface normal modes; the six rigid-body modes are found (their count is checked) and removed,
   and the elastic modes are made exactly M-orthogonal to the rigid fields: ∫Φ dm = 0 and ∫R̃Φ dm = 0, the
   linearised mean axes (Buckens/Tisserand).  With a reference point the interface is tied to it rigidly (RBE2:
   the reference gains six DOFs u_R, θ_R, the interface nodes follow them) before the modes are found, and the
-  reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.  Optional static correction modes for named
+  reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.  An RBE3 reference adds nothing to K or M:
+  the modes are the plain free ones and the reference's Φ, Ψ their interface's weighted rigid fit.  Optional static correction modes for named
   load points follow the normal modes (correction_modes: inertia-relief residual attachment modes).
 Modes come from a sparse shift-invert Lanczos (eigsh) on the factor of K − σM (σ < 0, so K positive
 semi-definite makes it positive definite).  That factor is an LDLᵀ (diagonal pivots), so by Sylvester's law
@@ -130,7 +135,7 @@ def _dofs(nodes):
 
 
 def craig_bampton(model, interface, modes=None, cutoff_hz=None):
-    """Fixed-interface modes (3N×n, zero at the interface nodes)."""
+    """(Φ 3N×n, λ): fixed-interface modes (zero at the interface nodes) and their eigenvalues."""
     fixed = np.zeros(3 * model.n_nodes, bool)
     fixed[_dofs(interface)] = True
     free = np.flatnonzero(~fixed)
@@ -138,12 +143,10 @@ def craig_bampton(model, interface, modes=None, cutoff_hz=None):
     scale = _lam_scale(K, M)
     modes = _mode_count(K, M, modes, cutoff_hz, 0, model.source, scale)
     lam, V = _lowest(K, M, modes, model.source, scale)
-    if lam[0] < RIGID * scale:
-        raise ModelError(f"{model.source}: the clamped interface does not hold the body: a zero-frequency mode "
-                         "remains", hint="an interface of at least three nodes not on one line, one connected part")
+    _held(lam, scale, model.source)
     Phi = np.zeros((3 * model.n_nodes, modes))
     Phi[free] = V
-    return Phi
+    return Phi, lam
 
 
 def constraint_modes(model, interface, budget):
@@ -218,7 +221,7 @@ def correction_modes(K, M, R, normal, loads, source):
 
 
 def free_modes(K, M, R, source, modes=None, cutoff_hz=None):
-    """Free-interface elastic modes of K, M, M-orthogonal to the rigid-body fields R (n×6): mean axes."""
+    """(Φ, λ): free-interface elastic modes of K, M, M-orthogonal to the rigid-body fields R (n×6): mean axes."""
     scale = _lam_scale(K, M)
     modes = _mode_count(K, M, modes, cutoff_hz, 6, source, scale)
     lam, V = _lowest(K, M, modes + 6, source, scale)
@@ -229,7 +232,7 @@ def free_modes(K, M, R, source, modes=None, cutoff_hz=None):
                               "more: a mechanism or disconnected parts")
     MR = M @ R
     Phi = V[:, 6:]
-    return Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi)   # exact mean-axis condition, not only to eigsh's tol
+    return Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi), lam[6:]   # exact mean axes, not only to eigsh's tol
 
 
 def rbe2(model, interface, reference):
@@ -267,7 +270,7 @@ def free_basis(model, interface=None, reference=None, modes=None, cutoff_hz=None
     a reference point its own motion u_R, θ_R in all of them (6 × (n + k))."""
     T, R = _free_space(model, interface, reference)
     K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
-    normal = free_modes(K, M, R, model.source, modes, cutoff_hz)
+    normal = free_modes(K, M, R, model.source, modes, cutoff_hz)[0]
     basis = normal
     if len(load_points):
         loads = load_patterns(model, load_points)
@@ -282,26 +285,56 @@ def free_basis(model, interface=None, reference=None, modes=None, cutoff_hz=None
     return T @ normal, T @ basis[:, normal.shape[1]:], basis[-6:]
 
 
-def _craig_bampton_space(model, interface, reference):
+def _craig_bampton_space(model, interface, clamped, weights=None):
     """T (3N × m): the displacements a Craig–Bampton basis spans, the interface held by the frame: inner DOFs
-    free; interface DOFs zero (a reference point) or its deformation alone (a node set, see the docstring)."""
+    free; interface DOFs zero (clamped: an RBE2 reference point) or its deformation alone, the motions whose
+    weighted rigid fit is zero (a node set, or an RBE3 reference point; see the docstring)."""
     idofs = _dofs(interface)
     inner = np.setdiff1d(np.arange(3 * model.n_nodes), idofs)
     T = sp.csr_matrix((np.ones(len(inner)), (inner, np.arange(len(inner)))), shape=(3 * model.n_nodes, len(inner)))
-    if reference is not None:
+    if clamped:
         return T
+    _interface_bound(model, interface)
     basis = np.zeros((3 * model.n_nodes, 3 * len(interface) - 6))
-    basis[idofs] = _interface_frame(model, interface)[:, 6:]
+    basis[idofs] = _interface_frame(model, interface, weights)[:, 6:]
     return sp.hstack([T, sp.csr_matrix(basis)]).tocsr()
 
 
-def full_frequencies(model, method, interface, reference, n):
+def _interface_bound(model, interface):
+    """An interface that keeps its deformation couples all its DOFs: a dense block of (3 n_I)² in the problem."""
+    if len(interface) > limits.FE_AVERAGED_NODES:
+        raise ModelError(f"{model.source}: {len(interface):,} interface nodes keep their deformation, at most "
+                         f"{limits.FE_AVERAGED_NODES:,}", key="interface",
+                         hint="tie the interface rigidly (coupling: rbe2) or choose fewer nodes")
+
+
+def rbe3_modes(model, interface, weights=None, modes=None, cutoff_hz=None):
+    """(Φ 3N×n, λ): Craig–Bampton normal modes of an RBE3 interface, the full model's lowest modes with the
+    interface's weighted rigid fit held (its nodes otherwise free).  Its constraint modes are the six rigid
+    motions of the reference point: the frame's own, so none is added."""
+    T = _craig_bampton_space(model, interface, False, weights)
+    K, M = T.T @ model.K @ T, T.T @ model.M @ T
+    scale = _lam_scale(K, M)
+    modes = _mode_count(K, M, modes, cutoff_hz, 0, model.source, scale)
+    lam, V = _lowest(K, M, modes, model.source, scale)
+    _held(lam, scale, model.source)
+    return np.asarray(T @ V), lam
+
+
+def _held(lam, scale, source):
+    if lam[0] < RIGID * scale:
+        raise ModelError(f"{source}: the interface does not hold the body: a zero-frequency mode remains",
+                         hint="an interface of at least three nodes not on one line, one connected part")
+
+
+def full_frequencies(model, method, interface, reference, n, coupling="rbe2", weights=None):
     """The full model's n lowest elastic frequencies (Hz) under the reduced basis's boundary condition: what
     the retained modes approximate (Rayleigh–Ritz: each reduced frequency is an upper bound of its own)."""
+    rigid_tie = reference is not None and coupling == "rbe2"
     if method == "free":
-        T = _free_space(model, interface, reference)[0]
+        T = _free_space(model, interface, reference if rigid_tie else None)[0]
     else:
-        T = _craig_bampton_space(model, interface, reference)
+        T = _craig_bampton_space(model, interface, rigid_tie, weights)
     K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
     rigid = 6 if method == "free" else 0   # their count was checked when the modes were found
     lam = _lowest(K, M, n + rigid, model.source, _lam_scale(K, M))[0][rigid:]
@@ -322,9 +355,13 @@ def frequency_deviation(fe):
     return np.abs(np.asarray(fe["frequencies"], float)[:len(full)] / full - 1)
 
 
-def _interface_frame(model, interface):
-    """An orthonormal basis (U, 3n_I × 3n_I) whose first six columns span the interface's rigid motions."""
-    U, sv, _ = np.linalg.svd(rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0)))
+def _interface_frame(model, interface, weights=None):
+    """An orthonormal basis (U, 3n_I × 3n_I) whose first six columns span W·(the interface's rigid motions), W
+    the node weights (equal by default): the others span the motions whose weighted rigid fit is zero."""
+    A = rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0))
+    if weights is not None:
+        A = np.repeat(np.asarray(weights, float), 3)[:, None] * A
+    U, sv, _ = np.linalg.svd(A)
     if len(sv) < 6 or sv[5] < 1e-9 * sv[0]:
         raise ModelError(f"{model.source}: the interface nodes do not fix a frame (fewer than three, or on one line)",
                          hint="give at least three interface nodes not on one line, or a reference point")
@@ -345,13 +382,14 @@ def moments(model, Phi):
 
 
 def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None,
-           load_points=()):
+           load_points=(), coupling="rbe2", weights=None):
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
     Psi, modal stiffness, the mass moments, the frequencies (Hz) and the full model's in the band the reduction
     claims (full_frequencies: `mbsfmu check` compares them)."""
     _check_mass(model)
     if interface is not None:
-        interface = np.unique(np.asarray(interface, dtype=np.int64))
+        interface, weights = _interface_nodes(interface, reference, coupling, weights)
+    rigid_tie = reference is not None and coupling == "rbe2"
     if reference is None and not len(keep):
         raise ModelError("no node is kept: a reduced body needs at least one (the engine's nodes carry joints, "
                          "forces and outputs)", hint="keep: [node indices], or an interface reference point")
@@ -366,7 +404,10 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         statics = np.zeros((3 * model.n_nodes, 0))
         if reference is None:   # the interface moves with the frame on average: its deformation is kept
             statics = constraint_modes(model, interface, limits.FE_MODES - (modes or 1))
-        Phi = normal = craig_bampton(model, interface, modes, cutoff_hz)
+        if rigid_tie or reference is None:
+            Phi = normal = craig_bampton(model, interface, modes, cutoff_hz)[0]
+        else:                   # RBE3: the interface's weighted fit is the frame, its deformation is free
+            Phi = normal = rbe3_modes(model, interface, weights, modes, cutoff_hz)[0]
         if Phi.shape[1] + statics.shape[1] > limits.FE_MODES:
             raise ModelError(f"{model.source}: {Phi.shape[1]} + {statics.shape[1]} constraint modes, at most "
                              f"{limits.FE_MODES}", hint="lower cutoff_hz, or tie the interface to a reference point")
@@ -375,7 +416,8 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         if reference is not None and interface is None:
             raise ModelError("a reference point needs its interface node set",
                              hint="interface: {node_set: name, reference: [x, y, z]}")
-        normal, corr, at_reference = free_basis(model, interface, reference, modes, cutoff_hz, load_points)
+        normal, corr, at_reference = free_basis(model, interface, reference if rigid_tie else None, modes,
+                                                cutoff_hz, load_points)
         Phi = np.hstack([normal, corr])
     else:
         raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
@@ -387,11 +429,16 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
     K_ee = 0.5 * (K_ee + K_ee.T)
     lam = scipy.linalg.eigvalsh(K_ee, mo.M_ee)   # the reduced body's own frequencies
-    full = full_frequencies(model, method, interface, reference, n)
+    full = full_frequencies(model, method, interface, reference, n, coupling, weights)
     full = full[full <= _band_top(model, normal) * (1 + 1e-6)]   # (the slack: eigsh's tolerance, not a mode)
     R_RP, Phi_kept, Psi_kept = kept_nodes(model, Phi, keep)
-    if reference is not None:   # craig-bampton: clamped to the frame (Φ = Ψ = 0); free: its u_R, θ_R
-        ref = at_reference.reshape(2, 3, n) / scale if method == "free" else np.zeros((2, 3, n))
+    if reference is not None:   # craig-bampton: the frame (Φ = Ψ = 0); free: its u_R, θ_R
+        if method == "craig-bampton":
+            ref = np.zeros((2, 3, n))
+        elif rigid_tie:
+            ref = at_reference.reshape(2, 3, n) / scale
+        else:                   # RBE3: the weighted least-squares rigid motion of the interface nodes
+            ref = (rigid_fit(model.nodes[interface], reference, weights) @ Phi[interface].reshape(-1, n)).reshape(2, 3, n)
         R_RP = np.vstack([np.asarray(reference, float)[None, :], R_RP])
         Phi_kept = np.concatenate([ref[:1], Phi_kept])
         Psi_kept = np.concatenate([ref[1:], Psi_kept])
@@ -399,6 +446,30 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
             "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "full_frequencies": full,
             "m": np.array(mo.m), "S0": mo.S0,
             "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
+
+
+COUPLINGS = ("rbe2", "rbe3")
+
+
+def _interface_nodes(interface, reference, coupling, weights):
+    """The interface's nodes sorted, and their weights in that order (RBE3 only: positive, one per node)."""
+    interface = np.asarray(interface, dtype=np.int64)
+    nodes, first = np.unique(interface, return_index=True)
+    if coupling not in COUPLINGS:
+        raise ModelError(f"unknown coupling {coupling!r}", key="interface.coupling", hint="rbe2 or rbe3")
+    if coupling == "rbe3" and reference is None:
+        raise ModelError("an RBE3 coupling averages the interface onto a reference point",
+                         key="interface.coupling", hint="interface: {node_set: name, reference: [x, y, z], coupling: rbe3}")
+    if weights is None:
+        return nodes, None
+    w = np.asarray(weights, float)
+    if coupling != "rbe3":
+        raise ModelError("weights belong to an RBE3 (averaging) coupling", key="interface.weights",
+                         hint="coupling: rbe3, or leave weights out")
+    if w.shape != interface.shape or len(nodes) != len(interface) or not np.all(np.isfinite(w)) or np.any(w <= 0):
+        raise ModelError(f"{len(w)} weights for {len(interface)} interface nodes: one positive weight per node, "
+                         "no node twice", key="interface.weights")
+    return nodes, w[first]
 
 
 def kept_nodes(model, Phi, keep):

@@ -692,7 +692,7 @@ class _Checker:
                 self.fail(node, "modes", path + ".modes", f"must be an integer in 1 … {limits.FE_MODES}, got {_shown(params['modes'])}")
         if "interface" in node:
             i, ip = node["interface"], path + ".interface"
-            self.keys(i, ip, ("node_set", "nodes", "reference"))
+            self.keys(i, ip, ("node_set", "nodes", "reference", "coupling", "weights"))
             if ("node_set" in i) == ("nodes" in i):
                 self.fail(node, "interface", ip, "give exactly one of 'node_set' or 'nodes'")
             if "nodes" in i:
@@ -703,6 +703,14 @@ class _Checker:
                 if not isinstance(i["reference"], list) or len(i["reference"]) != 3:
                     self.fail(i, "reference", ip + ".reference", f"a point [x, y, z] was expected, got {_shown(i['reference'])}")
                 params["reference"] = [self.plain_number(i["reference"], k, f"{ip}.reference[{k}]", magnitude=False) for k in range(3)]
+            if "coupling" in i:
+                if i["coupling"] not in cms.COUPLINGS:
+                    self.fail(i, "coupling", ip + ".coupling", f"unknown coupling {_shown(i['coupling'])}", _suggest(i["coupling"], cms.COUPLINGS))
+                params["coupling"] = i["coupling"]
+            if "weights" in i:
+                if not isinstance(i["weights"], list) or not 1 <= len(i["weights"]) <= limits.FE_DOFS // 3:
+                    self.fail(i, "weights", ip + ".weights", f"a list of positive numbers (one per interface node) was expected, got {_shown(i['weights'])}")
+                params["weights"] = [self.plain_number(i["weights"], k, f"{ip}.weights[{k}]", positive=True) for k in range(len(i["weights"]))]
         # judges the reduction (mbsfmu check), does not change it: not an input of reduce_files
         tolerance = (self.plain_number(node, "check_tolerance", path + ".check_tolerance", positive=True)
                      if "check_tolerance" in node else cms.CHECK_TOLERANCE)
