@@ -7,6 +7,7 @@ classic RBE3 load distribution, and Sylvester's law for eigenvalue counts."""
 import numpy as np
 import pytest
 import scipy.linalg
+import scipy.sparse
 
 pytest.importorskip("skfem")
 from test_fe_reduce import MM, bar, dense_frequencies, scene, write_mm
@@ -17,6 +18,7 @@ from mbsfmu.bodies.ffrf import invariants  # noqa: E402
 from mbsfmu.errors import ModelError  # noqa: E402
 
 L, H = 1.0, 0.1
+E, RHO = 2.1e11, 7850.0
 
 
 @pytest.fixture(autouse=True)
@@ -272,3 +274,61 @@ def test_rbe3_through_the_scene_and_its_refusals(tmp_path):
     with pytest.raises(ModelError, match="averages the interface onto a reference point") as err:
         scene(tmp_path, f"{{{base}, keep: [0], interface: {{nodes: {root}, coupling: rbe3}}}}")
     assert err.value.key == "bodies.part.elastic.fe.interface.coupling"
+
+
+# -- rigid-body modes decided against roundoff --------------------------------------------------------------
+
+def rounded(A, digits=8):
+    """A's entries printed with `digits` significant digits, as an FE program may write them."""
+    A = A.tocoo()
+    A.data[A.data == 0] = 0.0
+    unit = 10.0 ** (np.floor(np.log10(np.abs(A.data) + (A.data == 0))) - digits + 1)
+    return scipy.sparse.csr_matrix((np.round(A.data / unit) * unit, (A.row, A.col)), shape=A.shape)
+
+
+@pytest.mark.parametrize("part, size, n, meshes", [("strip", (4.0, 0.04, 0.002), 1, (8, 12, 16)),
+                                                   ("block", (0.1, 0.1, 0.1), 2, (2, 3, 4))])
+def test_rigid_modes_are_found_at_every_mesh_size_and_in_every_unit(part, size, n, meshes):
+    """A 4 m × 40 mm × 2 mm strip (its first free eigenvalue 5e-14 of max K_ii/M_ii, below the old fixed bound
+    1e-13) and a 0.1 m cube at three mesh sizes: free modes find the six rigid ones; K in other units (× 1e6)
+    gives eigenvalues × 1e6 (to 1e-9, or ε·λ_scale/λ₁ where roundoff allows no better: 4e-3 for the strip); the strip's first frequency within 3 % of Euler–Bernoulli's free-free
+    (4.7300)² √(EI/ρA)/L², the cube's within 1e-8 of dense LAPACK.  Matrices printed with 8 digits (rigid
+    eigenvalues ~1e-9·λ_scale) give the same body to 1e-5."""
+    prev = None
+    for nx in meshes:
+        X, M, K = bar(nx=nx, n=n, size=size)
+        R = cms.rigid_fields(X)
+        lam = cms.free_modes(K, M, R, part, modes=2)[1]
+        resolved = max(1e-9, np.finfo(float).eps * cms._lam_scale(K, M) / lam[0])   # roundoff's relative share
+        assert np.allclose(cms.free_modes(1e6 * K, M, R, part, modes=2)[1], 1e6 * lam, rtol=resolved)
+        if part == "strip":
+            assert lam[0] < 1e-13 * cms._lam_scale(K, M)
+            b, t = size[1:]
+            eb = 4.7300407**2 * np.sqrt(E * b * t**3 / 12 / (RHO * b * t)) / size[0]**2
+            assert abs(np.sqrt(lam[0]) / eb - 1) < 0.03, (nx, np.sqrt(lam[0]) / eb)
+        else:
+            full = scipy.linalg.eigh(K.toarray(), M.toarray(), eigvals_only=True, subset_by_index=[6, 7])
+            assert np.allclose(lam, full, rtol=1e-8)
+        prev = lam
+    if part == "block":
+        assert np.allclose(cms.free_modes(rounded(K), rounded(M), R, part, modes=2)[1], prev, rtol=1e-5)
+    else:                # 8 digits cannot hold the strip's bending (its roundoff λ_R is 4e4 × its first λ)
+        with pytest.raises(ModelError):
+            cms.free_modes(rounded(K), rounded(M), R, part, modes=2)
+
+
+def test_supports_mechanisms_and_loose_interfaces_are_refused_in_every_unit():
+    """A spring to ground at one node (the rigid fields carry energy: supported), two disconnected bars (a
+    seventh zero mode), a Craig–Bampton interface of two nodes (an edge: the part turns about it): each one
+    ModelError naming it, in SI and with K × 1e6."""
+    X, M, K = bar(p2=False, nx=4)
+    spring = scipy.sparse.csr_matrix(([1e-3 * K.diagonal().max()] * 3, (range(3), range(3))), shape=K.shape)
+    X2 = np.vstack([X, X + [2 * L, 0, 0]])
+    two = scipy.sparse.block_diag([K, K]).tocsr(), scipy.sparse.block_diag([M, M]).tocsr()
+    for f in (1, 1e6):
+        with pytest.raises(ModelError, match="rigid-body motions carry energy"):
+            cms.free_modes(f * (K + spring), M, cms.rigid_fields(X), "bar")
+        with pytest.raises(ModelError, match="more than six zero-frequency modes"):
+            cms.free_modes(f * two[0], two[1], cms.rigid_fields(X2), "bars")
+        with pytest.raises(ModelError, match="does not hold the body"):
+            cms.reduce(fe.FEModel(X, M, f * K, {}, "bar"), interface=[0, 1], reference=[0, 0, 0], modes=2)

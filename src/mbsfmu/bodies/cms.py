@@ -49,10 +49,14 @@ from .nodal import MassMoments, NodalData, _symmetric_psd, damping_from_ratio
 
 METHODS = ("craig-bampton", "free")
 SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positive semi-definite K, by far more than roundoff
-# |λ| < RIGID·λ_scale: a zero-frequency (rigid-body) mode.  Rigid modes come out at ~1e-17·λ_scale (roundoff);
-# λ_scale grows as 1/element size² while a slender part's first mode falls as (thickness/length²)²: a 2 m strip
-# 10 mm thick in 16 tet10 cells has its first free mode at 4e-10·λ_scale, so the bound sits near roundoff
-RIGID = 1e-13
+# Zero energy is decided against the model's own roundoff, not a fixed fraction of λ_scale (which grows as
+# 1/element size² while a slender part's first mode falls as (thickness/length²)²: a 4 m strip 1 mm thick has it
+# at 3e-15·λ_scale).  λ_R, the largest eigenvalue of the exact rigid-body fields' pencil (RᵀKR, RᵀMR), measures
+# that roundoff: 2e-17…6e-17·λ_scale for double-precision matrices, 1e-9·λ_scale for 8 printed digits; a
+# support makes it its stiffness.  Rigid modes are then projected out exactly (no threshold picks them).
+EPS = np.finfo(float).eps
+ZERO_GAP = 10      # an eigenvalue within ZERO_GAP·max(λ_R, ε λ_scale / 100) is zero (mechanisms come out ≲ λ_R)
+RIGID_GAP = 1e-4   # the rigid fields are free when λ_R ≤ 100 ε λ_scale or ≤ RIGID_GAP × the first elastic λ
 CACHE_VERSION = "cms-4"
 DEFAULT_MODES = 10
 CHECK_TOLERANCE = 0.01   # `mbsfmu check` notes a frequency of the claimed band off the full model's by more
@@ -85,8 +89,9 @@ def _check_mass(model):
                          hint="a consistent or lumped mass of positive density; check the elements and the DOF map")
 
 
-def _lowest(K, M, k, source, scale):
-    """The k lowest eigenpairs of K x = λ M x (shift-invert about σ < 0); refuses an indefinite K."""
+def _lowest(K, M, k, source, scale, R=None):
+    """The k lowest eigenpairs of K x = λ M x (shift-invert about σ < 0); refuses an indefinite K.  With the
+    rigid-body fields R: the k lowest in their M-orthogonal complement (no threshold decides which are rigid)."""
     sigma = -SHIFT * scale
     lu, negative = _factor(K - sigma * M, source, "the stiffness matrix")
     if negative:
@@ -95,8 +100,16 @@ def _lowest(K, M, k, source, scale):
     n = K.shape[0]
     if k >= n:
         raise ModelError(f"{source}: {k} modes asked, the model has {n} free DOFs", hint="ask for fewer modes")
-    op = LinearOperator((n, n), matvec=lu.solve, dtype=float)
-    v0 = np.random.default_rng(0).standard_normal(n)   # a fixed start: the same files give the same body
+    solve, v0 = lu.solve, np.random.default_rng(0).standard_normal(n)   # a fixed start: same files, same body
+    if R is not None:
+        MR = M @ R
+        G = R.T @ MR
+
+        def solve(b):
+            x = lu.solve(b)
+            return x - R @ np.linalg.solve(G, MR.T @ x)
+        v0 = solve(M @ v0)
+    op = LinearOperator((n, n), matvec=solve, dtype=float)
     lam, V = eigsh(K, k=k, M=M, sigma=sigma, OPinv=op, which="LM", tol=1e-12, v0=v0)
     order = np.argsort(lam)
     return lam[order], V[:, order]
@@ -143,7 +156,7 @@ def craig_bampton(model, interface, modes=None, cutoff_hz=None):
     scale = _lam_scale(K, M)
     modes = _mode_count(K, M, modes, cutoff_hz, 0, model.source, scale)
     lam, V = _lowest(K, M, modes, model.source, scale)
-    _held(lam, scale, model.source)
+    _held(lam, model)
     Phi = np.zeros((3 * model.n_nodes, modes))
     Phi[free] = V
     return Phi, lam
@@ -224,15 +237,30 @@ def free_modes(K, M, R, source, modes=None, cutoff_hz=None):
     """(Φ, λ): free-interface elastic modes of K, M, M-orthogonal to the rigid-body fields R (n×6): mean axes."""
     scale = _lam_scale(K, M)
     modes = _mode_count(K, M, modes, cutoff_hz, 6, source, scale)
-    lam, V = _lowest(K, M, modes + 6, source, scale)
-    rigid = int(np.count_nonzero(np.abs(lam) < RIGID * scale))
-    if rigid != 6:
-        raise ModelError(f"{source}: {rigid} rigid-body modes found where a free body has 6",
-                         hint="fewer: the model is supported (remove the supports or use craig-bampton); "
-                              "more: a mechanism or disconnected parts")
+    lam, V = _lowest(K, M, modes, source, scale, R)
+    _rigid_check(K, M, R, lam[0], scale, source)
     MR = M @ R
-    Phi = V[:, 6:]
-    return Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi), lam[6:]   # exact mean axes, not only to eigsh's tol
+    return V - R @ np.linalg.solve(R.T @ MR, MR.T @ V), lam   # exact mean axes, not only to eigsh's tolerance
+
+
+def _rigid_energy(K, M, R):
+    """λ_R: the largest eigenvalue of the rigid-body fields' pencil (RᵀKR, RᵀMR), zero but for roundoff."""
+    KR = R.T @ (K @ R)
+    return float(np.abs(scipy.linalg.eigvalsh(0.5 * (KR + KR.T), R.T @ (M @ R))).max())
+
+
+def _rigid_check(K, M, R, lam1, scale, source):
+    """A free body: its six rigid fields free of energy (to roundoff, or far below its first elastic mode),
+    and no seventh zero-energy motion (the first elastic eigenvalue above roundoff)."""
+    lam_R = _rigid_energy(K, M, R)
+    if lam_R > max(100 * EPS * scale, RIGID_GAP * lam1):
+        raise ModelError(f"{source}: the rigid-body motions carry energy (λ = {lam_R:.3g} against the first elastic "
+                         f"{lam1:.3g}): a free body has six free rigid-body modes",
+                         hint="the model is supported (remove the supports, or use craig-bampton), or its matrices "
+                              "were written with too few digits for its lowest modes")
+    if lam1 <= ZERO_GAP * max(lam_R, EPS * scale / 100):
+        raise ModelError(f"{source}: more than six zero-frequency modes (λ = {lam1:.3g}, roundoff ≈ {lam_R:.3g})",
+                         hint="a mechanism or disconnected parts")
 
 
 def rbe2(model, interface, reference):
@@ -317,13 +345,17 @@ def rbe3_modes(model, interface, weights=None, modes=None, cutoff_hz=None):
     scale = _lam_scale(K, M)
     modes = _mode_count(K, M, modes, cutoff_hz, 0, model.source, scale)
     lam, V = _lowest(K, M, modes, model.source, scale)
-    _held(lam, scale, model.source)
+    _held(lam, model)
     return np.asarray(T @ V), lam
 
 
-def _held(lam, scale, source):
-    if lam[0] < RIGID * scale:
-        raise ModelError(f"{source}: the interface does not hold the body: a zero-frequency mode remains",
+def _held(lam, model):
+    """The interface holds the body: its first eigenvalue is above the model's roundoff (see ZERO_GAP; λ_R at most
+    100 ε λ_scale: the matrices may hold a support of their own)."""
+    scale = _lam_scale(model.K, model.M)
+    zero = np.clip(_rigid_energy(model.K, model.M, rigid_fields(model.nodes)), EPS * scale / 100, 100 * EPS * scale)
+    if lam[0] <= ZERO_GAP * zero:
+        raise ModelError(f"{model.source}: the interface does not hold the body: a zero-frequency mode remains",
                          hint="an interface of at least three nodes not on one line, one connected part")
 
 
@@ -335,9 +367,9 @@ def full_frequencies(model, method, interface, reference, n, coupling="rbe2", we
         T = _free_space(model, interface, reference if rigid_tie else None)[0]
     else:
         T = _craig_bampton_space(model, interface, rigid_tie, weights)
+    R = _free_space(model, interface, reference if rigid_tie else None)[1] if method == "free" else None
     K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
-    rigid = 6 if method == "free" else 0   # their count was checked when the modes were found
-    lam = _lowest(K, M, n + rigid, model.source, _lam_scale(K, M))[0][rigid:]
+    lam = _lowest(K, M, n, model.source, _lam_scale(K, M), R)[0]
     return np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi)
 
 
