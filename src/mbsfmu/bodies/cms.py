@@ -294,11 +294,11 @@ def _free_space(model, interface, reference):
 
 
 def free_basis(model, interface=None, reference=None, modes=None, cutoff_hz=None, load_points=()):
-    """Free-interface modes (3N × n), then the static correction modes of the load points (3N × k), and with
-    a reference point its own motion u_R, θ_R in all of them (6 × (n + k))."""
+    """Free-interface modes (3N × n), then the static correction modes of the load points (3N × k), with a
+    reference point its own motion u_R, θ_R in all of them (6 × (n + k)), and the modes' eigenvalues."""
     T, R = _free_space(model, interface, reference)
     K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
-    normal = free_modes(K, M, R, model.source, modes, cutoff_hz)[0]
+    normal, lam = free_modes(K, M, R, model.source, modes, cutoff_hz)
     basis = normal
     if len(load_points):
         loads = load_patterns(model, load_points)
@@ -309,8 +309,8 @@ def free_basis(model, interface=None, reference=None, modes=None, cutoff_hz=None
         corr = correction_modes(K, M, R, normal, loads if T is None else np.asarray(T.T @ loads), model.source)
         basis = np.hstack([normal, corr])
     if T is None:
-        return normal, basis[:, normal.shape[1]:], None
-    return T @ normal, T @ basis[:, normal.shape[1]:], basis[-6:]
+        return normal, basis[:, normal.shape[1]:], None, lam
+    return T @ normal, T @ basis[:, normal.shape[1]:], basis[-6:], lam
 
 
 def _craig_bampton_space(model, interface, clamped, weights=None):
@@ -437,9 +437,10 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         if reference is None:   # the interface moves with the frame on average: its deformation is kept
             statics = constraint_modes(model, interface, limits.FE_MODES - (modes or 1))
         if rigid_tie or reference is None:
-            Phi = normal = craig_bampton(model, interface, modes, cutoff_hz)[0]
+            normal, lam_normal = craig_bampton(model, interface, modes, cutoff_hz)
         else:                   # RBE3: the interface's weighted fit is the frame, its deformation is free
-            Phi = normal = rbe3_modes(model, interface, weights, modes, cutoff_hz)[0]
+            normal, lam_normal = rbe3_modes(model, interface, weights, modes, cutoff_hz)
+        Phi = normal
         if Phi.shape[1] + statics.shape[1] > limits.FE_MODES:
             raise ModelError(f"{model.source}: {Phi.shape[1]} + {statics.shape[1]} constraint modes, at most "
                              f"{limits.FE_MODES}", hint="lower cutoff_hz, or tie the interface to a reference point")
@@ -448,8 +449,8 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         if reference is not None and interface is None:
             raise ModelError("a reference point needs its interface node set",
                              hint="interface: {node_set: name, reference: [x, y, z]}")
-        normal, corr, at_reference = free_basis(model, interface, reference if rigid_tie else None, modes,
-                                                cutoff_hz, load_points)
+        normal, corr, at_reference, lam_normal = free_basis(model, interface, reference if rigid_tie else None,
+                                                            modes, cutoff_hz, load_points)
         Phi = np.hstack([normal, corr])
     else:
         raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
@@ -461,8 +462,11 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
     K_ee = 0.5 * (K_ee + K_ee.T)
     lam = scipy.linalg.eigvalsh(K_ee, mo.M_ee)   # the reduced body's own frequencies
-    full = full_frequencies(model, method, interface, reference, n, coupling, weights)
-    full = full[full <= _band_top(model, normal) * (1 + 1e-6)]   # (the slack: eigsh's tolerance, not a mode)
+    if method == "craig-bampton" and reference is None:   # the basis spans more than the clamped modes
+        full = full_frequencies(model, method, interface, reference, n, coupling, weights)
+        full = full[full <= _band_top(model, normal) * (1 + 1e-6)]   # (the slack: eigsh's tolerance, not a mode)
+    else:   # the normal modes are the full model's own under the basis's condition: no second solve
+        full = np.sqrt(np.clip(lam_normal, 0, None)) / (2 * np.pi)
     R_RP, Phi_kept, Psi_kept = kept_nodes(model, Phi, keep)
     if reference is not None:   # craig-bampton: the frame (Φ = Ψ = 0); free: its u_R, θ_R
         if method == "craig-bampton":
