@@ -160,7 +160,9 @@ def test_load_points_through_the_scene_and_their_refusals(tmp_path):
                              (", method: free, load_points: [0, 0]", "load_points", "dependent"),
                              (", method: free, load_points: [tap]", "load_points", "no node set 'tap'"),
                              (", method: free, load_points: [-1]", "load_points", "node indices"),
-                             (", method: free, load_points: [99999]", "load_points", "does not exist")):
+                             (", method: free, load_points: [99999]", "load_points", "does not exist"),
+                             (f", method: free, load_points: {[0] * 34}", "load_points", "102 static correction modes asked"),
+                             (f", method: free, load_points: {[0] * 33}", "load_points", "3 modes \\+ 99")):
         fe_yaml = f"{{{base}, interface: {{nodes: {tip}}}{extra}}}" if "free" not in extra else f"{{{base}{extra}}}"
         with pytest.raises(ModelError, match=text) as err:
             scene(tmp_path, fe_yaml, joint="{type: revolute, axis: [0, 0, 1]}")

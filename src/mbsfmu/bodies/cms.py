@@ -206,6 +206,11 @@ def load_patterns(model, points):
     return np.hstack(cols) if cols else np.zeros((3 * model.n_nodes, 0))
 
 
+def _load_count(points):
+    """The static correction modes the load points ask for: three per node, six per node set."""
+    return sum(3 if np.ndim(p) == 0 else 6 for p in points)
+
+
 def correction_modes(K, M, R, normal, loads, source):
     """Residual attachment modes (static correction, inertia relief) of a free body for load patterns (columns
     of `loads`): the static deflection under each load balanced by the rigid-body inertia it causes,
@@ -301,11 +306,12 @@ def free_basis(model, interface=None, reference=None, modes=None, cutoff_hz=None
     normal, lam = free_modes(K, M, R, model.source, modes, cutoff_hz)
     basis = normal
     if len(load_points):
-        loads = load_patterns(model, load_points)
-        if normal.shape[1] + loads.shape[1] > limits.FE_MODES:
-            raise ModelError(f"{model.source}: {normal.shape[1]} modes + {loads.shape[1]} static correction modes, "
+        count = _load_count(load_points)   # before any 3N-long column is made
+        if normal.shape[1] + count > limits.FE_MODES:
+            raise ModelError(f"{model.source}: {normal.shape[1]} modes + {count} static correction modes, "
                              f"at most {limits.FE_MODES}", key="load_points",
                              hint="fewer modes or load points (a node gives three, a node set six)")
+        loads = load_patterns(model, load_points)
         corr = correction_modes(K, M, R, normal, loads if T is None else np.asarray(T.T @ loads), model.source)
         basis = np.hstack([normal, corr])
     if T is None:
@@ -429,6 +435,9 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         raise ModelError("static correction modes (load_points) complete free-interface modes",
                          key="load_points", hint="method: free; Craig–Bampton's constraint modes already carry "
                                                  "the interface loads (keep the load point as an interface)")
+    if _load_count(load_points) > limits.FE_MODES:   # refused before the modes are computed
+        raise ModelError(f"{_load_count(load_points)} static correction modes asked, at most {limits.FE_MODES}",
+                         key="load_points", hint="fewer load points (a node gives three, a node set six)")
     if method == "craig-bampton":
         if interface is None:
             raise ModelError("craig-bampton needs an interface: a node set, optionally tied to a reference point",
