@@ -273,6 +273,8 @@ def test_rbe3_through_the_scene_and_its_refusals(tmp_path):
         with pytest.raises(ModelError, match=text) as err:
             scene(tmp_path, fe_yaml)
         assert err.value.key == f"bodies.part.elastic.fe.{key}", (extra, err.value.key)
+    with pytest.raises(ModelError, match="do not fix a frame"):            # two nodes: a turn about their line
+        scene(tmp_path, f"{{{base}, method: free, keep: [0], interface: {{nodes: {root[:2]}, reference: [0, 0, 0], coupling: rbe3}}}}")
     with pytest.raises(ModelError, match="averages the interface onto a reference point") as err:
         scene(tmp_path, f"{{{base}, keep: [0], interface: {{nodes: {root}, coupling: rbe3}}}}")
     assert err.value.key == "bodies.part.elastic.fe.interface.coupling"

@@ -370,10 +370,9 @@ def full_frequencies(model, method, interface, reference, n, coupling="rbe2", we
     the retained modes approximate (Rayleigh–Ritz: each reduced frequency is an upper bound of its own)."""
     rigid_tie = reference is not None and coupling == "rbe2"
     if method == "free":
-        T = _free_space(model, interface, reference if rigid_tie else None)[0]
+        T, R = _free_space(model, interface, reference if rigid_tie else None)
     else:
-        T = _craig_bampton_space(model, interface, rigid_tie, weights)
-    R = _free_space(model, interface, reference if rigid_tie else None)[1] if method == "free" else None
+        T, R = _craig_bampton_space(model, interface, rigid_tie, weights), None
     K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
     lam = _lowest(K, M, n, model.source, _lam_scale(K, M), R)[0]
     return np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi)
@@ -427,6 +426,8 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     _check_mass(model)
     if interface is not None:
         interface, weights = _interface_nodes(interface, reference, coupling, weights)
+        if coupling == "rbe3":   # the weighted fit must fix all six motions of the reference
+            _interface_frame(model, interface, weights)
     rigid_tie = reference is not None and coupling == "rbe2"
     if reference is None and not len(keep):
         raise ModelError("no node is kept: a reduced body needs at least one (the engine's nodes carry joints, "
