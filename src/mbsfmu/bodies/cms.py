@@ -17,8 +17,9 @@ Methods and their reference frame condition (the body frame R is the FE model's 
   linearised mean axes (Buckens/Tisserand).  With a reference point the interface is tied to it rigidly (RBE2:
   the reference gains six DOFs u_R, θ_R, the interface nodes follow them) before the modes are found, and the
   reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.  An RBE3 reference adds nothing to K or M:
-  the modes are the plain free ones and the reference's Φ, Ψ their interface's weighted rigid fit.  Optional static correction modes for named
-  load points follow the normal modes (correction_modes: inertia-relief residual attachment modes).
+  the modes are the plain free ones and the reference's Φ, Ψ their interface's weighted rigid fit.  Optional
+  static correction modes for named load points follow the normal modes (correction_modes: inertia-relief
+  residual attachment modes).
 Modes come from a sparse shift-invert Lanczos (eigsh) on the factor of K − σM (σ < 0, so K positive
 semi-definite makes it positive definite).  That factor is an LDLᵀ (diagonal pivots), so by Sylvester's law
 its negative pivots count the eigenvalues below σ: an indefinite K is refused, and a frequency cut-off is turned
@@ -484,7 +485,8 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         elif rigid_tie:
             ref = at_reference.reshape(2, 3, n) / scale
         else:                   # RBE3: the weighted least-squares rigid motion of the interface nodes
-            ref = (rigid_fit(model.nodes[interface], reference, weights) @ Phi[interface].reshape(-1, n)).reshape(2, 3, n)
+            fit = rigid_fit(model.nodes[interface], reference, weights)
+            ref = (fit @ Phi[interface].reshape(-1, n)).reshape(2, 3, n)
         R_RP = np.vstack([np.asarray(reference, float)[None, :], R_RP])
         Phi_kept = np.concatenate([ref[:1], Phi_kept])
         Psi_kept = np.concatenate([ref[1:], Psi_kept])
@@ -505,7 +507,8 @@ def _interface_nodes(interface, reference, coupling, weights):
         raise ModelError(f"unknown coupling {coupling!r}", key="interface.coupling", hint="rbe2 or rbe3")
     if coupling == "rbe3" and reference is None:
         raise ModelError("an RBE3 coupling averages the interface onto a reference point",
-                         key="interface.coupling", hint="interface: {node_set: name, reference: [x, y, z], coupling: rbe3}")
+                         key="interface.coupling",
+                         hint="interface: {node_set: name, reference: [x, y, z], coupling: rbe3}")
     if weights is None:
         return nodes, None
     w = np.asarray(weights, float)
