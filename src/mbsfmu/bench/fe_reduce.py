@@ -4,9 +4,9 @@ Each size runs in a fresh process (its peak resident set is its own): a tet4 box
 (nx = 5 n cells along, n × n across, six tets per cell) written as a gmsh .msh, then
 - read + assemble: `assemble_solid(file, element="tet10")` (meshio's parse in its bounded child, scikit-fem's
   consistent M and K, the node-major map);
-- reduce: until the reduction of issue 24 is on main, a sparse shift-invert `eigsh` of the 20 lowest modes of
-  the clamped problem (the fixed-interface eigenproblem, the dominant cost of Craig–Bampton), K factorized by
-  SuperLU in a symmetric fill-reducing order (eigsh's own COLAMD order fills in 1.7× more, 3× slower).
+- reduce: `bodies.cms.reduce`, what a scene's `fe:` key runs: Craig–Bampton to 20 modes, the x = 0 face tied
+  (RBE2) to its centre, the tip node kept (mass check, the shift-invert factorization and eigensolve, the
+  consistent-mass invariants, the kept nodes); `f1_hz` is its first frequency, for convergence against size.
 Sizes grow until one run passes 60 s or limits.FE_DOFS. Writes fe_reduce.csv and fe_reduce.png into --out.
 
     python -m mbsfmu.bench.fe_reduce --out reports          (a few minutes)
@@ -26,7 +26,7 @@ import numpy as np
 from . import output
 
 MODES, BUDGET_S = 20, 60.0
-COLUMNS = ["n", "dofs", "assemble_s", "reduce_s", "reduce_what", "peak_mib", "parser_peak_mib"]
+COLUMNS = ["n", "dofs", "assemble_s", "reduce_s", "f1_hz", "peak_mib", "parser_peak_mib"]
 
 
 def box_mesh(n):
@@ -41,18 +41,15 @@ def box_mesh(n):
     return meshio.Mesh(p, [("tetra", t)])
 
 
-def reduce_clamped(fe):
-    """(seconds, what) of the fixed-interface eigenproblem of the body clamped at x = 0."""
-    from scipy.sparse.linalg import LinearOperator, eigsh, splu
-    root = np.nonzero(fe.nodes[:, 0] < 1e-12)[0]
-    free = np.setdiff1d(np.arange(fe.M.shape[0]), (3 * root[:, None] + np.arange(3)).ravel())
+def reduce_clamped(model):
+    """(seconds, first frequency in Hz) of cms.reduce: Craig–Bampton, MODES modes, the x = 0 face tied to its
+    centre, the tip node kept."""
+    from ..bodies import cms
+    root = np.flatnonzero(model.nodes[:, 0] < 1e-12)
     t0 = time.perf_counter()
-    K, M = fe.K[free][:, free].tocsc(), fe.M[free][:, free].tocsc()
-    # a symmetric fill-reducing order: at 31k DOFs 35 M entries in L + U and 13 s instead of eigsh's own
-    # factorization (COLAMD, 59 M, 40 s)
-    lu = splu(K, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-    eigsh(K, k=MODES, M=M, sigma=0.0, which="LM", OPinv=LinearOperator(K.shape, matvec=lu.solve, dtype=float))
-    return time.perf_counter() - t0, f"eigsh {MODES} modes (shift-invert, symmetric-order LU)"
+    r = cms.reduce(model, "craig-bampton", interface=root, reference=[0, 0.05, 0.05],
+                   keep=[int(np.argmax(model.nodes[:, 0]))], modes=MODES)
+    return time.perf_counter() - t0, float(r["frequencies"][0])
 
 
 def one(n):
@@ -63,8 +60,8 @@ def one(n):
         t0 = time.perf_counter()
         fe = assemble_solid("bar.msh", 2.1e11, 0.3, 7850.0, element="tet10", base=tmp)
         assemble = time.perf_counter() - t0
-    reduce_s, what = reduce_clamped(fe)
-    return {"n": n, "dofs": fe.M.shape[0], "assemble_s": assemble, "reduce_s": reduce_s, "reduce_what": what,
+    reduce_s, f1 = reduce_clamped(fe)
+    return {"n": n, "dofs": fe.M.shape[0], "assemble_s": assemble, "reduce_s": reduce_s, "f1_hz": f1,
             "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "parser_peak_mib": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
 
@@ -94,7 +91,7 @@ def plot(rows, path):
     dofs = [r["dofs"] for r in rows]
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     a.loglog(dofs, [r["assemble_s"] for r in rows], "o-", label="read + assemble (tet10)")
-    a.loglog(dofs, [r["reduce_s"] for r in rows], "s-", label=rows[0]["reduce_what"] if rows else "reduce")
+    a.loglog(dofs, [r["reduce_s"] for r in rows], "s-", label=f"cms.reduce: Craig–Bampton, {MODES} modes")
     a.axhline(BUDGET_S, color="gray", ls=":", label="60 s target")
     a.set_xlabel("DOFs")
     a.set_ylabel("wall time (s)")

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 MODELS = ("pendulum", "double_pendulum", "cart_pole", "robot_arm_6dof", "spinning_top", "driven_crank",
-          "spring_damper", "free_body", "crane", "flexible_pendulum", "spinup_beam", "robot_arm_elastic")
+          "spring_damper", "free_body", "crane", "flexible_pendulum", "spinup_beam", "robot_arm_elastic", "fe_link")
 
 
 def main(argv=None):

@@ -82,6 +82,9 @@ def cases():
              stop=1.0),
         Case("spinup_beam_stiffening", "spinup_beam", "driven spin-up of a beam with dynamic stiffening (rheonomic, "
              "elastic)", reference="radau5", budget=40.0, quick_stop=0.5, tol_error=1e-4),
+        Case("fe_link", "fe_link", "FE link (459-DOF tet10 part, Craig–Bampton, 4 modes, 34–629 Hz, consistent-mass "
+             "invariants, 1 % modal damping) swinging from horizontal with a 50 g end mass", reference="radau5",
+             budget=40.0, quick_stop=0.2, tol_error=1e-4),
         Case("nan_input", "double_pendulum", "input q.phi1 = NaN", expect="fail", expect_message="not finite",
              inputs={"q.phi1": nan}, reference=None, stop=0.1),
         Case("inf_input", "double_pendulum", "input q.phi2 = +Inf", expect="fail", expect_message="not finite",

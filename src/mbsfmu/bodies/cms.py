@@ -8,11 +8,18 @@ Methods and their reference frame condition (the body frame R is the FE model's 
 - `craig-bampton` with a node set alone: the frame follows the interface's mean rigid motion (the interface
   displacements are orthogonal to its six rigid-body fields, equal node weights).  The basis is the
   fixed-interface modes plus the static constraint modes of the interface's 3·n_I − 6 deformation DOFs.
+- `craig-bampton` with a reference point averaging the node set (RBE3: its motion is the set's weighted
+  least-squares rigid motion): the frame moves with the reference, so that fit is zero; the interface nodes
+  keep their deformation and the normal modes are the full model's under those six conditions (rbe3_modes).
+  Its six constraint modes are the frame's rigid motion: none is added.
 - `free`: free-interface normal modes; the six rigid-body modes are found (their count is checked) and removed,
   and the elastic modes are made exactly M-orthogonal to the rigid fields: ∫Φ dm = 0 and ∫R̃Φ dm = 0, the
   linearised mean axes (Buckens/Tisserand).  With a reference point the interface is tied to it rigidly (RBE2:
   the reference gains six DOFs u_R, θ_R, the interface nodes follow them) before the modes are found, and the
-  reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.
+  reference is a kept node whose Φ, Ψ are u_R, θ_R of each mode.  An RBE3 reference adds nothing to K or M:
+  the modes are the plain free ones and the reference's Φ, Ψ their interface's weighted rigid fit.  Optional
+  static correction modes for named load points follow the normal modes (correction_modes: inertia-relief
+  residual attachment modes).
 Modes come from a sparse shift-invert Lanczos (eigsh) on the factor of K − σM (σ < 0, so K positive
 semi-definite makes it positive definite).  That factor is an LDLᵀ (diagonal pivots), so by Sylvester's law
 its negative pivots count the eigenvalues below σ: an indefinite K is refused, and a frequency cut-off is turned
@@ -43,11 +50,15 @@ from .nodal import MassMoments, NodalData, _symmetric_psd, damping_from_ratio
 
 METHODS = ("craig-bampton", "free")
 SHIFT = 1e-8      # σ = −SHIFT·λ_scale: below every eigenvalue of a positive semi-definite K, by far more than roundoff
-# |λ| < RIGID·λ_scale: a zero-frequency (rigid-body) mode.  Rigid modes come out at ~1e-17·λ_scale (roundoff);
-# λ_scale grows as 1/element size² while a slender part's first mode falls as (thickness/length²)²: a 2 m strip
-# 10 mm thick in 16 tet10 cells has its first free mode at 4e-10·λ_scale, so the bound sits near roundoff
-RIGID = 1e-13
-CACHE_VERSION = "cms-3"
+# Zero energy is decided against the model's own roundoff, not a fixed fraction of λ_scale (which grows as
+# 1/element size² while a slender part's first mode falls as (thickness/length²)²: a 4 m strip 1 mm thick has it
+# at 3e-15·λ_scale).  λ_R, the largest eigenvalue of the exact rigid-body fields' pencil (RᵀKR, RᵀMR), measures
+# that roundoff: 2e-17…6e-17·λ_scale for double-precision matrices, 1e-9·λ_scale for 8 printed digits; a
+# support makes it its stiffness.  Rigid modes are then projected out exactly (no threshold picks them).
+EPS = np.finfo(float).eps
+ZERO_GAP = 10      # an eigenvalue within ZERO_GAP·max(λ_R, ε λ_scale / 100) is zero (mechanisms come out ≲ λ_R)
+RIGID_GAP = 1e-4   # the rigid fields are free when λ_R ≤ 100 ε λ_scale or ≤ RIGID_GAP × the first elastic λ
+CACHE_VERSION = "cms-4"
 DEFAULT_MODES = 10
 CHECK_TOLERANCE = 0.01   # `mbsfmu check` notes a frequency of the claimed band off the full model's by more
 
@@ -79,8 +90,9 @@ def _check_mass(model):
                          hint="a consistent or lumped mass of positive density; check the elements and the DOF map")
 
 
-def _lowest(K, M, k, source, scale):
-    """The k lowest eigenpairs of K x = λ M x (shift-invert about σ < 0); refuses an indefinite K."""
+def _lowest(K, M, k, source, scale, R=None):
+    """The k lowest eigenpairs of K x = λ M x (shift-invert about σ < 0); refuses an indefinite K.  With the
+    rigid-body fields R: the k lowest in their M-orthogonal complement (no threshold decides which are rigid)."""
     sigma = -SHIFT * scale
     lu, negative = _factor(K - sigma * M, source, "the stiffness matrix")
     if negative:
@@ -89,8 +101,16 @@ def _lowest(K, M, k, source, scale):
     n = K.shape[0]
     if k >= n:
         raise ModelError(f"{source}: {k} modes asked, the model has {n} free DOFs", hint="ask for fewer modes")
-    op = LinearOperator((n, n), matvec=lu.solve, dtype=float)
-    v0 = np.random.default_rng(0).standard_normal(n)   # a fixed start: the same files give the same body
+    solve, v0 = lu.solve, np.random.default_rng(0).standard_normal(n)   # a fixed start: same files, same body
+    if R is not None:
+        MR = M @ R
+        G = R.T @ MR
+
+        def solve(b):
+            x = lu.solve(b)
+            return x - R @ np.linalg.solve(G, MR.T @ x)
+        v0 = solve(M @ v0)
+    op = LinearOperator((n, n), matvec=solve, dtype=float)
     lam, V = eigsh(K, k=k, M=M, sigma=sigma, OPinv=op, which="LM", tol=1e-12, v0=v0)
     order = np.argsort(lam)
     return lam[order], V[:, order]
@@ -129,7 +149,7 @@ def _dofs(nodes):
 
 
 def craig_bampton(model, interface, modes=None, cutoff_hz=None):
-    """Fixed-interface modes (3N×n, zero at the interface nodes)."""
+    """(Φ 3N×n, λ): fixed-interface modes (zero at the interface nodes) and their eigenvalues."""
     fixed = np.zeros(3 * model.n_nodes, bool)
     fixed[_dofs(interface)] = True
     free = np.flatnonzero(~fixed)
@@ -137,12 +157,10 @@ def craig_bampton(model, interface, modes=None, cutoff_hz=None):
     scale = _lam_scale(K, M)
     modes = _mode_count(K, M, modes, cutoff_hz, 0, model.source, scale)
     lam, V = _lowest(K, M, modes, model.source, scale)
-    if lam[0] < RIGID * scale:
-        raise ModelError(f"{model.source}: the clamped interface does not hold the body: a zero-frequency mode "
-                         "remains", hint="an interface of at least three nodes not on one line, one connected part")
+    _held(lam, model)
     Phi = np.zeros((3 * model.n_nodes, modes))
     Phi[free] = V
-    return Phi
+    return Phi, lam
 
 
 def constraint_modes(model, interface, budget):
@@ -161,19 +179,94 @@ def constraint_modes(model, interface, budget):
     return Psi
 
 
+def rigid_fit(X, point, weights=None):
+    """G (6 × 3n): the weighted least-squares rigid motion (u_P, θ_P) about `point` of nodes at X moving by u
+    (3n, node-major), G u = argmin Σ w_i |u_i − u_P − θ_P × (X_i − point)|²; equal weights by default.
+    Gᵀ distributes a force and moment at the point over the nodes (the same averaging, transposed).  Nodes on
+    one line leave the turn about it undetermined: the least-norm fit does not turn about it."""
+    A = rigid_fields(np.asarray(X, float) - np.asarray(point, float))
+    sw = np.sqrt(np.repeat(np.ones(len(X)) if weights is None else np.asarray(weights, float), 3))
+    return np.linalg.pinv(sw[:, None] * A, rcond=1e-9) * sw
+
+
+def load_patterns(model, points):
+    """Unit load patterns (3N × k) at load points: a node index gives its x, y, z forces; a node set (array of
+    indices) the six force and moment components at its centroid spread over its nodes as a kept set averages
+    (rigid_fit, transposed)."""
+    cols = []
+    for p in points:
+        nodes = np.atleast_1d(np.asarray(p, dtype=np.int64))
+        F = np.zeros((3 * model.n_nodes, 3 if np.ndim(p) == 0 else 6))
+        if np.ndim(p) == 0:
+            F[_dofs(nodes), np.arange(3)] = 1.0
+        else:
+            X = model.nodes[nodes]
+            _interface_frame(model, nodes)   # three nodes not on one line: else no moment can be spread
+            F[_dofs(nodes)] = rigid_fit(X, X.mean(axis=0)).T
+        cols.append(F)
+    return np.hstack(cols) if cols else np.zeros((3 * model.n_nodes, 0))
+
+
+def _load_count(points):
+    """The static correction modes the load points ask for: three per node, six per node set."""
+    return sum(3 if np.ndim(p) == 0 else 6 for p in points)
+
+
+def correction_modes(K, M, R, normal, loads, source):
+    """Residual attachment modes (static correction, inertia relief) of a free body for load patterns (columns
+    of `loads`): the static deflection under each load balanced by the rigid-body inertia it causes,
+    f − M R a with a = (RᵀMR)⁻¹Rᵀf, made M-orthogonal to the rigid fields R (mean axes) and to the kept normal
+    modes (whose share of the deflection the basis holds already).  With them the reduced body's static
+    deflection under these loads is the full model's."""
+    MR = M @ R
+    relieved = loads - MR @ np.linalg.solve(R.T @ MR, R.T @ loads)
+    # a self-equilibrated load needs no reaction: hold six DOFs that fix the rigid motions (statically
+    # determinate, chosen by pivoted QR of the rigid fields), solve, then remove the rigid part below
+    support = scipy.linalg.qr(R.T, pivoting=True, mode="r")[1][:6]
+    free = np.setdiff1d(np.arange(K.shape[0]), support)
+    lu, _ = _factor(K[free][:, free], source, "the stiffness held at six DOFs")
+    U = np.zeros(loads.shape)
+    U[free] = lu.solve(np.ascontiguousarray(relieved[free]))
+    B = np.hstack([R, normal])
+    MB = M @ B
+    U -= B @ np.linalg.solve(B.T @ MB, MB.T @ U)
+    gram = U.T @ (M @ U)
+    d = np.sqrt(np.clip(np.diag(gram), 1e-300, None))
+    if np.linalg.eigvalsh(gram / np.outer(d, d)).min() < 1e-10:
+        raise ModelError(f"{source}: the load points give dependent static correction modes", key="load_points",
+                         hint="name each load point once; a node set and a node of it, or two sets that "
+                              "share their rigid motion, repeat a load")
+    return U
+
+
 def free_modes(K, M, R, source, modes=None, cutoff_hz=None):
-    """Free-interface elastic modes of K, M, M-orthogonal to the rigid-body fields R (n×6): mean axes."""
+    """(Φ, λ): free-interface elastic modes of K, M, M-orthogonal to the rigid-body fields R (n×6): mean axes."""
     scale = _lam_scale(K, M)
     modes = _mode_count(K, M, modes, cutoff_hz, 6, source, scale)
-    lam, V = _lowest(K, M, modes + 6, source, scale)
-    rigid = int(np.count_nonzero(np.abs(lam) < RIGID * scale))
-    if rigid != 6:
-        raise ModelError(f"{source}: {rigid} rigid-body modes found where a free body has 6",
-                         hint="fewer: the model is supported (remove the supports or use craig-bampton); "
-                              "more: a mechanism or disconnected parts")
+    lam, V = _lowest(K, M, modes, source, scale, R)
+    _rigid_check(K, M, R, lam[0], scale, source)
     MR = M @ R
-    Phi = V[:, 6:]
-    return Phi - R @ np.linalg.solve(R.T @ MR, MR.T @ Phi)   # exact mean-axis condition, not only to eigsh's tol
+    return V - R @ np.linalg.solve(R.T @ MR, MR.T @ V), lam   # exact mean axes, not only to eigsh's tolerance
+
+
+def _rigid_energy(K, M, R):
+    """λ_R: the largest eigenvalue of the rigid-body fields' pencil (RᵀKR, RᵀMR), zero but for roundoff."""
+    KR = R.T @ (K @ R)
+    return float(np.abs(scipy.linalg.eigvalsh(0.5 * (KR + KR.T), R.T @ (M @ R))).max())
+
+
+def _rigid_check(K, M, R, lam1, scale, source):
+    """A free body: its six rigid fields free of energy (to roundoff, or far below its first elastic mode),
+    and no seventh zero-energy motion (the first elastic eigenvalue above roundoff)."""
+    lam_R = _rigid_energy(K, M, R)
+    if lam_R > max(100 * EPS * scale, RIGID_GAP * lam1):
+        raise ModelError(f"{source}: the rigid-body motions carry energy (λ = {lam_R:.3g} against the first elastic "
+                         f"{lam1:.3g}): a free body has six free rigid-body modes",
+                         hint="the model is supported (remove the supports, or use craig-bampton), or its matrices "
+                              "were written with too few digits for its lowest modes")
+    if lam1 <= ZERO_GAP * max(lam_R, EPS * scale / 100):
+        raise ModelError(f"{source}: more than six zero-frequency modes (λ = {lam1:.3g}, roundoff ≈ {lam_R:.3g})",
+                         hint="a mechanism or disconnected parts")
 
 
 def rbe2(model, interface, reference):
@@ -194,40 +287,95 @@ def rbe2(model, interface, reference):
     return sp.csr_matrix((vals, (rows, cols)), shape=(3 * N, k + 6))
 
 
-def free_modes_rbe2(model, interface, reference, modes=None, cutoff_hz=None):
-    """Free modes with the interface tied rigidly to the reference point: the modes (3N×n) and the reference's
-    own motion u_R, θ_R in them (6×n)."""
+def _free_space(model, interface, reference):
+    """(T, R) of a free body: its DOFs (T = None: the model's own; else the RBE2 tie of the interface to the
+    reference point) and its six rigid-body fields in those DOFs."""
+    if reference is None:
+        return None, rigid_fields(model.nodes)
     T = rbe2(model, interface, reference)
     others = np.setdiff1d(np.arange(model.n_nodes), interface)
     R = np.vstack([rigid_fields(model.nodes[others]), rigid_fields(np.asarray(reference, float)[None, :]),
-                   np.hstack([np.zeros((3, 3)), np.eye(3)])])           # rigid fields in T's DOFs
-    red = free_modes(T.T @ model.K @ T, T.T @ model.M @ T, R, model.source, modes, cutoff_hz)
-    return T @ red, red[-6:]
+                   np.hstack([np.zeros((3, 3)), np.eye(3)])])
+    return T, R
 
 
-def _craig_bampton_space(model, interface, reference):
+def free_basis(model, interface=None, reference=None, modes=None, cutoff_hz=None, load_points=()):
+    """Free-interface modes (3N × n), then the static correction modes of the load points (3N × k), with a
+    reference point its own motion u_R, θ_R in all of them (6 × (n + k)), and the modes' eigenvalues."""
+    T, R = _free_space(model, interface, reference)
+    K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
+    normal, lam = free_modes(K, M, R, model.source, modes, cutoff_hz)
+    basis = normal
+    if len(load_points):
+        count = _load_count(load_points)   # before any 3N-long column is made
+        if normal.shape[1] + count > limits.FE_MODES:
+            raise ModelError(f"{model.source}: {normal.shape[1]} modes + {count} static correction modes, "
+                             f"at most {limits.FE_MODES}", key="load_points",
+                             hint="fewer modes or load points (a node gives three, a node set six)")
+        loads = load_patterns(model, load_points)
+        corr = correction_modes(K, M, R, normal, loads if T is None else np.asarray(T.T @ loads), model.source)
+        basis = np.hstack([normal, corr])
+    if T is None:
+        return normal, basis[:, normal.shape[1]:], None, lam
+    return T @ normal, T @ basis[:, normal.shape[1]:], basis[-6:], lam
+
+
+def _craig_bampton_space(model, interface, clamped, weights=None):
     """T (3N × m): the displacements a Craig–Bampton basis spans, the interface held by the frame: inner DOFs
-    free; interface DOFs zero (a reference point) or its deformation alone (a node set, see the docstring)."""
+    free; interface DOFs zero (clamped: an RBE2 reference point) or its deformation alone, the motions whose
+    weighted rigid fit is zero (a node set, or an RBE3 reference point; see the docstring)."""
     idofs = _dofs(interface)
     inner = np.setdiff1d(np.arange(3 * model.n_nodes), idofs)
     T = sp.csr_matrix((np.ones(len(inner)), (inner, np.arange(len(inner)))), shape=(3 * model.n_nodes, len(inner)))
-    if reference is not None:
+    if clamped:
         return T
+    _interface_bound(model, interface)
     basis = np.zeros((3 * model.n_nodes, 3 * len(interface) - 6))
-    basis[idofs] = _interface_frame(model, interface)[:, 6:]
+    basis[idofs] = _interface_frame(model, interface, weights)[:, 6:]
     return sp.hstack([T, sp.csr_matrix(basis)]).tocsr()
 
 
-def full_frequencies(model, method, interface, reference, n):
+def _interface_bound(model, interface):
+    """An interface that keeps its deformation couples all its DOFs: a dense block of (3 n_I)² in the problem."""
+    if len(interface) > limits.FE_AVERAGED_NODES:
+        raise ModelError(f"{model.source}: {len(interface):,} interface nodes keep their deformation, at most "
+                         f"{limits.FE_AVERAGED_NODES:,}", key="interface",
+                         hint="tie the interface rigidly (coupling: rbe2) or choose fewer nodes")
+
+
+def rbe3_modes(model, interface, weights=None, modes=None, cutoff_hz=None):
+    """(Φ 3N×n, λ): Craig–Bampton normal modes of an RBE3 interface, the full model's lowest modes with the
+    interface's weighted rigid fit held (its nodes otherwise free).  Its constraint modes are the six rigid
+    motions of the reference point: the frame's own, so none is added."""
+    T = _craig_bampton_space(model, interface, False, weights)
+    K, M = T.T @ model.K @ T, T.T @ model.M @ T
+    scale = _lam_scale(K, M)
+    modes = _mode_count(K, M, modes, cutoff_hz, 0, model.source, scale)
+    lam, V = _lowest(K, M, modes, model.source, scale)
+    _held(lam, model)
+    return np.asarray(T @ V), lam
+
+
+def _held(lam, model):
+    """The interface holds the body: its first eigenvalue is above the model's roundoff (see ZERO_GAP; λ_R at most
+    100 ε λ_scale: the matrices may hold a support of their own)."""
+    scale = _lam_scale(model.K, model.M)
+    zero = np.clip(_rigid_energy(model.K, model.M, rigid_fields(model.nodes)), EPS * scale / 100, 100 * EPS * scale)
+    if lam[0] <= ZERO_GAP * zero:
+        raise ModelError(f"{model.source}: the interface does not hold the body: a zero-frequency mode remains",
+                         hint="an interface of at least three nodes not on one line, one connected part")
+
+
+def full_frequencies(model, method, interface, reference, n, coupling="rbe2", weights=None):
     """The full model's n lowest elastic frequencies (Hz) under the reduced basis's boundary condition: what
     the retained modes approximate (Rayleigh–Ritz: each reduced frequency is an upper bound of its own)."""
+    rigid_tie = reference is not None and coupling == "rbe2"
     if method == "free":
-        T = None if reference is None else rbe2(model, interface, reference)
+        T, R = _free_space(model, interface, reference if rigid_tie else None)
     else:
-        T = _craig_bampton_space(model, interface, reference)
+        T, R = _craig_bampton_space(model, interface, rigid_tie, weights), None
     K, M = (model.K, model.M) if T is None else (T.T @ model.K @ T, T.T @ model.M @ T)
-    rigid = 6 if method == "free" else 0   # their count was checked when the modes were found
-    lam = _lowest(K, M, n + rigid, model.source, _lam_scale(K, M))[0][rigid:]
+    lam = _lowest(K, M, n, model.source, _lam_scale(K, M), R)[0]
     return np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi)
 
 
@@ -245,9 +393,13 @@ def frequency_deviation(fe):
     return np.abs(np.asarray(fe["frequencies"], float)[:len(full)] / full - 1)
 
 
-def _interface_frame(model, interface):
-    """An orthonormal basis (U, 3n_I × 3n_I) whose first six columns span the interface's rigid motions."""
-    U, sv, _ = np.linalg.svd(rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0)))
+def _interface_frame(model, interface, weights=None):
+    """An orthonormal basis (U, 3n_I × 3n_I) whose first six columns span W·(the interface's rigid motions), W
+    the node weights (equal by default): the others span the motions whose weighted rigid fit is zero."""
+    A = rigid_fields(model.nodes[interface] - model.nodes[interface].mean(axis=0))
+    if weights is not None:
+        A = np.repeat(np.asarray(weights, float), 3)[:, None] * A
+    U, sv, _ = np.linalg.svd(A)
     if len(sv) < 6 or sv[5] < 1e-9 * sv[0]:
         raise ModelError(f"{model.source}: the interface nodes do not fix a frame (fewer than three, or on one line)",
                          hint="give at least three interface nodes not on one line, or a reference point")
@@ -267,16 +419,27 @@ def moments(model, Phi):
                        np.zeros((3, 3)), np.zeros((3, n)), np.zeros((n, n)))
 
 
-def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None):
+def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None,
+           load_points=(), coupling="rbe2", weights=None):
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
     Psi, modal stiffness, the mass moments, the frequencies (Hz) and the full model's in the band the reduction
     claims (full_frequencies: `mbsfmu check` compares them)."""
     _check_mass(model)
     if interface is not None:
-        interface = np.unique(np.asarray(interface, dtype=np.int64))
+        interface, weights = _interface_nodes(interface, reference, coupling, weights)
+        if coupling == "rbe3":   # the weighted fit must fix all six motions of the reference
+            _interface_frame(model, interface, weights)
+    rigid_tie = reference is not None and coupling == "rbe2"
     if reference is None and not len(keep):
         raise ModelError("no node is kept: a reduced body needs at least one (the engine's nodes carry joints, "
                          "forces and outputs)", hint="keep: [node indices], or an interface reference point")
+    if len(load_points) and method != "free":
+        raise ModelError("static correction modes (load_points) complete free-interface modes",
+                         key="load_points", hint="method: free; Craig–Bampton's constraint modes already carry "
+                                                 "the interface loads (keep the load point as an interface)")
+    if _load_count(load_points) > limits.FE_MODES:   # refused before the modes are computed
+        raise ModelError(f"{_load_count(load_points)} static correction modes asked, at most {limits.FE_MODES}",
+                         key="load_points", hint="fewer load points (a node gives three, a node set six)")
     if method == "craig-bampton":
         if interface is None:
             raise ModelError("craig-bampton needs an interface: a node set, optionally tied to a reference point",
@@ -284,19 +447,22 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
         statics = np.zeros((3 * model.n_nodes, 0))
         if reference is None:   # the interface moves with the frame on average: its deformation is kept
             statics = constraint_modes(model, interface, limits.FE_MODES - (modes or 1))
-        Phi = normal = craig_bampton(model, interface, modes, cutoff_hz)
+        if rigid_tie or reference is None:
+            normal, lam_normal = craig_bampton(model, interface, modes, cutoff_hz)
+        else:                   # RBE3: the interface's weighted fit is the frame, its deformation is free
+            normal, lam_normal = rbe3_modes(model, interface, weights, modes, cutoff_hz)
+        Phi = normal
         if Phi.shape[1] + statics.shape[1] > limits.FE_MODES:
             raise ModelError(f"{model.source}: {Phi.shape[1]} + {statics.shape[1]} constraint modes, at most "
                              f"{limits.FE_MODES}", hint="lower cutoff_hz, or tie the interface to a reference point")
         Phi = np.hstack([Phi, statics])
-    elif method == "free" and reference is None:
-        Phi = normal = free_modes(model.K, model.M, rigid_fields(model.nodes), model.source, modes, cutoff_hz)
     elif method == "free":
-        if interface is None:
+        if reference is not None and interface is None:
             raise ModelError("a reference point needs its interface node set",
                              hint="interface: {node_set: name, reference: [x, y, z]}")
-        Phi, at_reference = free_modes_rbe2(model, interface, reference, modes, cutoff_hz)
-        normal = Phi
+        normal, corr, at_reference, lam_normal = free_basis(model, interface, reference if rigid_tie else None,
+                                                            modes, cutoff_hz, load_points)
+        Phi = np.hstack([normal, corr])
     else:
         raise ModelError(f"unknown method {method!r}", hint="craig-bampton or free")
     N, n = model.n_nodes, Phi.shape[1]
@@ -307,11 +473,20 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     K_ee = np.einsum("gik,gil->kl", Phi, (model.K @ Phi.reshape(3 * N, n)).reshape(N, 3, n))
     K_ee = 0.5 * (K_ee + K_ee.T)
     lam = scipy.linalg.eigvalsh(K_ee, mo.M_ee)   # the reduced body's own frequencies
-    full = full_frequencies(model, method, interface, reference, n)
-    full = full[full <= _band_top(model, normal) * (1 + 1e-6)]   # (the slack: eigsh's tolerance, not a mode)
+    if method == "craig-bampton" and reference is None:   # the basis spans more than the clamped modes
+        full = full_frequencies(model, method, interface, reference, n, coupling, weights)
+        full = full[full <= _band_top(model, normal) * (1 + 1e-6)]   # (the slack: eigsh's tolerance, not a mode)
+    else:   # the normal modes are the full model's own under the basis's condition: no second solve
+        full = np.sqrt(np.clip(lam_normal, 0, None)) / (2 * np.pi)
     R_RP, Phi_kept, Psi_kept = kept_nodes(model, Phi, keep)
-    if reference is not None:   # craig-bampton: clamped to the frame (Φ = Ψ = 0); free: its u_R, θ_R
-        ref = at_reference.reshape(2, 3, n) / scale if method == "free" else np.zeros((2, 3, n))
+    if reference is not None:   # craig-bampton: the frame (Φ = Ψ = 0); free: its u_R, θ_R
+        if method == "craig-bampton":
+            ref = np.zeros((2, 3, n))
+        elif rigid_tie:
+            ref = at_reference.reshape(2, 3, n) / scale
+        else:                   # RBE3: the weighted least-squares rigid motion of the interface nodes
+            fit = rigid_fit(model.nodes[interface], reference, weights)
+            ref = (fit @ Phi[interface].reshape(-1, n)).reshape(2, 3, n)
         R_RP = np.vstack([np.asarray(reference, float)[None, :], R_RP])
         Phi_kept = np.concatenate([ref[:1], Phi_kept])
         Psi_kept = np.concatenate([ref[1:], Psi_kept])
@@ -319,6 +494,31 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
             "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "full_frequencies": full,
             "m": np.array(mo.m), "S0": mo.S0,
             "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
+
+
+COUPLINGS = ("rbe2", "rbe3")
+
+
+def _interface_nodes(interface, reference, coupling, weights):
+    """The interface's nodes sorted, and their weights in that order (RBE3 only: positive, one per node)."""
+    interface = np.asarray(interface, dtype=np.int64)
+    nodes, first = np.unique(interface, return_index=True)
+    if coupling not in COUPLINGS:
+        raise ModelError(f"unknown coupling {coupling!r}", key="interface.coupling", hint="rbe2 or rbe3")
+    if coupling == "rbe3" and reference is None:
+        raise ModelError("an RBE3 coupling averages the interface onto a reference point",
+                         key="interface.coupling",
+                         hint="interface: {node_set: name, reference: [x, y, z], coupling: rbe3}")
+    if weights is None:
+        return nodes, None
+    w = np.asarray(weights, float)
+    if coupling != "rbe3":
+        raise ModelError("weights belong to an RBE3 (averaging) coupling", key="interface.weights",
+                         hint="coupling: rbe3, or leave weights out")
+    if w.shape != interface.shape or len(nodes) != len(interface) or not np.all(np.isfinite(w)) or np.any(w <= 0):
+        raise ModelError(f"{len(w)} weights for {len(interface)} interface nodes: one positive weight per node, "
+                         "no node twice", key="interface.weights")
+    return nodes, w[first]
 
 
 def kept_nodes(model, Phi, keep):
@@ -334,7 +534,7 @@ def kept_nodes(model, Phi, keep):
             continue
         X = model.nodes[np.asarray(k)]
         c = X.mean(axis=0)
-        fit = np.linalg.lstsq(rigid_fields(X - c), Phi[np.asarray(k)].reshape(-1, Phi.shape[2]), rcond=1e-9)[0]
+        fit = rigid_fit(X, c) @ Phi[np.asarray(k)].reshape(-1, Phi.shape[2])
         R.append(c)
         Phi_k.append(fit[:3])
         Psi_k.append(fit[3:])
@@ -422,7 +622,8 @@ def _resolve(model, params):
         return idx
     iface = params["interface"]
     return {"interface": None if iface is None else nodes(iface, "interface.node_set" if isinstance(iface, str) else "interface.nodes"),
-            "keep": [nodes(k, "keep") for k in params["keep"]]}
+            "keep": [nodes(k, "keep") for k in params["keep"]],
+            "load_points": [nodes(k, "load_points") for k in params.get("load_points", ())]}
 
 
 def reduce_cached(files, inputs, build):

@@ -682,8 +682,8 @@ class _Checker:
             self.fail(node, "node_sets", path + ".node_sets", "expected a mapping name: [node indices]")
         for name in node.get("node_sets") or {}:
             sets[name] = self.fe_nodes(node["node_sets"], name, f"{path}.node_sets.{name}")
-        params = {"method": method, "keep": self.fe_keep(node, path + ".keep") if "keep" in node else [],
-                  "modes": None, "cutoff_hz": None, "interface": None, "reference": None}
+        params = {"method": method, "modes": None,
+                  **{k: self.fe_points(node, k, f"{path}.{k}") if k in node else [] for k in ("keep", "load_points")}, "cutoff_hz": None, "interface": None, "reference": None}
         if "cutoff_hz" in node:
             params["cutoff_hz"] = self.plain_number(node, "cutoff_hz", path + ".cutoff_hz", positive=True)
         else:
@@ -692,7 +692,7 @@ class _Checker:
                 self.fail(node, "modes", path + ".modes", f"must be an integer in 1 … {limits.FE_MODES}, got {_shown(params['modes'])}")
         if "interface" in node:
             i, ip = node["interface"], path + ".interface"
-            self.keys(i, ip, ("node_set", "nodes", "reference"))
+            self.keys(i, ip, ("node_set", "nodes", "reference", "coupling", "weights"))
             if ("node_set" in i) == ("nodes" in i):
                 self.fail(node, "interface", ip, "give exactly one of 'node_set' or 'nodes'")
             if "nodes" in i:
@@ -703,6 +703,14 @@ class _Checker:
                 if not isinstance(i["reference"], list) or len(i["reference"]) != 3:
                     self.fail(i, "reference", ip + ".reference", f"a point [x, y, z] was expected, got {_shown(i['reference'])}")
                 params["reference"] = [self.plain_number(i["reference"], k, f"{ip}.reference[{k}]", magnitude=False) for k in range(3)]
+            if "coupling" in i:
+                if i["coupling"] not in cms.COUPLINGS:
+                    self.fail(i, "coupling", ip + ".coupling", f"unknown coupling {_shown(i['coupling'])}", _suggest(i["coupling"], cms.COUPLINGS))
+                params["coupling"] = i["coupling"]
+            if "weights" in i:
+                if not isinstance(i["weights"], list) or not 1 <= len(i["weights"]) <= limits.FE_DOFS // 3:
+                    self.fail(i, "weights", ip + ".weights", f"a list of positive numbers (one per interface node) was expected, got {_shown(i['weights'])}")
+                params["weights"] = [self.plain_number(i["weights"], k, f"{ip}.weights[{k}]", positive=True) for k in range(len(i["weights"]))]
         # judges the reduction (mbsfmu check), does not change it: not an input of reduce_files
         tolerance = (self.plain_number(node, "check_tolerance", path + ".check_tolerance", positive=True)
                      if "check_tolerance" in node else cms.CHECK_TOLERANCE)
@@ -759,11 +767,11 @@ class _Checker:
         except ModelError as err:
             self.fail(node, key, f"{path}.{key}", err.message, err.hint)
 
-    def fe_keep(self, parent, path):
-        """`keep:` FE node indices and node set names (a set is kept as one node: its average motion)."""
-        v = parent["keep"]
+    def fe_points(self, parent, key, path):
+        """`keep:` or `load_points:` FE node indices and node set names (a set is one point: its average motion)."""
+        v = parent[key]
         if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, (int, str)) or (isinstance(x, int) and x < 0) for x in v):
-            self.fail(parent, "keep", path, f"a list of node indices (integers ≥ 0) and node set names was expected, got {_shown(v)}")
+            self.fail(parent, key, path, f"a list of node indices (integers ≥ 0) and node set names was expected, got {_shown(v)}")
         return [x if isinstance(x, str) else int(x) for x in v]
 
     def fe_nodes(self, parent, key, path):
@@ -1023,7 +1031,7 @@ class _Checker:
 
 
 _FE_MESH_KEYS = ("mesh", "material", "element")
-_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep", "check_tolerance") + _FE_MESH_KEYS
+_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep", "load_points", "check_tolerance") + _FE_MESH_KEYS
 _FE_FORMATS = ("matrix-market", "abaqus")
 
 
