@@ -116,9 +116,11 @@ def compile_scene(spec, variables, guid=""):
     value-reference order, each with its engine table row). Returns bytes."""
     model = Model(spec)
     m, env = model, dict(model.env)
-    # the engine keeps per body dense Jacobian rows (6 f doubles): refuse what it could not allocate
+    # on the dense path (elastic scenes, mbs_dense_path) the engine keeps per body dense Jacobian rows (6 f
+    # doubles): refuse what it could not allocate (the recursive path's workspace, linear, is bounded by limits)
+    dense = m.has_elastic or m.nvel <= L.MBS_DENSE_MAX_NVEL
     need = 8 * len(m.bodies) * (26 + 6 * m.nvel) + 8 * m.nvel ** 2
-    if need > L.MBS_MAX_WORKSPACE:
+    if dense and need > L.MBS_MAX_WORKSPACE:
         raise ValueError(f"scene too large for the engine: {len(m.bodies)} bodies with {m.nvel} velocity coordinates "
                          f"need {need / 2**30:.1f} GiB of workspace (limit {L.MBS_MAX_WORKSPACE / 2**30:.0f} GiB); the "
                          "engine's dense per-body Jacobians suit tens to a few hundred coordinates")

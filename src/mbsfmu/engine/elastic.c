@@ -92,7 +92,7 @@ static void matvec(const double *A, const double *x, int n, double *y)  /* n×n 
     for (int r = 0; r < n; r++) y[r] = dot(A + (size_t)r * n, x, n);
 }
 
-static double *body_work(const MbsEval *e, int i) { return e->work + (size_t)i * W_SIZE(NVEL(e->m)); }
+static double *body_work(const MbsEval *e, int i) { return mbs_body_work(e, i); }
 
 /* ---- kinematics ---- */
 void mbs_elastic_kinematics(const MbsEval *e, int body)

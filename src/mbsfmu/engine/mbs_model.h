@@ -30,6 +30,8 @@ struct MbsModel {
     const char *rule_names;            /* S_RULE_NAMES */
     const double *limits;              /* S_LIMITS */
     int nrules, n_rule_names;
+    int dense;                         /* evaluation path (mbs_dense_path): 1 dense Jacobians (tree.c), 0 recursive (dynamics.c) */
+    int stride;                        /* doubles of one body's workspace on that path */
     void *blob;                        /* owned copy of the compiled scene */
 };
 
@@ -74,12 +76,13 @@ typedef struct {
     const double *td;     /* time-dependent numbers: p, v, a per drive, then 3 per vector force slot */
     const double *x;      /* [y; ẏ] */
     const double *q_in;   /* generalized-force inputs (nvel) or NULL */
-    double *work;         /* per body W_SIZE(nvel), then 6 nvel scratch */
+    double *work;         /* per body m->stride doubles, then 6 nvel scratch (dense path) */
     double *M, *k, *q, *xdot;
     void *elastic_work;   /* elastic.c's workspace (NULL for rigid scenes) */
 } MbsEval;
 
-/* per-body workspace layout (tree.c) */
+/* per-body workspace layout (tree.c): the kinematics, then on the dense path the Jacobian rows J_R, J_T (3 × f
+ * each), on the recursive path the articulated-body quantities (dynamics.c, spatial vectors at the world origin) */
 #define W_S 0
 #define W_O 9
 #define W_W 12
@@ -90,6 +93,29 @@ typedef struct {
 #define W_HI 25
 #define W_J 26
 #define W_SIZE(f) (26 + 6 * (f))
+#define AB_NV 26          /* free (not driven) velocity coordinates of the joint */
+#define AB_S 27           /* their motion subspace S: 6 × nv, column after column */
+#define AB_IA 63          /* spatial inertia, articulated (ABA) or composite (CRBA), 6 × 6 */
+#define AB_P 99           /* bias force: I â + v ×* I v, gravity and accelerations of driven coordinates in â */
+#define AB_F 105          /* applied spatial force (gravity, force elements) */
+#define AB_W 111          /* U L⁻ᵀ, 6 × nv (U = I_A S, L Lᵀ = D = Sᵀ U) */
+#define AB_L 147          /* Cholesky factor L of D, nv × nv */
+#define AB_Z 183          /* L⁻¹ u */
+#define AB_ACC 189        /* spatial acceleration beyond the bias (Σ S ÿ of the path to the root) */
+#define AB_SIZE 195
+
+/* The evaluation path, chosen from the scene's tables, in this one place: elastic scenes keep the dense path
+ * (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic in the size); rigid ones take the
+ * articulated-body algorithm (dynamics.c: linear) once it is the faster, above MBS_DENSE_MAX_NVEL (mbs_layout.h)
+ * velocity coordinates. */
+static inline int mbs_dense_path(const int32_t *hdr) { return (hdr[H_FEATURES] & F_ELASTIC) || hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL; }
+/* doubles of an instance's evaluation workspace: per body, scratch (two 3 × f Jacobians) and M on the dense path */
+static inline double mbs_work_doubles(const int32_t *hdr)
+{
+    const double nb = hdr[H_NB], f = hdr[H_NVEL];
+    return mbs_dense_path(hdr) ? nb * W_SIZE(f) + 6 * f + f * f : nb * AB_SIZE;
+}
+static inline double *mbs_body_work(const MbsEval *e, int i) { return e->work + (size_t)i * e->m->stride; }
 
 /* model.c */
 const double *mbs_body_d(const MbsEval *e, int i);
@@ -100,10 +126,17 @@ int mbs_validate_code(const MbsModel *m, char *err, size_t errlen);
 void mbs_run_programs(const MbsModel *m, int stage, double *D, double *td, double t);
 /* tree.c */
 void mbs_kinematics(const MbsEval *e);
+void mbs_position_rates(const MbsEval *e);            /* ẏ_pos = Z(y) ẏ into e->xdot */
+int mbs_cholesky(int n, double *M);                   /* M = L Lᵀ in place (lower); 0, or 1 if not positive definite */
+void mbs_cholesky_apply(int n, const double *L, double *r); /* r ← (L Lᵀ)⁻¹ r */
 void mbs_mass_matrix_and_bias(const MbsEval *e);
 void mbs_applied_forces(const MbsEval *e);
 int mbs_eval_rhs(const MbsEval *e);                   /* 0, or MBS_F_SINGULAR */
 int mbs_cholesky_solve(int n, double *M, double *r);
+/* dynamics.c: the recursive path (rigid scenes, !m->dense) */
+int mbs_aba(const MbsEval *e);                        /* ÿ into e->xdot: 0, or MBS_F_SINGULAR */
+void mbs_crba_rnea(const MbsEval *e);                 /* M, k, q (inspection: mbs_equations) */
+void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign); /* F at x (x NULL: a torque) */
 void mbs_point(const MbsEval *e, int i, const double *r_b, double *x, double *v, double *J);
 void mbs_add_JtF(const MbsEval *e, int i, const double *J, const double *F, double sign, double *q);
 void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations from the raw numbers */

@@ -69,7 +69,7 @@ static int check_header(const int32_t *H, char *err, size_t errlen)
     if (H[H_FEATURES] & F_ELASTIC)
         BAD("the scene has elastic bodies but this engine was built without them (rebuild the FMU)");
 #endif
-    const double work = 8.0 * (double)nb * (26.0 + 6.0 * (double)nv) + 8.0 * (double)nv * (double)nv;
+    const double work = 8.0 * mbs_work_doubles(H);
     if (work > MBS_MAX_WORKSPACE)
         BAD("scene too large for the engine: %lld bodies with %lld velocity coordinates need %.3g GiB of workspace "
             "(limit %.0f GiB)", (long long)nb, (long long)nv, work / (1 << 30), (double)MBS_MAX_WORKSPACE / (1 << 30));
@@ -191,6 +191,8 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     memcpy(m->hdr, h, sizeof m->hdr);
     const int32_t *H = m->hdr;
     if (check_header(H, err, errlen)) goto fail;
+    m->dense = mbs_dense_path(H);
+    m->stride = m->dense ? W_SIZE(H[H_NVEL]) : AB_SIZE;
     const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL];
     int ne_i = 0, ne_d = 0;
 #define SEC(ptr, id, kind, want) if (!(ptr = section(b, len, tab, nsec, id, kind, want, NULL))) FAIL("missing or corrupt section %d", id)

@@ -393,8 +393,8 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->n = NPOS(m) + f;
     s->nu = f + 3 * m->hdr[H_NINPUT];
     s->ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
-    size_t nwork = (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f;
-    size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 3 * (size_t)s->n + nwork + (size_t)f * f + 2 * (size_t)f + 2 * (size_t)s->n
+    size_t nwork = (size_t)mbs_work_doubles(m->hdr);  /* per body, scratch and M (dense path) */
+    size_t total = (size_t)nd + s->ntd + 2 * (size_t)s->nu + 3 * (size_t)s->n + nwork + 2 * (size_t)f + 2 * (size_t)s->n
                    + 6 * (size_t)m->hdr[H_NOUT] + s->n + (size_t)m->hdr[H_NPARAM] + NB(m) + 1;
     double *buf = calloc(total, sizeof(double));
     if (!buf) { free(s); return NULL; }
@@ -409,7 +409,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->saved = buf;            buf += m->hdr[H_NPARAM];
     s->carries = buf;          buf += NB(m);
     s->work = buf;             buf += nwork;
-    s->M = buf;                buf += (size_t)f * f;
+    s->M = m->dense ? s->work + (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f : NULL;  /* the last f × f of work */
     s->k = buf;                buf += f;
     s->q = buf;                buf += f;
     s->xdot = buf;             buf += s->n;
@@ -861,6 +861,10 @@ int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *
     MbsEval e = evaluation(s, x, s->xdot);
     e.M = M; e.k = k; e.q = q;
     kinematics(s, &e, t);
+    if (!s->m->dense) {
+        mbs_crba_rnea(&e);
+        return MBS_OK;
+    }
     mbs_mass_matrix_and_bias(&e);
     mbs_applied_forces(&e);
     return MBS_OK;

@@ -123,14 +123,15 @@ static void joint_motion(int type, int nv, const double *db, const double *p, co
 }
 
 
-static double *body_work(const MbsEval *e, int i) { return e->work + (size_t)i * W_SIZE(NVEL(e->m)); }
+static double *body_work(const MbsEval *e, int i) { return mbs_body_work(e, i); }
 static int col_lo(const double *wk) { return (int)wk[W_LO]; }
 static int col_hi(const double *wk) { return (int)wk[W_HI]; }
 
 const double *mbs_body_d(const MbsEval *e, int i) { return e->D + e->m->hdr[H_D_BODY] + (size_t)i * DB; }
 
 /* Joint frame of body i's parent side: S_p, o_p, ω_p, v_p, ā_p, ᾱ_p, J_Rp, J_Tp, the offset ρ and S_J
- * (tree.py: attachment). J_R, J_T of the body start as the parent's; [lo, hi) their nonzero columns. */
+ * (tree.py: attachment). On the dense path J_R, J_T of the body start as the parent's; [lo, hi) their nonzero
+ * columns. */
 static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const double **o_p,
                        const double **w_p, const double **v_p, const double **a_p, const double **al_p, double *J_R,
                        int *lo, int *hi, double *node_buf)
@@ -142,7 +143,7 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
     const double *db = mbs_body_d(e, i);
     if (par < 0) {
         *o_p = *w_p = *v_p = *a_p = *al_p = Z;
-        memset(J_R, 0, 6 * (size_t)f * sizeof(double));
+        if (m->dense) memset(J_R, 0, 6 * (size_t)f * sizeof(double));
         memcpy(S_J, db + DB_R0, 9 * sizeof(double));
         memcpy(rho, db + DB_AT, 3 * sizeof(double));
         *lo = f;
@@ -168,12 +169,30 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
 #endif
     const double *S_p = pw + W_S;
     *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
-    memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
+    if (m->dense) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
     mm(S_p, db + DB_R0, S_J);
     mv(S_p, db + DB_AT, rho);
 }
 
-/* Recursive kinematics of all body origins (tree.py: kinematics): S, o, ω, v, ᾱ, ā, J_R, J_T. */
+/* The free columns of body i's joint as spatial motions at the world origin (dynamics.c): (h_R, h_T + o × h_R)
+ * with h_R, h_T the world-frame columns at the body origin o. */
+static void motion_subspace(const MbsBodyI *bi, const double *S_J, const double *H_R, const double *H_T,
+                            const double *o, double *wk)
+{
+    int n = 0;
+    for (int k = 0; k < bi->nvel; k++) {
+        if (bi->vel[k] < 0) continue;
+        double *s = wk + AB_S + 6 * n++, oxh[3];
+        mv(S_J, H_R + 3 * k, s);
+        mv(S_J, H_T + 3 * k, s + 3);
+        cross(o, s, oxh);
+        for (int r = 0; r < 3; r++) s[3 + r] += oxh[r];
+    }
+    wk[AB_NV] = n;
+}
+
+/* Recursive kinematics of all body origins (tree.py: kinematics): S, o, ω, v, ᾱ, ā, and on the dense path
+ * J_R, J_T, on the recursive one the joints' motion subspaces. */
 void mbs_kinematics(const MbsEval *e)
 {
     const MbsModel *m = e->m;
@@ -237,6 +256,10 @@ void mbs_kinematics(const MbsEval *e)
             al[r] = al_p[r] + t1[r] + SbR[r];
             a[r] = a_p[r] + axr[r] + wwxr[r] + 2.0 * t2[r] + SbT[r];
         }
+        if (!m->dense) {
+            motion_subspace(bi, S_J, H_R, H_T, o, wk);
+            continue;
+        }
         /* J_T = J_Tp − ρ̃ J_Rp, then the joint's own columns */
         for (int c = lo; c < hi; c++) {
             double jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, x[3];
@@ -261,8 +284,8 @@ void mbs_kinematics(const MbsEval *e)
     }
 }
 
-/* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only) of a point fixed on body i
- * (r_b in the body frame); i < 0: a point of the world. */
+/* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only; dense path) of a point fixed on
+ * body i (r_b in the body frame); i < 0: a point of the world. */
 void mbs_point(const MbsEval *e, int i, const double *r_b, double *x, double *v, double *J)
 {
     const int f = NVEL(e->m);
@@ -369,13 +392,23 @@ static void force_point(const MbsEval *e, int i, int node, const double *at, dou
     mbs_point(e, i, at, x, v, J);
 }
 
-/* q from the force elements and the generalized-force inputs (tree.py: applied_forces). */
+/* A force F (sign ±1) at a point with Jacobian J on body i: q += sign JᵀF (dense path), or onto the body's
+ * spatial force at x (recursive path; x NULL: F is a torque). */
+static void apply(const MbsEval *e, int i, const double *J, const double *x, const double *F, double sign)
+{
+    if (e->m->dense) mbs_add_JtF(e, i, J, F, sign, e->q);
+    else mbs_body_force(e, i, x, F, sign);
+}
+
+/* q (generalized forces) from the force elements and the generalized-force inputs (tree.py: applied_forces); on
+ * the recursive path the forces on bodies go to their spatial forces instead, never through Jacobians. */
 void mbs_applied_forces(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
     const double *y = e->x, *yd = e->x + NPOS(m), *dforce = e->D + m->hdr[H_D_FORCE];
-    double *q = e->q, *Ja = e->work + (size_t)NB(m) * W_SIZE(f), *Jb = Ja + 3 * f;
+    double *q = e->q, *Ja = NULL, *Jb = NULL;
+    if (m->dense) { Ja = e->work + (size_t)NB(m) * W_SIZE(f); Jb = Ja + 3 * f; }
     if (e->q_in) for (int c = 0; c < f; c++) q[c] += e->q_in[c];
     for (int n = 0; n < m->hdr[H_NFORCE]; n++) {
         const MbsForceI *fi = mbs_force_i(m, n);
@@ -396,8 +429,8 @@ void mbs_applied_forces(const MbsEval *e)
             double e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
             double mag = fd[DF_K] * (l - fd[DF_L]) + fd[DF_D] * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
             double F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
-            if (fi->a >= 0) mbs_add_JtF(e, fi->a, Ja, F, 1.0, q);
-            if (fi->b >= 0) mbs_add_JtF(e, fi->b, Jb, F, -1.0, q);
+            if (fi->a >= 0) apply(e, fi->a, Ja, xa, F, 1.0);
+            if (fi->b >= 0) apply(e, fi->b, Jb, xb, F, -1.0);
             break;
         }
         case FE_FORCE:
@@ -412,10 +445,10 @@ void mbs_applied_forces(const MbsEval *e)
 #ifdef MBS_WITH_ELASTIC
                 if (fi->node_a >= 0) { mbs_elastic_node_J_R(e, i, fi->node_a, Ja); mbs_add_JtF(e, i, Ja, vec, 1.0, q); break; }
 #endif
-                mbs_add_JtF(e, i, wk + W_J, vec, 1.0, q);
+                apply(e, i, wk + W_J, NULL, vec, 1.0);
             } else {
                 force_point(e, i, fi->node_a, fd + DF_AT_A, xp, vp, Ja);
-                mbs_add_JtF(e, i, Ja, vec, 1.0, q);
+                apply(e, i, Ja, xp, vec, 1.0);
             }
             break;
         }
@@ -423,8 +456,8 @@ void mbs_applied_forces(const MbsEval *e)
     }
 }
 
-/* Solve M a = r in place (M overwritten by its Cholesky factor). 0 on success, 1 if M is not positive definite. */
-int mbs_cholesky_solve(int n, double *M, double *r)
+/* M = L Lᵀ in place (row-major, L in the lower triangle). 0 on success, 1 if M is not positive definite. */
+int mbs_cholesky(int n, double *M)
 {
     for (int j = 0; j < n; j++) {
         double s = M[j * n + j];
@@ -438,31 +471,58 @@ int mbs_cholesky_solve(int n, double *M, double *r)
             M[i * n + j] = t / d;
         }
     }
-    for (int i = 0; i < n; i++) {
-        double s = r[i];
-        for (int k = 0; k < i; k++) s -= M[i * n + k] * r[k];
-        r[i] = s / M[i * n + i];
-    }
-    for (int i = n - 1; i >= 0; i--) {
-        double s = r[i];
-        for (int k = i + 1; k < n; k++) s -= M[k * n + i] * r[k];
-        r[i] = s / M[i * n + i];
-    }
     return 0;
 }
 
-/* ẋ = [Z(y) ẏ; M⁻¹(q − k)] into e->xdot, from the kinematics at e->x already in the workspace (mbs_kinematics).
+/* r ← (L Lᵀ)⁻¹ r with the factor of mbs_cholesky */
+void mbs_cholesky_apply(int n, const double *L, double *r)
+{
+    for (int i = 0; i < n; i++) {
+        double s = r[i];
+        for (int k = 0; k < i; k++) s -= L[i * n + k] * r[k];
+        r[i] = s / L[i * n + i];
+    }
+    for (int i = n - 1; i >= 0; i--) {
+        double s = r[i];
+        for (int k = i + 1; k < n; k++) s -= L[k * n + i] * r[k];
+        r[i] = s / L[i * n + i];
+    }
+}
+
+/* Solve M a = r in place (M overwritten by its Cholesky factor). 0 on success, 1 if M is not positive definite. */
+int mbs_cholesky_solve(int n, double *M, double *r)
+{
+    if (mbs_cholesky(n, M)) return 1;
+    mbs_cholesky_apply(n, M, r);
+    return 0;
+}
+
+/* ẋ = [Z(y) ẏ; M⁻¹(q − k)] into e->xdot, from the kinematics at e->x already in the workspace (mbs_kinematics):
+ * M assembled and factored (dense path) or ÿ by the articulated-body algorithm (recursive path, dynamics.c).
  * Returns 0, or MBS_F_SINGULAR when M is not positive definite. */
 int mbs_eval_rhs(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m), np = NPOS(m);
-    const double *y = e->x, *yd = e->x + np;
     double *xd = e->xdot;
-    mbs_mass_matrix_and_bias(e);
-    mbs_applied_forces(e);
-    for (int c = 0; c < f; c++) xd[np + c] = e->q[c] - e->k[c];
-    if (mbs_cholesky_solve(f, e->M, xd + np)) return MBS_F_SINGULAR;
+    if (!m->dense) {
+        if (mbs_aba(e)) return MBS_F_SINGULAR;
+    } else {
+        mbs_mass_matrix_and_bias(e);
+        mbs_applied_forces(e);
+        for (int c = 0; c < f; c++) xd[np + c] = e->q[c] - e->k[c];
+        if (mbs_cholesky_solve(f, e->M, xd + np)) return MBS_F_SINGULAR;
+    }
+    mbs_position_rates(e);
+    return 0;
+}
+
+/* ẏ_pos = Z(y) ẏ into e->xdot: plain coordinates their velocities, quaternions ṗ = G(p) ω */
+void mbs_position_rates(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    const double *y = e->x, *yd = e->x + NPOS(m);
+    double *xd = e->xdot;
     const int nplain = m->hdr[H_NPLAIN];
     for (int i = 0; i < nplain; i++) xd[m->plain[i]] = yd[m->plain[nplain + i]];
     for (int j = 0; j < m->hdr[H_NQUAT]; j++) {
@@ -475,7 +535,6 @@ int mbs_eval_rhs(const MbsEval *e)
         xd[qi[2]] = 0.5 * (p3 * w0 + p0 * w1 - p1 * w2);
         xd[qi[3]] = 0.5 * (-p2 * w0 + p1 * w1 + p0 * w2);
     }
-    return 0;
 }
 
 /* ---- bind time: derived numbers from the raw ones (after the bind programs ran) ---- */

@@ -1,0 +1,227 @@
+/* Rigid-tree dynamics in time and memory linear in the bodies (issue 26): ÿ by the articulated-body algorithm
+ * (Featherstone's FDab) and, for inspection, M by the composite-rigid-body algorithm and k, q by the recursive
+ * Newton–Euler pass. The path of rigid scenes (mbs_dense_path); elastic ones keep tree.c's dense equations.
+ *
+ * Spatial vectors in world coordinates about the world origin O (Pinocchio's WORLD convention), so no transforms
+ * between bodies: a motion (ω, v_O), v_O the velocity of the body point at O; a force (n_O, F). The kinematics
+ * (tree.c) leave per body its frame S, origin o, ω, v_o, the bias accelerations ā, ᾱ (free ÿ = 0, driven
+ * coordinates at their prescribed accelerations) and the free columns S of its joint. Per body
+ *
+ *     v = (ω, v_o − ω × o),   â = (ᾱ, ā − ᾱ × o − ω × v_o),   I = [Ī_O  h̃; h̃ᵀ  m E] about O (h = m c),
+ *     P = I â + v ×* I v  (k's part),   F = I (0, g) + forces  (q's part),
+ *
+ * and the body's equation is f = I Δa + P − F with Δa = Σ S ÿ over its path to the root: FDab with the bias
+ * accelerations c = 0 and the bias in P (the form MuJoCo uses), which holds for every joint type and drive alike.
+ */
+#include <string.h>
+
+#include "mbs_integrator.h"
+#include "mbs_model.h"
+#include "mbs_vec3.h"
+
+static void mat6v(const double *A, const double *x, double *y)  /* y = A x, A 6 × 6 row-major */
+{
+    for (int r = 0; r < 6; r++)
+        y[r] = A[6 * r] * x[0] + A[6 * r + 1] * x[1] + A[6 * r + 2] * x[2] + A[6 * r + 3] * x[3] +
+               A[6 * r + 4] * x[4] + A[6 * r + 5] * x[5];
+}
+static double dot6(const double *a, const double *b)
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5];
+}
+static void crossf(const double *v, const double *h, double *f)  /* f = v ×* h = (ω × n + v_O × F, ω × F) */
+{
+    double a[3], b[3];
+    cross(v, h, a);
+    cross(v + 3, h + 3, b);
+    cross(v, h + 3, f + 3);
+    for (int r = 0; r < 3; r++) f[r] = a[r] + b[r];
+}
+
+/* Body i's spatial inertia about O in world coordinates (6 × 6) and its first moment h = m c. */
+static void spatial_inertia(const MbsEval *e, int i, const double *wk, double *I, double *h)
+{
+    const double *db = mbs_body_d(e, i), *S = wk + W_S, *o = wk + W_O, m = db[DB_M];
+    double c[3], SI[9];
+    mv(S, db + DB_C, c);
+    for (int r = 0; r < 3; r++) { c[r] += o[r]; h[r] = m * c[r]; }
+    mm(S, db + DB_I, SI);
+    const double cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    for (int r = 0; r < 3; r++)
+        for (int k = 0; k < 3; k++)  /* Ī_O = S Ī Sᵀ + m (c·c E − c cᵀ) */
+            I[6 * r + k] = SI[3 * r] * S[3 * k] + SI[3 * r + 1] * S[3 * k + 1] + SI[3 * r + 2] * S[3 * k + 2] +
+                           m * ((r == k) * cc - c[r] * c[k]);
+    const double ht[9] = {0, -h[2], h[1], h[2], 0, -h[0], -h[1], h[0], 0};
+    for (int r = 0; r < 3; r++)
+        for (int k = 0; k < 3; k++) {
+            I[6 * r + 3 + k] = ht[3 * r + k];
+            I[6 * (3 + r) + k] = ht[3 * k + r];
+            I[6 * (3 + r) + 3 + k] = (r == k) * m;
+        }
+}
+
+/* Per body: I into AB_IA, P into AB_P, gravity's I (0, g) into AB_F (the force elements add to it). */
+static void bias_forces(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    const double *g = e->D + m->hdr[H_D_G];
+    const int gravity = m->hdr[H_HAS_GRAVITY];
+    for (int i = 0; i < NB(m); i++) {
+        double *wk = mbs_body_work(e, i), *I = wk + AB_IA, *P = wk + AB_P, *F = wk + AB_F;
+        const double *o = wk + W_O, *w = wk + W_W, *al = wk + W_AL;
+        double h[3], v[6], a[6], Iv[6], t1[3], t2[3];
+        spatial_inertia(e, i, wk, I, h);
+        cross(w, o, t1);
+        cross(al, o, t2);
+        cross(w, wk + W_V, a + 3);
+        for (int r = 0; r < 3; r++) {
+            v[r] = w[r];
+            v[3 + r] = wk[W_V + r] - t1[r];
+            a[r] = al[r];
+            a[3 + r] = wk[W_A + r] - t2[r] - a[3 + r];
+        }
+        mat6v(I, v, Iv);
+        mat6v(I, a, P);
+        crossf(v, Iv, a);
+        for (int r = 0; r < 6; r++) P[r] += a[r];
+        if (gravity) {
+            cross(h, g, F);
+            for (int r = 0; r < 3; r++) F[3 + r] = I[6 * (3 + r) + 3 + r] * g[r];
+        } else
+            memset(F, 0, 6 * sizeof(double));
+    }
+}
+
+void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign)
+{
+    double *f = mbs_body_work(e, i) + AB_F, n[3];
+    if (!x) {
+        for (int r = 0; r < 3; r++) f[r] += sign * F[r];
+        return;
+    }
+    cross(x, F, n);
+    for (int r = 0; r < 3; r++) { f[r] += sign * n[r]; f[3 + r] += sign * F[r]; }
+}
+
+/* P, F and the generalized forces τ (into e->q) of the current kinematics. */
+static void forces(const MbsEval *e)
+{
+    bias_forces(e);
+    memset(e->q, 0, (size_t)NVEL(e->m) * sizeof(double));
+    mbs_applied_forces(e);
+}
+
+/* Leaves to root: U = I_A S, D = Sᵀ U = L Lᵀ, u = τ − Sᵀ p, W = U L⁻ᵀ, z = L⁻¹ u; the parent gets
+ * I_A − W Wᵀ and p + W z. Returns 1 if some D is not positive definite (then M is not). */
+static int articulated_inertias(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    for (int i = NB(m) - 1; i >= 0; i--) {
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        double *wk = mbs_body_work(e, i), *IA = wk + AB_IA, *W = wk + AB_W, *L = wk + AB_L, *z = wk + AB_Z;
+        const double *S = wk + AB_S;
+        const int nv = (int)wk[AB_NV];
+        double p[6];
+        for (int r = 0; r < 6; r++) p[r] = wk[AB_P + r] - wk[AB_F + r];
+        for (int k = 0, c = 0; k < nv; k++, c++) {
+            while (bi->vel[c] < 0) c++;  /* the k-th free coordinate */
+            double *Wk = W + 6 * k;
+            mat6v(IA, S + 6 * k, Wk);  /* U_k */
+            for (int j = 0; j <= k; j++) L[nv * k + j] = dot6(S + 6 * j, Wk);
+            z[k] = e->q[bi->vel[c]] - dot6(S + 6 * k, p);
+        }
+        if (nv) {
+            if (mbs_cholesky(nv, L)) return 1;
+            for (int k = 0; k < nv; k++) {
+                double *Wk = W + 6 * k;
+                for (int j = 0; j < k; j++) {
+                    for (int r = 0; r < 6; r++) Wk[r] -= L[nv * k + j] * W[6 * j + r];
+                    z[k] -= L[nv * k + j] * z[j];
+                }
+                for (int r = 0; r < 6; r++) Wk[r] /= L[nv * k + k];
+                z[k] /= L[nv * k + k];
+            }
+        }
+        if (bi->parent < 0) continue;
+        double *pw = mbs_body_work(e, bi->parent), *IAp = pw + AB_IA, *Pp = pw + AB_P;
+        for (int k = 0; k < nv; k++)
+            for (int r = 0; r < 6; r++) {
+                const double wr = W[6 * k + r];
+                p[r] += wr * z[k];
+                for (int c = 0; c < 6; c++) IA[6 * r + c] -= wr * W[6 * k + c];
+            }
+        for (int r = 0; r < 36; r++) IAp[r] += IA[r];
+        for (int r = 0; r < 6; r++) Pp[r] += p[r];
+    }
+    return 0;
+}
+
+/* Root to leaves: ÿ = L⁻ᵀ (z − Wᵀ Δa_parent) into e->xdot, Δa = Δa_parent + S ÿ. */
+static void accelerations(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    double *ydd = e->xdot + NPOS(m);
+    static const double Z[6] = {0, 0, 0, 0, 0, 0};
+    for (int i = 0; i < NB(m); i++) {
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        double *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, x[6];
+        const double *ap = bi->parent < 0 ? Z : mbs_body_work(e, bi->parent) + AB_ACC, *L = wk + AB_L;
+        const double *S = wk + AB_S;
+        const int nv = (int)wk[AB_NV];
+        memcpy(acc, ap, 6 * sizeof(double));
+        for (int k = 0; k < nv; k++) x[k] = wk[AB_Z + k] - dot6(wk + AB_W + 6 * k, ap);
+        for (int k = nv - 1; k >= 0; k--) {
+            for (int j = k + 1; j < nv; j++) x[k] -= L[nv * j + k] * x[j];
+            x[k] /= L[nv * k + k];
+            for (int r = 0; r < 6; r++) acc[r] += S[6 * k + r] * x[k];
+        }
+        for (int k = 0, c = 0; k < nv; k++, c++) {
+            while (bi->vel[c] < 0) c++;
+            ydd[bi->vel[c]] = x[k];
+        }
+    }
+}
+
+int mbs_aba(const MbsEval *e)
+{
+    forces(e);
+    if (articulated_inertias(e)) return MBS_F_SINGULAR;
+    accelerations(e);
+    return 0;
+}
+
+/* M (composite inertias I_C = Σ I over the subtree: M_ab = S_bᵀ I_C S_a for b on a's path to the root),
+ * k = Sᵀ Σ P and q = τ + Sᵀ Σ F over the subtree. O(n·depth): for inspection, not per step. */
+void mbs_crba_rnea(const MbsEval *e)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m);
+    forces(e);
+    memset(e->M, 0, (size_t)f * f * sizeof(double));
+    memset(e->k, 0, (size_t)f * sizeof(double));
+    for (int i = NB(m) - 1; i >= 0; i--) {
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        double *wk = mbs_body_work(e, i);
+        for (int k = 0, c = 0; k < (int)wk[AB_NV]; k++, c++) {
+            while (bi->vel[c] < 0) c++;
+            const double *s = wk + AB_S + 6 * k;
+            double Fa[6];
+            e->k[bi->vel[c]] = dot6(s, wk + AB_P);
+            e->q[bi->vel[c]] += dot6(s, wk + AB_F);
+            mat6v(wk + AB_IA, s, Fa);
+            for (int j = i; j >= 0; j = mbs_body_i(m, j)->parent) {
+                const MbsBodyI *bj = mbs_body_i(m, j);
+                const double *wj = mbs_body_work(e, j);
+                for (int l = 0, d = 0; l < (int)wj[AB_NV]; l++, d++) {
+                    while (bj->vel[d] < 0) d++;
+                    e->M[(size_t)bj->vel[d] * f + bi->vel[c]] = e->M[(size_t)bi->vel[c] * f + bj->vel[d]] =
+                        dot6(wj + AB_S + 6 * l, Fa);
+                }
+            }
+        }
+        if (bi->parent < 0) continue;
+        double *pw = mbs_body_work(e, bi->parent);
+        for (int r = 0; r < 36; r++) pw[AB_IA + r] += wk[AB_IA + r];
+        for (int r = 0; r < 6; r++) { pw[AB_P + r] += wk[AB_P + r]; pw[AB_F + r] += wk[AB_F + r]; }
+    }
+}
