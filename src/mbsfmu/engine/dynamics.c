@@ -13,13 +13,14 @@
  * and the body's equation is f = I Δa + P − F with Δa = Σ S ÿ over its path to the root: FDab with the bias
  * accelerations c = 0 and the bias in P (the form MuJoCo uses), which holds for every joint type and drive alike.
  */
+#include <math.h>
 #include <string.h>
 
 #include "mbs_integrator.h"
 #include "mbs_model.h"
 #include "mbs_vec3.h"
 
-static void mat6v(const double *A, const double *x, double *y)  /* y = A x, A 6 × 6 row-major */
+static void mat6v(const double *restrict A, const double *restrict x, double *restrict y)  /* y = A x, A 6 × 6 row-major */
 {
     for (int r = 0; r < 6; r++)
         y[r] = A[6 * r] * x[0] + A[6 * r + 1] * x[1] + A[6 * r + 2] * x[2] + A[6 * r + 3] * x[3] +
@@ -36,6 +37,18 @@ static void crossf(const double *v, const double *h, double *f)  /* f = v ×* h 
     cross(v + 3, h + 3, b);
     cross(v, h + 3, f + 3);
     for (int r = 0; r < 3; r++) f[r] = a[r] + b[r];
+}
+
+/* f = I v for a rigid body's I = [Ī_O h̃; h̃ᵀ m E] (cheaper than mat6v) */
+static void inertia_times(const double *restrict I, const double *restrict h, const double *restrict v, double *restrict f)
+{
+    double a[3], b[3];
+    cross(h, v + 3, a);
+    cross(h, v, b);
+    for (int r = 0; r < 3; r++) {
+        f[r] = I[6 * r] * v[0] + I[6 * r + 1] * v[1] + I[6 * r + 2] * v[2] + a[r];
+        f[3 + r] = I[21] * v[3 + r] - b[r];
+    }
 }
 
 /* Body i's spatial inertia about O in world coordinates (6 × 6) and its first moment h = m c. */
@@ -80,8 +93,8 @@ static void bias_forces(const MbsEval *e)
             a[r] = al[r];
             a[3 + r] = wk[W_A + r] - t2[r] - a[3 + r];
         }
-        mat6v(I, v, Iv);
-        mat6v(I, a, P);
+        inertia_times(I, h, v, Iv);
+        inertia_times(I, h, a, P);
         crossf(v, Iv, a);
         for (int r = 0; r < 6; r++) P[r] += a[r];
         if (gravity) {
@@ -123,14 +136,24 @@ static int articulated_inertias(const MbsEval *e)
         const int nv = (int)wk[AB_NV];
         double p[6];
         for (int r = 0; r < 6; r++) p[r] = wk[AB_P + r] - wk[AB_F + r];
-        for (int k = 0, c = 0; k < nv; k++, c++) {
+        if (nv == 1) {  /* most joints: D a number, no factorization loop */
+            int c = 0;
+            while (bi->vel[c] < 0) c++;
+            mat6v(IA, S, W);
+            const double D = dot6(S, W);
+            if (D <= 0.0) return 1;  /* NaN passes on as NaN, as mbs_cholesky */
+            const double l = sqrt(D), il = 1.0 / l;
+            L[0] = l;
+            z[0] = (e->q[bi->vel[c]] - dot6(S, p)) * il;
+            for (int r = 0; r < 6; r++) W[r] *= il;
+        } else for (int k = 0, c = 0; k < nv; k++, c++) {
             while (bi->vel[c] < 0) c++;  /* the k-th free coordinate */
             double *Wk = W + 6 * k;
             mat6v(IA, S + 6 * k, Wk);  /* U_k */
             for (int j = 0; j <= k; j++) L[nv * k + j] = dot6(S + 6 * j, Wk);
             z[k] = e->q[bi->vel[c]] - dot6(S + 6 * k, p);
         }
-        if (nv) {
+        if (nv > 1) {
             if (mbs_cholesky(nv, L)) return 1;
             for (int k = 0; k < nv; k++) {
                 double *Wk = W + 6 * k;
@@ -144,14 +167,25 @@ static int articulated_inertias(const MbsEval *e)
         }
         if (bi->parent < 0) continue;
         double *pw = mbs_body_work(e, bi->parent), *IAp = pw + AB_IA, *Pp = pw + AB_P;
-        for (int k = 0; k < nv; k++)
+        if (nv == 1) {
             for (int r = 0; r < 6; r++) {
-                const double wr = W[6 * k + r];
-                p[r] += wr * z[k];
-                for (int c = 0; c < 6; c++) IA[6 * r + c] -= wr * W[6 * k + c];
+                const double wr = W[r];
+                Pp[r] += p[r] + wr * z[0];
+                for (int c = 0; c < 6; c++) IAp[6 * r + c] += IA[6 * r + c] - wr * W[c];
             }
-        for (int r = 0; r < 36; r++) IAp[r] += IA[r];
-        for (int r = 0; r < 6; r++) Pp[r] += p[r];
+            continue;
+        }
+        for (int k = 0; k < nv; k++)
+            for (int r = 0; r < 6; r++) p[r] += W[6 * k + r] * z[k];
+        for (int r = 0; r < 6; r++) {  /* I_A − W Wᵀ is symmetric: one triangle computed */
+            for (int c = r; c < 6; c++) {
+                double x = IA[6 * r + c];
+                for (int k = 0; k < nv; k++) x -= W[6 * k + r] * W[6 * k + c];
+                IAp[6 * r + c] += x;
+                if (c > r) IAp[6 * c + r] += x;
+            }
+            Pp[r] += p[r];
+        }
     }
     return 0;
 }
