@@ -29,7 +29,7 @@ def compiled(spec, guid=None, derivatives=False):
     if guid is None:
         digest = hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()
         guid = "{" + str(uuid.UUID(digest[:32])) + "}"
-    return compile_scene(spec, var, guid), var, model
+    return compile_scene(spec, var, guid, model), var, model
 
 
 class Simulation:

@@ -18,6 +18,9 @@ from .elastic_tables import elastic_sections
 
 # every section id, field, type code and size comes from mbs_layout.h (layout.py); these are views of it
 FORCE_TYPES, FN1, FN2 = L.names("MBS_FORCES"), L.names("MBS_FN1"), L.names("MBS_FN2")
+# the names of a body's vector and matrix entries in rule paths, made once (not once per body)
+_ENTRY = {"center_of_mass": [f"center_of_mass[{r}]" for r in range(3)], "joint.at": [f"joint.at[{r}]" for r in range(3)],
+          "inertia": [f"inertia[{r}][{c}]" for r in range(3) for c in range(3)]}
 BINARY = {"+": L.OP_ADD, "-": L.OP_SUB, "*": L.OP_MUL, "/": L.OP_DIV, "^": L.OP_POW}
 
 
@@ -94,6 +97,8 @@ class _Rules:
         self.rows = []  # (rule, region, offset, path)
 
     def add(self, rule, region, offset, path):
+        """path: the scene path, or the tuple of its parts (joined only for the rules kept: a body's twenty
+        strings, made for every body of a 10,000-body chain, were a fifth of its compile's memory)"""
         self.rows.append((rule, region, offset, path))
 
     def section(self, bound, offsets, carries):
@@ -107,14 +112,14 @@ class _Rules:
             if not keep:
                 continue
             rows.append((rule, offsets[region] + off if size else off, len(names)))
-            names += path.encode() + b"\0"
+            names += (path if isinstance(path, str) else ".".join(path)).encode() + b"\0"
         return np.array(rows, dtype=np.int32).reshape(-1, 3), np.frombuffer(names, np.uint8)
 
 
-def compile_scene(spec, variables, guid=""):
+def compile_scene(spec, variables, guid="", model=None):
     """The compiled scene of a normalized spec, with the FMU variables (fmu.variables.variables(spec): in
-    value-reference order, each with its engine table row). Returns bytes."""
-    model = Model(spec)
+    value-reference order, each with its engine table row) and its Model if the caller has it. Returns bytes."""
+    model = Model(spec) if model is None else model
     m, env = model, dict(model.env)
     # on the dense path (elastic scenes, mbs_dense_path) the engine keeps per body dense Jacobian rows (6 f
     # doubles): refuse what it could not allocate (the recursive path's workspace, linear, is bounded by limits)
@@ -148,21 +153,21 @@ def compile_scene(spec, variables, guid=""):
         ib[i, L.IB_VEL:L.IB_VEL + b.joint.nvel] = b.vel_idx
         ib[i, L.IB_ROT] = ib[i, L.IB_IROT] = ib[i, L.IB_IROT_MASK] = 0
         num = lambda v, off: P.number(v, env, "body", i * L.DB + off)  # noqa: E731
-        rule = lambda kind, off, what: R.add(kind, "body", i * L.DB + off, f"bodies.{b.name}.{what}")  # noqa: E731
+        rule = lambda kind, off, what: R.add(kind, "body", i * L.DB + off, ("bodies", b.name, what))  # noqa: E731
         db[i, L.DB_M] = num(s["mass"], L.DB_M)
         rule(domains.NONNEG, L.DB_M, "mass")
         rule(domains.MAGNITUDE, L.DB_M, "mass")
         for r in range(3):
             db[i, L.DB_C + r] = num(s["center_of_mass"][r], L.DB_C + r)
-            rule(domains.MAGNITUDE, L.DB_C + r, f"center_of_mass[{r}]")
+            rule(domains.MAGNITUDE, L.DB_C + r, _ENTRY["center_of_mass"][r])
         for r in range(3):
             for c in range(3):
                 db[i, L.DB_I + 3 * r + c] = num(s["inertia"][r][c], L.DB_I + 3 * r + c)
-                rule(domains.MAGNITUDE, L.DB_I + 3 * r + c, f"inertia[{r}][{c}]")
+                rule(domains.MAGNITUDE, L.DB_I + 3 * r + c, _ENTRY["inertia"][3 * r + c])
         rule(domains.INERTIA, L.DB_I, "inertia")
         for r in range(3):
             db[i, L.DB_AT + r] = num(j["at"][r], L.DB_AT + r)
-            rule(domains.MAGNITUDE, L.DB_AT + r, f"joint.at[{r}]")
+            rule(domains.MAGNITUDE, L.DB_AT + r, _ENTRY["joint.at"][r])
         if any(c not in j["drive"] for c in j["coordinates"]):
             R.add(domains.CARRIES, "body", i, f"bodies.{b.name}.mass")
         ib[i, L.IB_ROT] = _rotation(j["rotation"], lambda v, off: num(v, L.DB_ROT_RAW + off), db[i, L.DB_ROT_RAW:])
