@@ -31,6 +31,7 @@ class _Programs:
         self.params = {p: i for i, p in enumerate(params)}
         self.consts, self._const_index = [], {}
         self.code, self.rows = [], []  # rows: (stage, (region, offset), code offset, length)
+        self.bound = set()  # the targets of bind programs so far: numbers that depend on parameters
 
     def _const(self, v):
         key = float(v).hex()
@@ -79,6 +80,8 @@ class _Programs:
         self._emit(expr.tree, out)
         self.rows.append((stage, target, len(self.code), len(out)))
         self.code += out
+        if stage == 0:
+            self.bound.add(target)
 
     def number(self, value, env, region, offset):
         """A number of the scene at D[region][offset]: its value now, plus a bind program if it depends on
@@ -93,27 +96,32 @@ class _Rules:
     """The derived-quantity rules (scene/domains.py) of the numbers that depend on parameters: what the engine
     checks when a host changes a parameter, with the scene path each rule names."""
 
-    def __init__(self):
-        self.rows = []  # (rule, region, offset, path)
+    def __init__(self, bound):
+        self.bound = bound  # _Programs.bound: a rule is added after the numbers it reads
+        self.rows = []  # (rule, region, offset, *parts of the path)
 
-    def add(self, rule, region, offset, path):
-        """path: the scene path, or the tuple of its parts (joined only for the rules kept: a body's twenty
-        strings, made for every body of a 10,000-body chain, were a fifth of its compile's memory)"""
-        self.rows.append((rule, region, offset, path))
+    def add(self, rule, region, offset, *path):
+        """path: the scene path, or its parts, joined with dots only for the rules kept. A rule of constants is
+        dropped at once (a 10,000-body chain's 200,000 of them were a third of its compile's memory)."""
+        size = domains.RULE_SIZE[rule]
+        if size and not any((region, offset + k) in self.bound for k in range(size)):
+            return
+        self.rows.append((rule, region, offset) + path)
 
     def section(self, bound, offsets, carries):
         """int rows (rule, offset into D or body index, offset of the path in the names) and the names' bytes,
         for the rules of which an entry is bound by a parameter (a constant never changes)."""
-        rows, names = [], b""
-        for rule, region, off, path in self.rows:
+        rows, names, nbytes = [], [], 0
+        for rule, region, off, *path in self.rows:
             size = domains.RULE_SIZE[rule]
             keep = any((region, off + k) in bound for k in range(size)) if size else carries if rule == domains.CARRIES \
                 else True  # TIMED: added only for expressions of parameters
             if not keep:
                 continue
-            rows.append((rule, offsets[region] + off if size else off, len(names)))
-            names += (path if isinstance(path, str) else ".".join(path)).encode() + b"\0"
-        return np.array(rows, dtype=np.int32).reshape(-1, 3), np.frombuffer(names, np.uint8)
+            rows.append((rule, offsets[region] + off if size else off, nbytes))
+            names.append(".".join(path).encode() + b"\0")
+            nbytes += len(names[-1])
+        return np.array(rows, dtype=np.int32).reshape(-1, 3), np.frombuffer(b"".join(names), np.uint8)
 
 
 def compile_scene(spec, variables, guid="", model=None):
@@ -131,7 +139,7 @@ def compile_scene(spec, variables, guid="", model=None):
                          "engine's dense per-body Jacobians suit tens to a few hundred coordinates")
     params = [p["name"] for p in spec["parameters"]]
     P = _Programs(params)
-    R = _Rules()
+    R = _Rules(P.bound)
     nb, f, npos = len(m.bodies), m.nvel, m.npos
     regions = {"body": np.zeros((nb, L.DB)), "force": np.zeros((max(len(m.bound_forces), 0), L.DF)), "g": np.zeros(3),
                "x0": np.zeros(npos + f), "out": np.zeros((len(m.outputs), 3)), "integ": np.zeros(L.DI)}
@@ -141,6 +149,7 @@ def compile_scene(spec, variables, guid="", model=None):
     drives = [(i, k, d) for i, b in enumerate(m.bodies) for k, *d in b.drives]
     ncardan = 0
     for r in range(3):  # rules in the loader's order (the first broken one is the one named): gravity, bodies, ...
+        regions["g"][r] = P.number(spec["gravity"][r], env, "g", r)
         R.add(domains.MAGNITUDE, "g", r, f"gravity[{r}]")
     for i, b in enumerate(m.bodies):
         j, s = b.spec["joint"], b.spec
@@ -153,7 +162,7 @@ def compile_scene(spec, variables, guid="", model=None):
         ib[i, L.IB_VEL:L.IB_VEL + b.joint.nvel] = b.vel_idx
         ib[i, L.IB_ROT] = ib[i, L.IB_IROT] = ib[i, L.IB_IROT_MASK] = 0
         num = lambda v, off: P.number(v, env, "body", i * L.DB + off)  # noqa: E731
-        rule = lambda kind, off, what: R.add(kind, "body", i * L.DB + off, ("bodies", b.name, what))  # noqa: E731
+        rule = lambda kind, off, what: R.add(kind, "body", i * L.DB + off, "bodies", b.name, what)  # noqa: E731
         db[i, L.DB_M] = num(s["mass"], L.DB_M)
         rule(domains.NONNEG, L.DB_M, "mass")
         rule(domains.MAGNITUDE, L.DB_M, "mass")
@@ -266,8 +275,6 @@ def compile_scene(spec, variables, guid="", model=None):
                 for r in range(3):
                     forces[n, L.DF_VEC + r] = num(src["value"][r], L.DF_VEC + r)
                     rule(domains.MAGNITUDE, L.DF_VEC + r, f"value[{r}]")
-    for r in range(3):
-        regions["g"][r] = P.number(spec["gravity"][r], env, "g", r)
     out_i = np.zeros((len(m.outputs), 3), dtype=np.int32)
     for o, spec_o in enumerate(m.outputs):
         out_i[o, 0] = m.index[spec_o["body"]]

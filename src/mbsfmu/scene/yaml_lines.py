@@ -38,15 +38,24 @@ _NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
 class Map(dict):
     """A YAML mapping with `line` (its own) and `lines[key]` (the line of each key)."""
 
-    line = None
-    lines = {}
+    __slots__ = ("line", "lines")  # no instance dict: a 10,000-body scene has 180,000 of these and Seq
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.line, self.lines = None, _NO_LINES
 
 
 class Seq(list):
     """A YAML sequence with `line` and `lines[i]`."""
 
-    line = None
-    lines = {}
+    __slots__ = ("line", "lines")
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.line, self.lines = None, _NO_LINES
+
+
+_NO_LINES = {}  # lines of a Map or Seq made in code, not read (never changed: such trees get their own dicts)
 
 
 def _line(node):
@@ -61,6 +70,7 @@ class _Loader(SafeConstructor, Resolver, _Parser):
         SafeConstructor.__init__(self)
         Resolver.__init__(self)
         self.key_path, self.tags, self.nodes, self.open_ = [], {}, 0, []
+        self.anchored = set()  # ids of the nodes with an anchor
         self.marks = {}  # line → one shared mark: messages need only the line, and a node's own two marks made
         # up half the memory of a large scene (a 10,000-body chain: 800,000 marks, 58 MiB); (line, n) → lines of a list
 
@@ -121,6 +131,7 @@ class _Loader(SafeConstructor, Resolver, _Parser):
                 if event.anchor in anchors:
                     raise ComposerError(None, None, f"found duplicate anchor {event.anchor!r}", event.start_mark)
                 anchors[event.anchor] = node
+                self.anchored.add(id(node))
             if open_:
                 parent, children = open_[-1]
                 if len(children) >= limits.ENTRIES * (1 if isinstance(parent, SequenceNode) else 2):
@@ -148,9 +159,16 @@ class _Loader(SafeConstructor, Resolver, _Parser):
 
     def construct_object(self, node, deep=False):
         """As SafeConstructor's, but a value its constructor cannot convert (`!!float abc`, `!!map [1]`) is a
-        ModelError at the node's line and key path."""
+        ModelError at the node's line and key path; and the node graph is let go as it is built into values (a
+        scalar is not cached, a collection nobody else refers to drops its children): it never lives whole next to
+        the values (a 10,000-body chain: 58 MiB of nodes)."""
         try:
-            return super().construct_object(node, deep)
+            data = super().construct_object(node, deep)
+            if isinstance(node, ScalarNode):
+                self.constructed_objects.pop(node, None)
+            elif id(node) not in self.anchored:  # an anchor's children may be merged (<<) into another mapping
+                node.value = []
+            return data
         except (ModelError, yaml.YAMLError):
             raise
         except (ValueError, TypeError, AttributeError, ArithmeticError) as e:
@@ -166,7 +184,7 @@ class _Loader(SafeConstructor, Resolver, _Parser):
         return self.tags[key]
 
 
-def _check_expansion(root):
+def _check_expansion(root, anchored=frozenset()):
     """Depth and size of the node graph with aliases expanded (each shared node counted once per use).
 
     Linear in the distinct nodes: the expanded size of a node is memoized; a recursive alias exceeds the depth.
@@ -203,7 +221,8 @@ def _check_expansion(root):
         if n > distinct[0] + limits.ALIAS_NODES:
             fail(f"aliases expand this document beyond {limits.ALIAS_NODES:,} extra values", node,
                  "an alias bomb? use anchors and aliases only for small shared values")
-        size[id(node)] = n
+        if id(node) in anchored:  # only an anchor's node is reached twice: memoized (each other once, not kept)
+            size[id(node)] = n
         return n
 
     walk(root, 1)
@@ -323,7 +342,7 @@ def read_yaml(text, file=None):
         node = loader.get_single_node()
         if node is None:
             return None
-        _check_expansion(node)
+        _check_expansion(node, loader.anchored)
         return loader.construct_document(node)
     except ModelError as e:
         raise ModelError(e.message, file=file, line=e.line, key=e.key or loader.compose_path(), hint=e.hint) from None
