@@ -26,9 +26,11 @@
 /* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py refuses a
  * larger scene first, with its size) */
 #define MBS_MAX_WORKSPACE 1073741824
-/* rigid scenes with more velocity coordinates than this take the recursive path (articulated bodies, linear in
- * the size), the others and elastic scenes the dense one (per-body Jacobians, cubic): mbs_dense_path */
-#define MBS_DENSE_MAX_NVEL 0
+/* elastic scenes and rigid ones of at most MBS_DENSE_MAX_BODIES bodies and MBS_DENSE_MAX_NVEL velocity
+ * coordinates take the dense path (per-body Jacobians, M factored: cubic in the size), other rigid scenes the
+ * recursive one (articulated bodies: linear), where each is the faster (measured: docs/fmu.md): mbs_dense_path */
+#define MBS_DENSE_MAX_BODIES 4
+#define MBS_DENSE_MAX_NVEL 6
 
 /* "MBSC", int32 format version, char guid[64], int32 nsec, then nsec rows {int32 id, int32 kind (0 int32,
  * 1 double, 2 bytes), int64 byte offset, int64 count}, then the data (8-aligned). Section ids, with kind: */

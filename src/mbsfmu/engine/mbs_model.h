@@ -104,11 +104,14 @@ typedef struct {
 #define AB_ACC 189        /* spatial acceleration beyond the bias (Σ S ÿ of the path to the root) */
 #define AB_SIZE 195
 
-/* The evaluation path, chosen from the scene's tables, in this one place: elastic scenes keep the dense path
- * (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic in the size); rigid ones take the
- * articulated-body algorithm (dynamics.c: linear) once it is the faster, above MBS_DENSE_MAX_NVEL (mbs_layout.h)
- * velocity coordinates. */
-static inline int mbs_dense_path(const int32_t *hdr) { return (hdr[H_FEATURES] & F_ELASTIC) || hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL; }
+/* The evaluation path, chosen from the scene's header in this one place (compile.py's workspace check follows it):
+ * elastic scenes keep the dense path (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic
+ * in the size), and so do the smallest rigid ones, for which it is the faster; the other rigid scenes take the
+ * articulated-body algorithm (dynamics.c: linear). */
+static inline int mbs_dense_path(const int32_t *hdr)
+{
+    return (hdr[H_FEATURES] & F_ELASTIC) || (hdr[H_NB] <= MBS_DENSE_MAX_BODIES && hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL);
+}
 /* doubles of an instance's evaluation workspace: per body, scratch (two 3 × f Jacobians) and M on the dense path */
 static inline double mbs_work_doubles(const int32_t *hdr)
 {

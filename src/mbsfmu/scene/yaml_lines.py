@@ -71,14 +71,14 @@ class _Loader(SafeConstructor, Resolver, _Parser):
         Resolver.__init__(self)
         self.key_path, self.tags, self.nodes, self.open_ = [], {}, 0, []
         self.anchored = set()  # ids of the nodes with an anchor
-        self.marks = {}  # line → one shared mark: messages need only the line, and a node's own two marks made
+        self._line_marks = {}  # line → one shared mark: messages need only the line, and a node's own two marks made
         # up half the memory of a large scene (a 10,000-body chain: 800,000 marks, 58 MiB); (line, n) → lines of a list
 
     def _mark(self, mark):
         line = mark.line
-        if line not in self.marks:
-            self.marks[line] = yaml.error.Mark(mark.name, 0, line, 0, None, None)
-        return self.marks[line]
+        if line not in self._line_marks:
+            self._line_marks[line] = yaml.error.Mark(mark.name, 0, line, 0, None, None)
+        return self._line_marks[line]
 
     def get_single_node(self):
         """The document's node graph, as yaml.composer builds it, without recursion (so no depth can crash it)."""
@@ -267,7 +267,7 @@ def _construct_sequence(loader, node):
     if all(child.start_mark.line + 1 == line for child in node.value):
         # a list written on one line (a vector, an inertia row): one lines dict per line and length, shared (never
         # changed: a tree that needs other lines gets new dicts), as a 10,000-body chain has 120,000 such lists
-        out.lines = loader.marks.setdefault((line, len(items)), dict.fromkeys(range(len(items)), line))
+        out.lines = loader._line_marks.setdefault((line, len(items)), dict.fromkeys(range(len(items)), line))
     else:
         out.lines = {i: _line(child) for i, child in enumerate(node.value)}
     return out
