@@ -2,12 +2,15 @@
  * (Featherstone's FDab) and, for inspection, M by the composite-rigid-body algorithm and k, q by the recursive
  * Newton–Euler pass. The path of rigid scenes (mbs_dense_path); elastic ones keep tree.c's dense equations.
  *
- * Spatial vectors in world coordinates about the world origin O (Pinocchio's WORLD convention), so no transforms
- * between bodies: a motion (ω, v_O), v_O the velocity of the body point at O; a force (n_O, F). The kinematics
- * (tree.c) leave per body its frame S, origin o, ω, v_o, the bias accelerations ā, ᾱ (free ÿ = 0, driven
- * coordinates at their prescribed accelerations) and the free columns S of its joint. Per body
+ * Spatial vectors in world axes about each body's origin o (Pinocchio's LOCAL_WORLD_ALIGNED): a motion (ω, v),
+ * v the velocity of the body point at o; a force (n, F), n its moment about o. Between a body and its parent only
+ * the point moves, by d = o − o_parent: motions m → (ω, v − d × ω), forces f → (n + d × F, F), inertias Tᵀ I T.
+ * (About the world origin, with no shifts at all, the inertias of small links far from it lose their digits:
+ * iCub's M has λ_min/λ_max ≈ 1e-18.) The kinematics (tree.c) leave per body its frame S, o, ω, v_o, the bias
+ * accelerations ā, ᾱ (free ÿ = 0, driven coordinates at their prescribed accelerations) and the free columns S of
+ * its joint. Per body
  *
- *     v = (ω, v_o − ω × o),   â = (ᾱ, ā − ᾱ × o − ω × v_o),   I = [Ī_O  h̃; h̃ᵀ  m E] about O (h = m c),
+ *     v = (ω, v_o),   â = (ᾱ, ā − ω × v_o),   I = [Ī_o  h̃; h̃ᵀ  m E] (h = m c, c = S c_b),
  *     P = I â + v ×* I v  (k's part),   F = I (0, g) + forces  (q's part),
  *
  * and the body's equation is f = I Δa + P − F with Δa = Σ S ÿ over its path to the root: FDab with the bias
@@ -51,17 +54,17 @@ static void inertia_times(const double *restrict I, const double *restrict h, co
     }
 }
 
-/* Body i's spatial inertia about O in world coordinates (6 × 6) and its first moment h = m c. */
+/* Body i's spatial inertia about its origin in world axes (6 × 6) and its first moment h = m c. */
 static void spatial_inertia(const MbsEval *e, int i, const double *wk, double *I, double *h)
 {
-    const double *db = mbs_body_d(e, i), *S = wk + W_S, *o = wk + W_O, m = db[DB_M];
+    const double *db = mbs_body_d(e, i), *S = wk + W_S, m = db[DB_M];
     double c[3], SI[9];
     mv(S, db + DB_C, c);
-    for (int r = 0; r < 3; r++) { c[r] += o[r]; h[r] = m * c[r]; }
+    for (int r = 0; r < 3; r++) h[r] = m * c[r];
     mm(S, db + DB_I, SI);
     const double cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
     for (int r = 0; r < 3; r++)
-        for (int k = 0; k < 3; k++)  /* Ī_O = S Ī Sᵀ + m (c·c E − c cᵀ) */
+        for (int k = 0; k < 3; k++)  /* Ī_o = S Ī Sᵀ + m (c·c E − c cᵀ) */
             I[6 * r + k] = SI[3 * r] * S[3 * k] + SI[3 * r + 1] * S[3 * k + 1] + SI[3 * r + 2] * S[3 * k + 2] +
                            m * ((r == k) * cc - c[r] * c[k]);
     const double ht[9] = {0, -h[2], h[1], h[2], 0, -h[0], -h[1], h[0], 0};
@@ -81,17 +84,15 @@ static void bias_forces(const MbsEval *e)
     const int gravity = m->hdr[H_HAS_GRAVITY];
     for (int i = 0; i < NB(m); i++) {
         double *wk = mbs_body_work(e, i), *I = wk + AB_IA, *P = wk + AB_P, *F = wk + AB_F;
-        const double *o = wk + W_O, *w = wk + W_W, *al = wk + W_AL;
-        double h[3], v[6], a[6], Iv[6], t1[3], t2[3];
+        const double *w = wk + W_W, *al = wk + W_AL;
+        double h[3], v[6], a[6], Iv[6];
         spatial_inertia(e, i, wk, I, h);
-        cross(w, o, t1);
-        cross(al, o, t2);
         cross(w, wk + W_V, a + 3);
         for (int r = 0; r < 3; r++) {
             v[r] = w[r];
-            v[3 + r] = wk[W_V + r] - t1[r];
+            v[3 + r] = wk[W_V + r];
             a[r] = al[r];
-            a[3 + r] = wk[W_A + r] - t2[r] - a[3 + r];
+            a[3 + r] = wk[W_A + r] - a[3 + r];
         }
         inertia_times(I, h, v, Iv);
         inertia_times(I, h, a, P);
@@ -107,13 +108,53 @@ static void bias_forces(const MbsEval *e)
 
 void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign)
 {
-    double *f = mbs_body_work(e, i) + AB_F, n[3];
+    double *wk = mbs_body_work(e, i), *f = wk + AB_F, n[3], r_[3];
     if (!x) {
         for (int r = 0; r < 3; r++) f[r] += sign * F[r];
         return;
     }
-    cross(x, F, n);
+    for (int r = 0; r < 3; r++) r_[r] = x[r] - wk[W_O + r];
+    cross(r_, F, n);
     for (int r = 0; r < 3; r++) { f[r] += sign * n[r]; f[3 + r] += sign * F[r]; }
+}
+
+/* d = o_i − o_parent */
+static void offset(const MbsEval *e, const double *wk, int parent, double *d)
+{
+    const double *op = mbs_body_work(e, parent) + W_O;
+    for (int r = 0; r < 3; r++) d[r] = wk[W_O + r] - op[r];
+}
+
+/* out += f moved from point o + d to o: (n + d × F, F) */
+static void add_force_at(const double *d, const double *f, double *out)
+{
+    double dxF[3];
+    cross(d, f + 3, dxF);
+    for (int r = 0; r < 3; r++) { out[r] += f[r] + dxF[r]; out[3 + r] += f[3 + r]; }
+}
+
+/* out += Tᵀ I T: the inertia I = [A B; Bᵀ C] about o + d moved to o, [A − B d̃ − (B d̃)ᵀ − d̃ C d̃, B + d̃ C; ., C] */
+static void add_inertia_at(const double *d, const double *I, double *out)
+{
+    const double dt[9] = {0, -d[2], d[1], d[2], 0, -d[0], -d[1], d[0], 0};
+    double A[9], B[9], C[9], Bd[9], dC[9], dCd[9];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            A[3 * r + c] = I[6 * r + c];
+            B[3 * r + c] = I[6 * r + 3 + c];
+            C[3 * r + c] = I[6 * (3 + r) + 3 + c];
+        }
+    mm(B, dt, Bd);
+    mm(dt, C, dC);
+    mm(dC, dt, dCd);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            const double b = B[3 * r + c] + dC[3 * r + c];
+            out[6 * r + c] += A[3 * r + c] - Bd[3 * r + c] - Bd[3 * c + r] - dCd[3 * r + c];
+            out[6 * r + 3 + c] += b;
+            out[6 * (3 + c) + r] += b;
+            out[6 * (3 + r) + 3 + c] += C[3 * r + c];
+        }
 }
 
 /* P, F and the generalized forces τ (into e->q) of the current kinematics. */
@@ -125,7 +166,7 @@ static void forces(const MbsEval *e)
 }
 
 /* Leaves to root: U = I_A S, D = Sᵀ U = L Lᵀ, u = τ − Sᵀ p, W = U L⁻ᵀ, z = L⁻¹ u; the parent gets
- * I_A − W Wᵀ and p + W z. Returns 1 if some D is not positive definite (then M is not). */
+ * I_A − W Wᵀ and p + W z, moved to its origin. Returns 1 if some D is not positive definite (then M is not). */
 static int articulated_inertias(const MbsEval *e)
 {
     const MbsModel *m = e->m;
@@ -166,31 +207,23 @@ static int articulated_inertias(const MbsEval *e)
             }
         }
         if (bi->parent < 0) continue;
-        double *pw = mbs_body_work(e, bi->parent), *IAp = pw + AB_IA, *Pp = pw + AB_P;
-        if (nv == 1) {
-            for (int r = 0; r < 6; r++) {
-                const double wr = W[r];
-                Pp[r] += p[r] + wr * z[0];
-                for (int c = 0; c < 6; c++) IAp[6 * r + c] += IA[6 * r + c] - wr * W[c];
-            }
-            continue;
-        }
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 6; r++) p[r] += W[6 * k + r] * z[k];
-        for (int r = 0; r < 6; r++) {  /* I_A − W Wᵀ is symmetric: one triangle computed */
+        for (int r = 0; r < 6; r++)  /* I_A − W Wᵀ is symmetric: one triangle computed */
             for (int c = r; c < 6; c++) {
                 double x = IA[6 * r + c];
                 for (int k = 0; k < nv; k++) x -= W[6 * k + r] * W[6 * k + c];
-                IAp[6 * r + c] += x;
-                if (c > r) IAp[6 * c + r] += x;
+                IA[6 * r + c] = IA[6 * c + r] = x;
             }
-            Pp[r] += p[r];
-        }
+        double d[3], *pw = mbs_body_work(e, bi->parent);
+        offset(e, wk, bi->parent, d);
+        add_inertia_at(d, IA, pw + AB_IA);
+        add_force_at(d, p, pw + AB_P);
     }
     return 0;
 }
 
-/* Root to leaves: ÿ = L⁻ᵀ (z − Wᵀ Δa_parent) into e->xdot, Δa = Δa_parent + S ÿ. */
+/* Root to leaves: ÿ = L⁻ᵀ (z − Wᵀ Δa_p) into e->xdot, Δa = Δa_p + S ÿ (Δa_p: the parent's, moved to o). */
 static void accelerations(const MbsEval *e)
 {
     const MbsModel *m = e->m;
@@ -199,10 +232,17 @@ static void accelerations(const MbsEval *e)
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
         double *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, x[6];
-        const double *ap = bi->parent < 0 ? Z : mbs_body_work(e, bi->parent) + AB_ACC, *L = wk + AB_L;
-        const double *S = wk + AB_S;
+        const double *L = wk + AB_L, *S = wk + AB_S, *ap = acc;
         const int nv = (int)wk[AB_NV];
-        memcpy(acc, ap, 6 * sizeof(double));
+        if (bi->parent < 0)
+            memcpy(acc, Z, sizeof Z);
+        else {  /* (α, a − d × α) */
+            const double *pa = mbs_body_work(e, bi->parent) + AB_ACC;
+            double d[3], dxa[3];
+            offset(e, wk, bi->parent, d);
+            cross(d, pa, dxa);
+            for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
+        }
         for (int k = 0; k < nv; k++) x[k] = wk[AB_Z + k] - dot6(wk + AB_W + 6 * k, ap);
         for (int k = nv - 1; k >= 0; k--) {
             for (int j = k + 1; j < nv; j++) x[k] -= L[nv * j + k] * x[j];
@@ -243,7 +283,7 @@ void mbs_crba_rnea(const MbsEval *e)
             e->k[bi->vel[c]] = dot6(s, wk + AB_P);
             e->q[bi->vel[c]] += dot6(s, wk + AB_F);
             mat6v(wk + AB_IA, s, Fa);
-            for (int j = i; j >= 0; j = mbs_body_i(m, j)->parent) {
+            for (int j = i;;) {  /* Fa moved to each ancestor's origin on the way up */
                 const MbsBodyI *bj = mbs_body_i(m, j);
                 const double *wj = mbs_body_work(e, j);
                 for (int l = 0, d = 0; l < (int)wj[AB_NV]; l++, d++) {
@@ -251,11 +291,19 @@ void mbs_crba_rnea(const MbsEval *e)
                     e->M[(size_t)bj->vel[d] * f + bi->vel[c]] = e->M[(size_t)bi->vel[c] * f + bj->vel[d]] =
                         dot6(wj + AB_S + 6 * l, Fa);
                 }
+                if (bj->parent < 0) break;
+                double d[3], Fj[6] = {0, 0, 0, 0, 0, 0};
+                offset(e, wj, bj->parent, d);
+                add_force_at(d, Fa, Fj);
+                memcpy(Fa, Fj, sizeof Fj);
+                j = bj->parent;
             }
         }
         if (bi->parent < 0) continue;
-        double *pw = mbs_body_work(e, bi->parent);
-        for (int r = 0; r < 36; r++) pw[AB_IA + r] += wk[AB_IA + r];
-        for (int r = 0; r < 6; r++) { pw[AB_P + r] += wk[AB_P + r]; pw[AB_F + r] += wk[AB_F + r]; }
+        double d[3], *pw = mbs_body_work(e, bi->parent);
+        offset(e, wk, bi->parent, d);
+        add_inertia_at(d, wk + AB_IA, pw + AB_IA);
+        add_force_at(d, wk + AB_P, pw + AB_P);
+        add_force_at(d, wk + AB_F, pw + AB_F);
     }
 }

@@ -174,19 +174,15 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
     mv(S_p, db + DB_AT, rho);
 }
 
-/* The free columns of body i's joint as spatial motions at the world origin (dynamics.c): (h_R, h_T + o × h_R)
- * with h_R, h_T the world-frame columns at the body origin o. */
-static void motion_subspace(const MbsBodyI *bi, const double *S_J, const double *H_R, const double *H_T,
-                            const double *o, double *wk)
+/* The free columns of body i's joint as spatial motions at its origin (dynamics.c): (h_R, h_T), world axes. */
+static void motion_subspace(const MbsBodyI *bi, const double *S_J, const double *H_R, const double *H_T, double *wk)
 {
     int n = 0;
     for (int k = 0; k < bi->nvel; k++) {
         if (bi->vel[k] < 0) continue;
-        double *s = wk + AB_S + 6 * n++, oxh[3];
+        double *s = wk + AB_S + 6 * n++;
         mv(S_J, H_R + 3 * k, s);
         mv(S_J, H_T + 3 * k, s + 3);
-        cross(o, s, oxh);
-        for (int r = 0; r < 3; r++) s[3 + r] += oxh[r];
     }
     wk[AB_NV] = n;
 }
@@ -257,7 +253,7 @@ void mbs_kinematics(const MbsEval *e)
             a[r] = a_p[r] + axr[r] + wwxr[r] + 2.0 * t2[r] + SbT[r];
         }
         if (!m->dense) {
-            motion_subspace(bi, S_J, H_R, H_T, o, wk);
+            motion_subspace(bi, S_J, H_R, H_T, wk);
             continue;
         }
         /* J_T = J_Tp − ρ̃ J_Rp, then the joint's own columns */
