@@ -29,10 +29,11 @@ def _vec(v):
     return "[" + ", ".join(f"{x:.5f}" for x in v) + "]"
 
 
-def random_tree(rng, n, gravity=True):
+def random_tree(rng, n, gravity=True, origin=(0, 0, 0), light_from=None):
     """YAML of a random tree of n bodies cycling through every joint type (both parameterizations), branching,
     rotated joint frames, full inertias; drives on some joints, joint springs, springs between bodies and to the
-    world, forces and torques constant, of time and as inputs, in both frames."""
+    world, forces and torques constant, of time and as inputs, in both frames. The root's joint is at `origin`
+    (plus a little); bodies from `light_from` on have 1e-4 of the mass, 1e-8 of the inertia."""
     lines = ["mbsfmu: 1", "name: random_tree", f"gravity: {_vec([0.3, -1.2, -9.81] if gravity else [0, 0, 0])}",
              "bodies:"]
     springs = []
@@ -42,7 +43,7 @@ def random_tree(rng, n, gravity=True):
         pts = rng.normal(size=(4, 3)) * 0.3  # the inertia of point masses about their centre: physical by construction
         pts -= pts.mean(axis=0)
         inertia = sum(np.dot(r, r) * np.eye(3) - np.outer(r, r) for r in pts) + 0.01 * np.eye(3)
-        j = f"type: {kind}, at: {_vec(rng.normal(size=3) * 0.3)}, " \
+        j = f"type: {kind}, at: {_vec(rng.normal(size=3) * 0.3 + (origin if i == 0 else 0))}, " \
             f"rotation: {{axis: {_vec(rng.normal(size=3))}, angle: {rng.uniform(-3, 3):.4f}}}"
         if kind in ("revolute", "prismatic", "cylindrical"):
             j += f", axis: {_vec(rng.normal(size=3))}"
@@ -57,8 +58,11 @@ def random_tree(rng, n, gravity=True):
         elif plain and rng.uniform() < 0.5:
             springs.append(f"  - {{type: joint_spring_damper, coordinate: b{i}.{plain}, stiffness: 30, damping: 0.4, "
                            f"offset: 0.1}}")
-        lines += [f"  b{i}:", f"    parent: {parent}", f"    joint: {{{j}}}", f"    mass: {rng.uniform(0.5, 3):.4f}",
-                  f"    center_of_mass: {_vec(rng.normal(size=3) * 0.3)}", f"    inertia: {inertia.round(6).tolist()}"]
+        light = light_from is not None and i >= light_from
+        lines += [f"  b{i}:", f"    parent: {parent}", f"    joint: {{{j}}}",
+                  f"    mass: {rng.uniform(0.5, 3) * (1e-4 if light else 1):.6g}",
+                  f"    center_of_mass: {_vec(rng.normal(size=3) * (1e-4 if light else 0.3))}",
+                  f"    inertia: {(inertia * (1e-8 if light else 1)).round(14 if light else 6).tolist()}"]
     a, b = rng.choice(n, 2, replace=False)
     lines += ["forces:", *springs,
               f"  - {{type: spring_damper, bodies: [world, b{a}], at: [[0, 0, 1], [0.1, 0, 0]], stiffness: 20, "
@@ -102,6 +106,24 @@ def test_accelerations_equal_the_reference_on_random_trees_of_every_joint_type(s
         got = sim.f(t, x)
         np.testing.assert_allclose(got[len(y):], ydd, rtol=0, atol=1e-12 * np.linalg.cond(M) * np.abs(ydd).max())
         np.testing.assert_allclose(got[:len(y)], ev.position_rates(y, yd), rtol=1e-15, atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", (5, 6, 7))
+def test_small_links_far_from_the_world_origin_keep_their_digits(seed):
+    """A random tree 1 km from the world origin whose last bodies are 10⁴ times lighter and 10⁸ times less inert,
+    their centres of mass on their joints (cond(M) ≈ 1e10): the engine's ÿ solves the reference's M ÿ = q − k
+    with a small componentwise backward error (Oettli–Prager: each row against its own terms), since the recursive
+    path takes inertias about each body's origin. About the world origin the 10⁶ m² lever arms swamp the small
+    links' pivots: 4e-6 here (and iCub, 0.6 m from it, got a negative pivot)."""
+    rng = np.random.default_rng(seed)
+    spec = mbsfmu.loads(random_tree(rng, 12, origin=[1000, -700, 300], light_from=6)).spec
+    ev, sim = mbsfmu.compile(spec), Simulation(spec)
+    for _ in range(3):
+        y, yd = _state(ev, rng)
+        M, k, q = ev.equations(y, yd, 0.3)
+        got = sim.f(0.3, np.concatenate([y, yd]))[len(y):]
+        backward = np.abs(M @ got - (q - k)) / (np.abs(M) @ np.abs(got) + np.abs(q - k))
+        assert backward.max() < 1e-11
 
 
 def test_random_trees_cover_every_joint_type_drives_and_forces():
