@@ -84,6 +84,27 @@ static int check_coordinate(int i, int idx, int drv, int n, int ndrv, const char
     return 0;
 }
 
+/* The recursive path (dynamics.c) writes ÿ of each velocity coordinate from the one joint that moves it: in a
+ * rigid scene every velocity coordinate belongs to exactly one joint (the dense path would see an unowned one as a
+ * singular M; this one would leave its ÿ unwritten). nv is bounded by D's bytes (check_header). */
+static int check_owners(const MbsModel *m, char *err, size_t errlen)
+{
+    const int nv = m->hdr[H_NVEL];
+    unsigned char *owned = calloc((size_t)nv + 1, 1);
+    int bad = -1;
+    if (!owned) BAD("out of memory");
+    for (int i = 0; i < NB(m) && bad < 0; i++) {
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        for (int k = 0; k < bi->nvel && bad < 0; k++)
+            if (bi->vel[k] >= 0 && owned[bi->vel[k]]++) bad = bi->vel[k];
+    }
+    for (int c = 0; c < nv && bad < 0; c++)
+        if (!owned[c]) bad = c;
+    free(owned);
+    if (bad >= 0) BAD("corrupt body table (velocity coordinate %d is not moved by exactly one joint)", bad);
+    return 0;
+}
+
 /* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range;
  * no more drives than driven coordinates, the header's Cardan count the body table's. Elastic data and nodes are
  * named only by a scene with the elastic feature (whose tables mbs_elastic_validate checks against them). */
@@ -115,7 +136,7 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
     if (ndrv > driven) BAD("corrupt header (%d drives for %lld driven coordinates)", ndrv, (long long)driven);
     if (H[H_NCARDAN] != cardan)
         BAD("corrupt header (%d Cardan joints, the body table has %lld)", (int)H[H_NCARDAN], (long long)cardan);
-    return 0;
+    return mbs_dense_path(H) ? 0 : check_owners(m, err, errlen);
 }
 
 /* Force elements: type, the coordinates or bodies they act on, their value slot; nodes only with elastic bodies. */
