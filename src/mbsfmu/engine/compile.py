@@ -131,7 +131,7 @@ def compile_scene(spec, variables, guid="", model=None):
     m, env = model, dict(model.env)
     # on the dense path (elastic scenes, mbs_dense_path) the engine keeps per body dense Jacobian rows (6 f
     # doubles): refuse what it could not allocate (the recursive path's workspace, linear, is bounded by limits)
-    dense = m.has_elastic or (len(m.bodies) <= L.MBS_DENSE_MAX_BODIES and m.nvel <= L.MBS_DENSE_MAX_NVEL)
+    dense = m.has_elastic or m.nvel <= L.MBS_DENSE_MAX_NVEL
     need = 8 * len(m.bodies) * (26 + 6 * m.nvel) + 8 * m.nvel ** 2
     if dense and need > L.MBS_MAX_WORKSPACE:
         raise ValueError(f"scene too large for the engine: {len(m.bodies)} bodies with {m.nvel} velocity coordinates "

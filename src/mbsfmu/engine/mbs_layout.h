@@ -26,13 +26,12 @@
 /* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py refuses a
  * larger scene first, with its size) */
 #define MBS_MAX_WORKSPACE 1073741824
-/* elastic scenes and rigid ones of at most MBS_DENSE_MAX_BODIES bodies and MBS_DENSE_MAX_NVEL velocity
- * coordinates take the dense path (per-body Jacobians, M factored: cubic in the size), other rigid scenes the
- * recursive one (articulated bodies: linear), where each is the faster: mbs_dense_path. Measured (instructions
- * per right-hand side, callgrind, dense/recursive): revolute chains of 1, 2, 4 bodies 2.8k/3.0k, 5.6k/6.2k,
- * 12.1k/12.6k, of 6 and 16 bodies 20.3k/19.0k, 92.7k/51.0k; the free body 6.4k/8.1k; the 6-dof arm 21.6k/21.4k:
- * a tie up to 6 bodies, which keeps the dense path (and the shipped scenes' trajectories bit for bit) */
-#define MBS_DENSE_MAX_BODIES 6
+/* elastic scenes and rigid ones of at most MBS_DENSE_MAX_NVEL velocity coordinates take the dense path (per-body
+ * Jacobians, M factored: cubic in the coordinates, linear in the bodies), other rigid scenes the recursive one
+ * (articulated bodies: linear), where each is the faster: mbs_dense_path. Measured (instructions per right-hand
+ * side, callgrind, dense/recursive): revolute chains of 1, 2, 4 bodies 2.8k/3.0k, 5.6k/6.2k, 12.1k/12.6k, of 6 and
+ * 16 bodies 20.3k/19.0k, 92.7k/51.0k; the free body 6.4k/8.1k; the 6-dof arm (7 bodies) 21.6k/21.4k: a tie at 6
+ * coordinates, which keeps the dense path (and the shipped scenes' trajectories bit for bit) */
 #define MBS_DENSE_MAX_NVEL 6
 
 /* "MBSC", int32 format version, char guid[64], int32 nsec, then nsec rows {int32 id, int32 kind (0 int32,

@@ -110,7 +110,7 @@ typedef struct {
  * articulated-body algorithm (dynamics.c: linear). */
 static inline int mbs_dense_path(const int32_t *hdr)
 {
-    return (hdr[H_FEATURES] & F_ELASTIC) || (hdr[H_NB] <= MBS_DENSE_MAX_BODIES && hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL);
+    return (hdr[H_FEATURES] & F_ELASTIC) || hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL;
 }
 /* doubles of an instance's evaluation workspace: per body, scratch (two 3 × f Jacobians) and M on the dense path */
 static inline double mbs_work_doubles(const int32_t *hdr)
