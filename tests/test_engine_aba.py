@@ -175,3 +175,31 @@ def test_a_10000_body_chain_compiles_and_steps_within_200_MB(tmp_path):
     assert r["rss_mb"] < 200, r
     print(r)
     assert abs(r["y"][0] - 0.5) < 1e-3 and r["y"][1] < 0, r  # swinging back under gravity
+
+
+def test_bodies_are_ordered_parents_first_in_linear_time():
+    """equations.model's body order is the passes over the file that each place every body whose parent is placed
+    (the definition, run literally here on shuffled random trees), and a 10,000-body chain written leaves first is
+    ordered in well under a second (the passes took 10,000 sweeps of the file)."""
+    import time
+    from mbsfmu.equations.model import _parents_first
+
+    def by_passes(bodies):
+        order, placed = [], {"world"}
+        while len(order) < len(bodies):
+            for b in bodies:
+                if b["name"] not in placed and b["parent"] in placed:
+                    placed.add(b["name"])
+                    order.append(b)
+        return order
+    rng = np.random.default_rng(0)
+    for n in (1, 5, 40):
+        for _ in range(20):
+            parents = ["world"] + [f"b{rng.integers(0, i)}" if rng.uniform() < 0.9 else "world" for i in range(1, n)]
+            bodies = [{"name": f"b{i}", "parent": p} for i, p in enumerate(parents)]
+            bodies = [bodies[k] for k in rng.permutation(n)]
+            assert [b["name"] for b in _parents_first(bodies)] == [b["name"] for b in by_passes(bodies)]
+    chain = [{"name": f"b{i}", "parent": f"b{i - 1}" if i else "world"} for i in reversed(range(10000))]
+    t0 = time.process_time()
+    order = _parents_first(chain)
+    assert time.process_time() - t0 < 1.0 and [b["name"] for b in order] == [f"b{i}" for i in range(10000)]

@@ -67,6 +67,24 @@ class Body:
             bind_elastic(self, env)
 
 
+def _parents_first(bodies):
+    """The bodies parents first, otherwise in file order: the order of passes over the file that each place the
+    bodies whose parent is placed (a parent later in the file waits for the next pass), found in linear time as
+    (pass, file position), pass = the parent's, +1 if the parent comes later in the file (a 10,000-body chain
+    written leaves first took 10,000 passes)."""
+    pos = {b["name"]: k for k, b in enumerate(bodies)}
+    passes = {"world": 1}
+    for b in bodies:  # the pass of each body's line of ancestors, unknown ones from the top (no recursion)
+        line, name = [], b["name"]
+        while name not in passes:
+            line.append(name)
+            name = bodies[pos[name]]["parent"]
+        for name in reversed(line):
+            parent = bodies[pos[name]]["parent"]
+            passes[name] = passes[parent] + (parent != "world" and pos[parent] > pos[name])
+    return sorted(bodies, key=lambda b: (passes[b["name"]], pos[b["name"]]))
+
+
 class Model:
     """Structure of a scene's equations of motion; `bind(params)` sets its numbers."""
 
@@ -74,12 +92,8 @@ class Model:
         self.spec = spec
         self.name = spec["name"]
         self.parameters = {p["name"]: p["value"] for p in spec["parameters"]}
-        order, placed = [], {"world": -1}
-        while len(order) < len(spec["bodies"]):  # parents first, otherwise file order
-            for b in spec["bodies"]:
-                if b["name"] not in placed and b["parent"] in placed:
-                    placed[b["name"]] = len(order)
-                    order.append(b)
+        order = _parents_first(spec["bodies"])
+        placed = {"world": -1, **{b["name"]: i for i, b in enumerate(order)}}
         self.bodies = [Body(b, placed[b["parent"]]) for b in order]
         self.index = {b.name: i for i, b in enumerate(self.bodies)}
         # y and ẏ in file order of the bodies (contract), each joint's free coordinates then elastic ones
