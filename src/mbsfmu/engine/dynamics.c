@@ -57,11 +57,12 @@ static void inertia_times(const double *restrict I, const double *restrict h, co
 /* Body i's spatial inertia about its origin in world axes (6 × 6) and its first moment h = m c. */
 static void spatial_inertia(const MbsEval *e, int i, const double *wk, double *I, double *h)
 {
-    const double *db = mbs_body_d(e, i), *S = wk + W_S, m = db[DB_M];
+    const MbsBodyD *bd = mbs_body_d(e, i);
+    const double *S = wk + W_S, m = bd->m;
     double c[3], SI[9];
-    mv(S, db + DB_C, c);
+    mv(S, bd->c, c);
     for (int r = 0; r < 3; r++) h[r] = m * c[r];
-    mm(S, db + DB_I, SI);
+    mm(S, bd->I, SI);
     const double cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
     for (int r = 0; r < 3; r++)
         for (int k = 0; k < 3; k++)  /* Ī_o = S Ī Sᵀ + m (c·c E − c cᵀ) */

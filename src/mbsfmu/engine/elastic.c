@@ -30,14 +30,20 @@ static int64_t block_size(int64_t n, int64_t N, int stiff)
            + (stiff ? 2 * n * n : 0) + N * (3 + 6 * n);
 }
 
-static const int32_t *row(const MbsModel *m, int e) { return m->elastic_i + EH + EI * e; }
+/* an elastic body's int row by name, checked against MBS_ELASTIC_I (one number per field) */
+typedef struct { int32_t body, n, nodes, q, qd, stiff, d; } ElasticRow;
+#define ELASTIC_FIELD(member, FIELD) MBS_VIEW_CHECK(elastic_##member, offsetof(ElasticRow, member) == sizeof(int32_t) * FIELD)
+ELASTIC_FIELD(body, EI_BODY); ELASTIC_FIELD(n, EI_N); ELASTIC_FIELD(nodes, EI_NODES); ELASTIC_FIELD(q, EI_Q);
+ELASTIC_FIELD(qd, EI_QD); ELASTIC_FIELD(stiff, EI_STIFF); ELASTIC_FIELD(d, EI_D);
+MBS_VIEW_CHECK(elastic_size, sizeof(ElasticRow) == sizeof(int32_t) * EI);
+static const ElasticRow *row(const MbsModel *m, int e) { return (const ElasticRow *)(m->elastic_i + EH + EI * e); }
 
 static Inv inv_of(const MbsModel *m, int e)
 {
-    const int32_t *r = row(m, e);
-    const int n = r[EI_N];
-    const double *p = m->elastic_d + r[EI_D];
-    Inv v = {.n = n, .nodes = r[EI_NODES], .q0 = r[EI_Q], .qd0 = r[EI_QD], .stiff = r[EI_STIFF]};
+    const ElasticRow *r = row(m, e);
+    const int n = r->n;
+    const double *p = m->elastic_d + r->d;
+    Inv v = {.n = n, .nodes = r->nodes, .q0 = r->q, .qd0 = r->qd, .stiff = r->stiff};
     v.m = p;          p += 1;
     v.S0 = p;         p += 3;
     v.S_RR = p;       p += 9;
@@ -65,7 +71,7 @@ static const double *node_Psi(const Inv *v, int P) { return node_R(v, P) + 3 + 3
 static int max_modes(const MbsModel *m)
 {
     int nmax = 0;
-    for (int e = 0; e < m->elastic_i[EH_NE]; e++) if (row(m, e)[EI_N] > nmax) nmax = row(m, e)[EI_N];
+    for (int e = 0; e < m->elastic_i[EH_NE]; e++) if (row(m, e)->n > nmax) nmax = row(m, e)->n;
     return nmax;
 }
 
@@ -99,12 +105,12 @@ void mbs_elastic_kinematics(const MbsEval *e, int body)
 {
     const MbsModel *m = e->m;
     const int el = mbs_body_i(m, body)->elastic;
-    const int32_t *r = row(m, el);
+    const ElasticRow *r = row(m, el);
     double *wk = body_work(e, body), *cols = (double *)e->elastic_work + 2 * el;
     cols[0] = wk[W_LO];  /* the reference frame's own columns, for J_z */
     cols[1] = wk[W_HI];
-    if (r[EI_QD] < wk[W_LO]) wk[W_LO] = r[EI_QD];
-    if (r[EI_QD] + r[EI_N] > wk[W_HI]) wk[W_HI] = r[EI_QD] + r[EI_N];
+    if (r->qd < wk[W_LO]) wk[W_LO] = r->qd;
+    if (r->qd + r->n > wk[W_HI]) wk[W_HI] = r->qd + r->n;
 }
 
 /* Node P of elastic body i: ρ = S (R_RP + Φ_P q) (world), its elastic velocity u = S Φ_P q̇, and the node's
@@ -204,7 +210,7 @@ void mbs_elastic_node_frame(const MbsEval *e, int child, double *S_P, double *r,
 static void body_equations(const MbsEval *e, int el)
 {
     const MbsModel *m = e->m;
-    const int f = NVEL(m), body = row(m, el)[EI_BODY];
+    const int f = NVEL(m), body = row(m, el)->body;
     const Inv in = inv_of(m, el);
     const int n = in.n;
     const double *wk = body_work(e, body), *S = wk + W_S, *JR = wk + W_J, *JT = JR + 3 * f;
@@ -368,22 +374,22 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
         FAIL("corrupt elastic section (counts)");
     int64_t off = 0;
     for (int el = 0; el < ne; el++) {
-        const int32_t *r = row(m, el);
-        const int b = r[EI_BODY], n = r[EI_N], N = r[EI_NODES];
+        const ElasticRow *r = row(m, el);
+        const int b = r->body, n = r->n, N = r->nodes;
         if (!in_range(b, 0, nb) || mbs_body_i(m, b)->elastic != el || !in_range(n, 1, MAX_MODES + 1) ||
-            N < 1 || !in_range(r[EI_STIFF], 0, 2) || r[EI_D] != off ||
-            !in_range(r[EI_Q], 0, NPOS(m)) || r[EI_Q] + n > NPOS(m) || !in_range(r[EI_QD], 0, NVEL(m)) ||
-            r[EI_QD] + n > NVEL(m) || N > m->n_elastic_d)
+            N < 1 || !in_range(r->stiff, 0, 2) || r->d != off ||
+            !in_range(r->q, 0, NPOS(m)) || r->q + n > NPOS(m) || !in_range(r->qd, 0, NVEL(m)) ||
+            r->qd + n > NVEL(m) || N > m->n_elastic_d)
             FAIL("corrupt elastic section (row %d for body %d: the body must name this row back; modes 1..%d, nodes >= 1, "
                  "coordinates and data inside their tables)", el, b, MAX_MODES);
-        off += block_size(n, N, r[EI_STIFF]);
+        off += block_size(n, N, r->stiff);
         if (off > m->n_elastic_d) FAIL("corrupt elastic section (data of body %d)", el);
     }
     if (off + nfix != m->n_elastic_d) FAIL("corrupt elastic section (data length)");
     /* and back: a body names the row that names it (or none), so rows and elastic bodies pair one to one */
     for (int i = 0; i < nb; i++) {
         const int el = mbs_body_i(m, i)->elastic;
-        if (el >= 0 && (el >= ne || row(m, el)[EI_BODY] != i))
+        if (el >= 0 && (el >= ne || row(m, el)->body != i))
             FAIL("corrupt body table (body %d names elastic data %d; the scene has %d, and that one belongs to another body)", i, el, ne);
     }
     const int32_t *fix = I + EH + EI * ne;  /* structural parameters */
@@ -393,7 +399,7 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
         const MbsBodyI *bi = mbs_body_i(m, i);
         if (bi->node < 0) continue;
         int p = bi->parent, el = p >= 0 ? mbs_body_i(m, p)->elastic : -1;
-        if (el < 0 || bi->node >= row(m, el)[EI_NODES]) FAIL("corrupt body table (node of body %d)", i);
+        if (el < 0 || bi->node >= row(m, el)->nodes) FAIL("corrupt body table (node of body %d)", i);
     }
     for (int k = 0; k < m->hdr[H_NFORCE]; k++) {
         const MbsForceI *fi = mbs_force_i(m, k);
@@ -402,14 +408,14 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
             if (node < 0) continue;
             if (fi->type == FE_JOINT_SPRING || (end && fi->type != FE_SPRING)) FAIL("corrupt force table (node of element %d)", k);
             int el = b >= 0 ? mbs_body_i(m, b)->elastic : -1;
-            if (el < 0 || node >= row(m, el)[EI_NODES]) FAIL("corrupt force table (node of element %d)", k);
+            if (el < 0 || node >= row(m, el)->nodes) FAIL("corrupt force table (node of element %d)", k);
         }
     }
     for (int o = 0; o < m->hdr[H_NOUT]; o++) {
         int b = m->out[3 * o], node = m->out[3 * o + 1];
         if (node < 0) continue;
         int el = mbs_body_i(m, b)->elastic;
-        if (el < 0 || node >= row(m, el)[EI_NODES]) FAIL("corrupt output table (node of output %d)", o);
+        if (el < 0 || node >= row(m, el)->nodes) FAIL("corrupt output table (node of output %d)", o);
     }
     return 0;
 }

@@ -64,6 +64,31 @@ MBS_FORCE_FIELD(src, IF_SRC); MBS_FORCE_FIELD(node_a, IF_NODE_A); MBS_FORCE_FIEL
 MBS_VIEW_CHECK(force_size, sizeof(MbsForceI) == sizeof(int32_t) * IF);
 static inline const MbsForceI *mbs_force_i(const MbsModel *m, int k) { return (const MbsForceI *)(m->iforce + (size_t)k * IF); }
 
+/* A body's and a force element's double rows of D by name, checked the same way against MBS_BODY_D and
+ * MBS_FORCE_D (the bind programs write them as numbers of D; the engine reads fields) */
+typedef struct {
+    double a1[3], a2[3], at[3], R0[9], m, c[3], I[9];     /* derived: used per step */
+    double a1_raw[3], a2_raw[3], rot_raw[9], irot_raw[9];  /* raw: written by the bind programs */
+} MbsBodyD;
+#define MBS_DOUBLE_FIELD(T, member, FIELD) \
+    MBS_VIEW_CHECK(T##_##member, offsetof(T, member) == sizeof(double) * FIELD && \
+                   sizeof(((T *)0)->member) == sizeof(double) * (FIELD##_END_ + 1 - FIELD))
+MBS_DOUBLE_FIELD(MbsBodyD, a1, DB_A1); MBS_DOUBLE_FIELD(MbsBodyD, a2, DB_A2); MBS_DOUBLE_FIELD(MbsBodyD, at, DB_AT);
+MBS_DOUBLE_FIELD(MbsBodyD, R0, DB_R0); MBS_DOUBLE_FIELD(MbsBodyD, m, DB_M); MBS_DOUBLE_FIELD(MbsBodyD, c, DB_C);
+MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I); MBS_DOUBLE_FIELD(MbsBodyD, a1_raw, DB_A1_RAW);
+MBS_DOUBLE_FIELD(MbsBodyD, a2_raw, DB_A2_RAW); MBS_DOUBLE_FIELD(MbsBodyD, rot_raw, DB_ROT_RAW);
+MBS_DOUBLE_FIELD(MbsBodyD, irot_raw, DB_IROT_RAW);
+MBS_VIEW_CHECK(bodyd_size, sizeof(MbsBodyD) == sizeof(double) * DB);
+typedef struct {
+    double k, d, l, at_a[3], at_b[3], vec[3];  /* see MBS_FORCE_D */
+} MbsForceD;
+MBS_DOUBLE_FIELD(MbsForceD, k, DF_K); MBS_DOUBLE_FIELD(MbsForceD, d, DF_D); MBS_DOUBLE_FIELD(MbsForceD, l, DF_L);
+MBS_DOUBLE_FIELD(MbsForceD, at_a, DF_AT_A); MBS_DOUBLE_FIELD(MbsForceD, at_b, DF_AT_B);
+MBS_DOUBLE_FIELD(MbsForceD, vec, DF_VEC);
+MBS_VIEW_CHECK(forced_size, sizeof(MbsForceD) == sizeof(double) * DF);
+static inline const MbsBodyD *mbs_body_row(const MbsModel *m, const double *D, int i) { return (const MbsBodyD *)(D + m->hdr[H_D_BODY] + (size_t)i * DB); }
+static inline const MbsForceD *mbs_force_row(const MbsModel *m, const double *D, int k) { return (const MbsForceD *)(D + m->hdr[H_D_FORCE] + (size_t)k * DF); }
+
 #define NB(m) ((m)->hdr[H_NB])
 #define NPOS(m) ((m)->hdr[H_NPOS])
 #define NVEL(m) ((m)->hdr[H_NVEL])
@@ -121,7 +146,7 @@ static inline double mbs_work_doubles(const int32_t *hdr)
 static inline double *mbs_body_work(const MbsEval *e, int i) { return e->work + (size_t)i * e->m->stride; }
 
 /* model.c */
-const double *mbs_body_d(const MbsEval *e, int i);
+const MbsBodyD *mbs_body_d(const MbsEval *e, int i);
 const char *mbs_var_name_of(const MbsModel *m, int kind, int index); /* name of variable (MBS_V_*, index), "?" none */
 /* expr.c: run the programs of one stage (0 bind: targets in D; 1 time: targets in td). NaN/Inf results
  * are left in place: callers check. */

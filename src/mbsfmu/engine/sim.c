@@ -184,8 +184,8 @@ static void mark_carried(MbsInstance *s)
 {
     const MbsModel *m = s->m;
     for (int i = 0; i < NB(m); i++) {
-        const double *db = s->D + m->hdr[H_D_BODY] + (size_t)i * DB;
-        s->carries[i] = mbs_body_i(m, i)->elastic >= 0 || db[DB_M] > 0 || db[DB_I] > 0 || db[DB_I + 4] > 0 || db[DB_I + 8] > 0;
+        const MbsBodyD *bd = mbs_body_row(m, s->D, i);
+        s->carries[i] = mbs_body_i(m, i)->elastic >= 0 || bd->m > 0 || bd->I[0] > 0 || bd->I[4] > 0 || bd->I[8] > 0;
     }
     for (int i = NB(m) - 1; i > 0; i--) {
         const int p = mbs_body_i(m, i)->parent;

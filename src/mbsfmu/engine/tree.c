@@ -51,10 +51,10 @@ static void cardan(const double *p, const double *v, double *R, double *H, doubl
 
 static void zero3(double *a) { a[0] = a[1] = a[2] = 0.0; }
 
-static void joint_motion(int type, int nv, const double *db, const double *p, const double *v,
+static void joint_motion(int type, int nv, const MbsBodyD *bd, const double *p, const double *v,
                          double *R, double *d, double *H_R, double *H_T, double *b_R, double *b_T)
 {
-    const double *a = db + DB_A1, *a2 = db + DB_A2;
+    const double *a = bd->a1, *a2 = bd->a2;
     static const double E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(R, E, sizeof E);
     /* three at a time, only the joint's columns: a memset of these small arrays compiles to `rep stos`,
@@ -127,7 +127,7 @@ static double *body_work(const MbsEval *e, int i) { return mbs_body_work(e, i); 
 static int col_lo(const double *wk) { return (int)wk[W_LO]; }
 static int col_hi(const double *wk) { return (int)wk[W_HI]; }
 
-const double *mbs_body_d(const MbsEval *e, int i) { return e->D + e->m->hdr[H_D_BODY] + (size_t)i * DB; }
+const MbsBodyD *mbs_body_d(const MbsEval *e, int i) { return mbs_body_row(e->m, e->D, i); }
 
 /* Joint frame of body i's parent side: S_p, o_p, ω_p, v_p, ā_p, ᾱ_p, J_Rp, J_Tp, the offset ρ and S_J
  * (tree.py: attachment). On the dense path J_R, J_T of the body start as the parent's; [lo, hi) their nonzero
@@ -140,12 +140,12 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
     const MbsModel *m = e->m;
     const MbsBodyI *bi = mbs_body_i(m, i);
     const int f = NVEL(m), par = bi->parent;
-    const double *db = mbs_body_d(e, i);
+    const MbsBodyD *bd = mbs_body_d(e, i);
     if (par < 0) {
         *o_p = *w_p = *v_p = *a_p = *al_p = Z;
         if (m->dense) memset(J_R, 0, 6 * (size_t)f * sizeof(double));
-        memcpy(S_J, db + DB_R0, 9 * sizeof(double));
-        memcpy(rho, db + DB_AT, 3 * sizeof(double));
+        memcpy(S_J, bd->R0, 9 * sizeof(double));
+        memcpy(rho, bd->at, 3 * sizeof(double));
         *lo = f;
         *hi = 0;
         return;
@@ -158,7 +158,7 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
         double S_P[9], *nb_ = node_buf;
         mbs_elastic_node_frame(e, i, S_P, nb_, nb_ + 3, nb_ + 6, nb_ + 9, nb_ + 12, J_R, J_R + 3 * f);
         *o_p = nb_; *w_p = nb_ + 3; *v_p = nb_ + 6; *a_p = nb_ + 9; *al_p = nb_ + 12;
-        mm(S_P, db + DB_R0, S_J);
+        mm(S_P, bd->R0, S_J);
         memset(rho, 0, 3 * sizeof(double));
         *lo = (int)pw[W_LO];   /* the parent's columns, widened to its elastic coordinates */
         *hi = (int)pw[W_HI];
@@ -170,8 +170,8 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
     const double *S_p = pw + W_S;
     *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
     if (m->dense) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
-    mm(S_p, db + DB_R0, S_J);
-    mv(S_p, db + DB_AT, rho);
+    mm(S_p, bd->R0, S_J);
+    mv(S_p, bd->at, rho);
 }
 
 /* The free columns of body i's joint as spatial motions at its origin (dynamics.c): (h_R, h_T), world axes. */
@@ -196,7 +196,7 @@ void mbs_kinematics(const MbsEval *e)
     const double *y = e->x, *yd = e->x + NPOS(m);
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
-        const double *db = mbs_body_d(e, i);
+        const MbsBodyD *bd = mbs_body_d(e, i);
         double *wk = body_work(e, i);
         double *J_R = wk + W_J, *J_T = J_R + 3 * f;
         const int nv = bi->nvel, np = bi->npos;
@@ -214,7 +214,7 @@ void mbs_kinematics(const MbsEval *e)
             if (vi >= 0) v[k] = yd[vi];
             else { v[k] = e->td[3 * s + 1]; acc[k] = e->td[3 * s + 2]; }
         }
-        joint_motion(bi->jtype, nv, db, p, v, R, d, H_R, H_T, b_R, b_T);
+        joint_motion(bi->jtype, nv, bd, p, v, R, d, H_R, H_T, b_R, b_T);
         double w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0}, dd[3], w_rel[3], v_rel[3], wxr[3];
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 3; r++) {
@@ -324,18 +324,19 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
         if (!bi->massive) continue;
-        const double *db = mbs_body_d(e, i), *wk = body_work(e, i), *J_R = wk + W_J, *S = wk + W_S;
-        const double *w = wk + W_W, *al = wk + W_AL, mass = db[DB_M];
+        const MbsBodyD *bd = mbs_body_d(e, i);
+        const double *wk = body_work(e, i), *J_R = wk + W_J, *S = wk + W_S;
+        const double *w = wk + W_W, *al = wk + W_AL, mass = bd->m;
         double xc[3], vc[3], c[3], wxc[3], axc[3], wwxc[3], a_c[3];
-        mbs_point(e, i, db + DB_C, xc, vc, J);  /* J_T of the centre of mass */
-        mv(S, db + DB_C, c);
+        mbs_point(e, i, bd->c, xc, vc, J);  /* J_T of the centre of mass */
+        mv(S, bd->c, c);
         cross(w, c, wxc);
         cross(al, c, axc);
         cross(w, wxc, wwxc);
         for (int r = 0; r < 3; r++) a_c[r] = wk[W_A + r] + axc[r] + wwxc[r];
         /* I_w = S I Sᵀ: world-frame inertia about the centre of mass */
         double SI[9], I_w[9], Iw_w[3], Iw_al[3], gyr[3];
-        mm(S, db + DB_I, SI);
+        mm(S, bd->I, SI);
         for (int r = 0; r < 3; r++)
             for (int cc = 0; cc < 3; cc++) I_w[3 * r + cc] = SI[3 * r] * S[3 * cc] + SI[3 * r + 1] * S[3 * cc + 1] + SI[3 * r + 2] * S[3 * cc + 2];
         mv(I_w, w, Iw_w);
@@ -346,7 +347,7 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
              * order (seed 004), and then this differs from ω × I_w ω */
             double wb[3], Iwb[3], g_b[3];
             for (int r = 0; r < 3; r++) wb[r] = S[r] * w[0] + S[3 + r] * w[1] + S[6 + r] * w[2];
-            mv(db + DB_I, wb, Iwb);
+            mv(bd->I, wb, Iwb);
             cross(wb, Iwb, g_b);
             mv(S, g_b, gyr);
         } else
@@ -402,28 +403,28 @@ void mbs_applied_forces(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
-    const double *y = e->x, *yd = e->x + NPOS(m), *dforce = e->D + m->hdr[H_D_FORCE];
+    const double *y = e->x, *yd = e->x + NPOS(m);
     double *q = e->q, *Ja = NULL, *Jb = NULL;
     if (m->dense) { Ja = e->work + (size_t)NB(m) * W_SIZE(f); Jb = Ja + 3 * f; }
     if (e->q_in) for (int c = 0; c < f; c++) q[c] += e->q_in[c];
     for (int n = 0; n < m->hdr[H_NFORCE]; n++) {
         const MbsForceI *fi = mbs_force_i(m, n);
-        const double *fd = dforce + n * DF;
+        const MbsForceD *fd = mbs_force_row(m, e->D, n);
         switch (fi->type) {
         case FE_JOINT_SPRING: {
             int pi = fi->a, vi = fi->b;
-            q[vi] -= fd[DF_K] * (y[pi] - fd[DF_L]) + fd[DF_D] * yd[vi];
+            q[vi] -= fd->k * (y[pi] - fd->l) + fd->d * yd[vi];
             break;
         }
         case FE_SPRING: {
             double xa[3], va[3], xb[3], vb[3], dx[3], dv[3];
-            force_point(e, fi->a, fi->node_a, fd + DF_AT_A, xa, va, Ja);
-            force_point(e, fi->b, fi->node_b, fd + DF_AT_B, xb, vb, Jb);
+            force_point(e, fi->a, fi->node_a, fd->at_a, xa, va, Ja);
+            force_point(e, fi->b, fi->node_b, fd->at_b, xb, vb, Jb);
             for (int r = 0; r < 3; r++) { dx[r] = xb[r] - xa[r]; dv[r] = vb[r] - va[r]; }
             double l = sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
             if (l < 1e-12) break; /* direction undefined at zero length: no force rather than NaN */
             double e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
-            double mag = fd[DF_K] * (l - fd[DF_L]) + fd[DF_D] * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
+            double mag = fd->k * (l - fd->l) + fd->d * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
             double F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
             if (fi->a >= 0) apply(e, fi->a, Ja, xa, F, 1.0);
             if (fi->b >= 0) apply(e, fi->b, Jb, xb, F, -1.0);
@@ -432,7 +433,7 @@ void mbs_applied_forces(const MbsEval *e)
         case FE_FORCE:
         case FE_TORQUE: {
             int i = fi->a;
-            const double *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd + DF_VEC;
+            const double *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd->vec;
             double vec[3], xp[3], vp[3];
             if (src[0] == 0.0 && src[1] == 0.0 && src[2] == 0.0) break;
             if (fi->frame) mv(wk + W_S, src, vec);
@@ -443,7 +444,7 @@ void mbs_applied_forces(const MbsEval *e)
 #endif
                 apply(e, i, wk + W_J, NULL, vec, 1.0);
             } else {
-                force_point(e, i, fi->node_a, fd + DF_AT_A, xp, vp, Ja);
+                force_point(e, i, fi->node_a, fd->at_a, xp, vp, Ja);
                 apply(e, i, Ja, xp, vec, 1.0);
             }
             break;
@@ -559,13 +560,13 @@ void mbs_derive(const MbsModel *m, double *D)
 {
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
-        double *db = D + m->hdr[H_D_BODY] + (size_t)i * DB;
+        MbsBodyD *bd = (MbsBodyD *)mbs_body_row(m, D, i);  /* mbs_derive writes the derived fields */
         int t = bi->jtype;
         if (t == J_REVOLUTE || t == J_PRISMATIC || t == J_CYLINDRICAL || t == J_UNIVERSAL || t == J_PLANAR)
-            unit(db + DB_A1_RAW, db + DB_A1);
+            unit(bd->a1_raw, bd->a1);
         if (t == J_UNIVERSAL || t == J_PLANAR)
-            unit(db + DB_A2_RAW, db + DB_A2);
-        rotation(bi->rot, db + DB_ROT_RAW, db + DB_R0);
+            unit(bd->a2_raw, bd->a2);
+        rotation(bi->rot, bd->rot_raw, bd->R0);
     }
 }
 
@@ -590,15 +591,15 @@ void mbs_initial_state(const MbsModel *m, const double *D, double *x0)
     memcpy(x0, D + m->hdr[H_D_X0], (size_t)n * sizeof(double));
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
-        const double *db = D + m->hdr[H_D_BODY] + (size_t)i * DB;
+        const MbsBodyD *bd = mbs_body_row(m, D, i);
         int t = bi->jtype, off = (t == J_FREE_QUAT || t == J_FREE_CARDAN) ? 3 : 0;
         double S[9], p[4];
         if (t == J_SPH_QUAT || t == J_FREE_QUAT) {
-            rotation(bi->irot, db + DB_IROT_RAW, S);
+            rotation(bi->irot, bd->irot_raw, S);
             matrix_to_quat(S, p);
             for (int k = 0; k < 4; k++) if (bi->pos[off + k] >= 0) x0[bi->pos[off + k]] = p[k];
         } else if ((t == J_SPH_CARDAN || t == J_FREE_CARDAN) && bi->irot) {
-            rotation(bi->irot, db + DB_IROT_RAW, S);
+            rotation(bi->irot, bd->irot_raw, S);
             double s02 = S[2] < -1.0 ? -1.0 : S[2] > 1.0 ? 1.0 : S[2];
             double ang[3] = {atan2(-S[5], S[8]), asin(s02), atan2(-S[1], S[0])};
             for (int k = 0; k < 3; k++) {
