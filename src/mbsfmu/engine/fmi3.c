@@ -6,7 +6,7 @@
  * the logging switches. The compiled scene is read from <resourcePath>scene.bin at instantiation. What does not
  * depend on the FMI version is shared with fmi2.c: the phases, the "allowed in" check and the registries of live
  * instances and FMU states (fmi2_guard.c), the logging switches, loading the scene and FMU state bytes
- * (fmi_common.c).
+ * (fmi_common.c) and the bodies of the calls (fmi_core.c: this file converts arguments and checks phases).
  *
  * Variables: the engine's variable table by value reference, Float64 and String scalars only, plus the
  * independent variable `time` after the table's last row (value reference = its row count, as the
@@ -25,7 +25,7 @@
 #include <string.h>
 
 #include "fmi3Functions.h"
-#include "fmi_common.h"
+#include "fmi_core.h"
 #include "fmu_files.h"
 #include "mbs_engine.h"
 
@@ -33,20 +33,13 @@
 #define P_SET (P_INSTANTIATED | P_INIT | P_RUNNING)                /* inputs and parameters may be set */
 #define P_STATES (I_ME | P_EVENT | P_CONT | P_TERMINATED | P_ERROR) /* model exchange: the host's states exist */
 
+/* the version-independent part first (fmi_core.h: the core functions take it) */
 typedef struct {
-    MbsModel *model;
-    MbsInstance *sim;
+    MbsFmiHead h;
     fmi3InstanceEnvironment env;
     fmi3LogMessageCallback log;
-    char *name;
-    int iface;                 /* I_CS or I_ME */
-    int phase;
-    MbsLogSwitches log_switches;
-    int logged;                /* the engine logged during the current call */
-    double t_start;
-    long refused_vr;           /* a setting refused before initialization (-1: none): its message fails */
-    char refused[256];         /* fmi3ExitInitializationMode */
 } Fmu;
+MBS_FMI_SAME_STATUS(fmi3_status_is_core_status, fmi3OK, fmi3Warning, fmi3Discard, fmi3Error, fmi3Fatal);
 
 /* the live instances and FMU states (MbsFmuState, fmi_common.h) this library handed out (fmi2_guard.h) */
 static MbsRegistry instances, states;
@@ -57,79 +50,36 @@ static void emit(fmi3LogMessageCallback log, fmi3InstanceEnvironment env, fmi3St
         log(env, st, mbs_fmi_category[st <= fmi3Fatal ? st : 0], msg);
 }
 
-static void logf_(Fmu *f, fmi3Status st, const char *fmt, ...) {
-    char buf[1024];
-    va_list ap;
-    if (!mbs_log_wanted(&f->log_switches, (int)st))
-        return;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    emit(f->log, f->env, st, buf);
+static void emit_head(const MbsFmiHead *h, int st, const char *category, const char *msg) {
+    ((const Fmu *)h)->log(((const Fmu *)h)->env, (fmi3Status)st, category, msg);
 }
 
-static void engine_log(void *env, int status, const char *message) {
-    Fmu *f = (Fmu *)env;
-    f->logged = 1;
-    logf_(f, (fmi3Status)(status >= MBS_OK && status <= MBS_ERROR ? status : MBS_ERROR), "%s", message);
-}
-
-/* An engine return code as fmi3Status; the engine's message is logged unless the engine already did. */
-static fmi3Status engine_status(Fmu *f, int rc, const char *what) {
-    if (rc < MBS_OK || rc > MBS_ERROR)
-        rc = MBS_ERROR;
-    if (rc != MBS_OK && !f->logged)
-        logf_(f, (fmi3Status)rc, "%s: %s", what, mbs_message(f->sim));
-    return (fmi3Status)rc;
-}
-
+#define engine_status(f, rc, what) ((fmi3Status)mbs_fmi_status((f), (rc), (what)))
+#define CORE(call) return (fmi3Status)(call)
 /* The call `fn` is allowed in the phases `mask`: otherwise fmi3Error with a message, nothing changes. */
-static int allowed(Fmu *f, int mask, const char *fn) {
-    char why[256];
-    if (!mbs_reg_find(&instances, f)) {  /* no logger known: stderr */
-        fprintf(stderr, "mbsfmu: %s: %s\n", fn,
-                f ? "not a live instance of this FMU (freed, or another FMU's)" : "NULL instance");
-        return 0;
-    }
-    f->logged = 0;
-    if (!mbs_phase_refuses(mask, f->phase, f->iface, fn, why, sizeof why))
-        return 1;
-    logf_(f, fmi3Error, "%s", why);
-    return 0;
-}
-#define CHECK(mask, fn) Fmu *f = (Fmu *)instance; if (!allowed(f, (mask), (fn))) return fmi3Error
-
-static int bad_array(Fmu *f, const void *a, const void *b, size_t n, const char *fn) {
-    if (n == 0 || (a && b))
-        return 0;
-    logf_(f, fmi3Error, "%s: NULL array for %lu values", fn, (unsigned long)n);
-    return 1;
-}
+#define CHECK(mask, fn)                                                                                       \
+    MbsFmiHead *f = (MbsFmiHead *)instance;                                                                   \
+    if (!mbs_fmi_allowed(&instances, f, (mask), (fn), "NULL instance"))                                       \
+        return fmi3Error
 
 /* Scalars only: as many values as value references. */
-static int bad_count(Fmu *f, size_t nvr, size_t nvalues, const char *fn) {
+static int bad_count(MbsFmiHead *f, size_t nvr, size_t nvalues, const char *fn) {
     if (nvr == nvalues)
         return 0;
-    logf_(f, fmi3Error, "%s: %lu values for %lu value references (this FMU's variables are scalars)", fn,
+    mbs_fmi_logf(f, fmi3Error, "%s: %lu values for %lu value references (this FMU's variables are scalars)", fn,
           (unsigned long)nvalues, (unsigned long)nvr);
     return 1;
 }
 
-static int nstates(const Fmu *f) { return mbs_model_npos(f->model) + mbs_model_nvel(f->model); }
-static fmi3ValueReference time_vr(const Fmu *f) { return (fmi3ValueReference)mbs_model_nvars(f->model); }
+static fmi3ValueReference time_vr(const MbsFmiHead *f) { return (fmi3ValueReference)mbs_model_nvars(f->model); }
 
 /* ---- common functions ---- */
 const char *fmi3GetVersion(void) { return fmi3Version; }
 
 fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
                                const fmi3String categories[]) {
-    char err[256];
     CHECK(P_ANY, "fmi3SetDebugLogging");
-    if (mbs_log_set(&f->log_switches, loggingOn != fmi3False, nCategories, categories, err, sizeof err)) {
-        logf_(f, fmi3Error, "fmi3SetDebugLogging: %s", err);
-        return fmi3Error;
-    }
-    return fmi3OK;
+    CORE(mbs_fmi_set_debug_logging(f, loggingOn != fmi3False, nCategories, categories, "fmi3SetDebugLogging"));
 }
 
 /* <resourcePath>scene.bin: FMI 3.0 gives an absolute path ending in a separator (a file: URI, as FMI 2.0
@@ -184,31 +134,18 @@ static fmi3Instance instantiate(const char *fn, int iface, fmi3String instanceNa
         emit(log, env, fmi3Error, msg);
         return NULL;
     }
-    f = (Fmu *)calloc(1, sizeof *f);
-    if (f)
-        f->name = (char *)malloc(strlen(instanceName) + 1);
-    if (!f || !f->name) {
+    if (!(f = (Fmu *)mbs_fmi_alloc(sizeof *f, instanceName))) {
         snprintf(msg, sizeof msg, "%s: out of memory", fn);
         emit(log, env, fmi3Error, msg);
-        free(f);
         mbs_model_free(model);
         return NULL;
     }
-    strcpy(f->name, instanceName);
     f->env = env;
     f->log = log;
-    f->iface = iface;
-    f->model = model;
-    f->phase = P_INSTANTIATED;
-    f->refused_vr = -1;
-    mbs_log_init(&f->log_switches, loggingOn != fmi3False);
-    f->sim = mbs_instance_new(model, engine_log, f);
-    if (!f->sim || !mbs_reg_add(&instances, f)) {
-        mbs_instance_free(f->sim);
+    f->h.emit = emit_head;
+    if (!mbs_fmi_start(&f->h, &instances, &states, model, iface, loggingOn != fmi3False)) {
         snprintf(msg, sizeof msg, "%s: cannot create the engine instance (out of memory?)", fn);
         emit(log, env, fmi3Error, msg);
-        mbs_model_free(model);
-        free(f->name), free(f);
         return NULL;
     }
     return f;
@@ -253,53 +190,24 @@ fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3Stri
 }
 
 void fmi3FreeInstance(fmi3Instance instance) {
-    Fmu *f = (Fmu *)instance;
-    if (!mbs_reg_drop(&instances, f)) {  /* NULL, freed before, or not ours: nothing to free */
-        if (f)
-            fprintf(stderr, "mbsfmu: fmi3FreeInstance: not a live instance of this FMU (freed, or another FMU's)\n");
-        return;
-    }
-    mbs_fmu_states_free_owned(&states, f);  /* the states it handed out go with it */
-    mbs_instance_free(f->sim);
-    mbs_model_free(f->model);
-    free(f->name);
-    free(f);
+    mbs_fmi_free_instance(&instances, (MbsFmiHead *)instance, "fmi3FreeInstance");
 }
 
 /* ---- life cycle ---- */
 fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
                                        fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
+    fmi3Status st;
     CHECK(P_INSTANTIATED, "fmi3EnterInitializationMode");
-    /* The tolerance is the parameter integrator.rtol (as in FMI 2); the stop time is not needed: the
-     * integrator lands on every communication point. */
-    if (!isfinite(startTime) || (toleranceDefined && !(isfinite(tolerance) && tolerance > 0)) ||
-        (stopTimeDefined && !(isfinite(stopTime) && stopTime >= startTime))) {
-        logf_(f, fmi3Error, "fmi3EnterInitializationMode: need a finite start time, a tolerance > 0 and a finite "
-              "stop time >= start when defined (start %g, tolerance %g, stop %g)", startTime,
-              toleranceDefined ? tolerance : 0.0, stopTimeDefined ? stopTime : startTime);
-        return fmi3Error;
-    }
-    f->t_start = startTime;
-    f->phase = P_INIT;
-    return fmi3OK;
+    st = (fmi3Status)mbs_fmi_setup(f, toleranceDefined, tolerance, startTime, stopTimeDefined, stopTime,
+                                   "fmi3EnterInitializationMode");
+    if (st == fmi3OK)
+        f->phase = P_INIT;
+    return st;
 }
 
 fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
-    fmi3Status st;
     CHECK(P_INIT, "fmi3ExitInitializationMode");
-    if (f->refused_vr >= 0) {  /* the experiment the host asked for cannot run: no silent default */
-        logf_(f, fmi3Error, "fmi3ExitInitializationMode: value reference %ld was refused: %s", f->refused_vr,
-              f->refused);
-        f->phase = P_ERROR;
-        return fmi3Error;
-    }
-    st = engine_status(f, mbs_initialize(f->sim, f->t_start), "fmi3ExitInitializationMode");
-    if (st >= fmi3Discard) {
-        f->phase = P_ERROR;
-        return fmi3Error;
-    }
-    f->phase = f->iface == I_ME ? P_EVENT : P_STEP;  /* model exchange: event mode first (FMI 3.0, 3.1) */
-    return st;
+    CORE(mbs_fmi_exit_init(f, "fmi3ExitInitializationMode"));
 }
 
 fmi3Status fmi3Terminate(fmi3Instance instance) {
@@ -309,36 +217,17 @@ fmi3Status fmi3Terminate(fmi3Instance instance) {
 }
 
 fmi3Status fmi3Reset(fmi3Instance instance) {
-    fmi3Status st;
     CHECK(P_ANY, "fmi3Reset");
-    st = engine_status(f, mbs_reset(f->sim), "fmi3Reset");
-    f->phase = st >= fmi3Discard ? P_ERROR : P_INSTANTIATED;
-    f->t_start = 0.0;
-    f->refused_vr = -1;
-    return st >= fmi3Discard ? fmi3Error : st;
+    CORE(mbs_fmi_reset(f, "fmi3Reset"));
 }
 
 /* ---- variables ---- */
-/* Remember a refused setting before initialization (fmi3ExitInitializationMode fails); a later accepted
- * setting of the same variable clears it. */
-static fmi3Status setting(Fmu *f, int vr, int rc, const char *fn) {
-    fmi3Status st = engine_status(f, rc, fn);
-    if (f->phase & (P_INSTANTIATED | P_INIT)) {
-        if (st >= fmi3Error) {
-            f->refused_vr = vr;
-            snprintf(f->refused, sizeof f->refused, "%s", mbs_message(f->sim));
-        } else if (f->refused_vr == vr)
-            f->refused_vr = -1;
-    }
-    return st >= fmi3Error ? fmi3Error : st;
-}
-
 /* Runs of engine value references through mbs_get_reals, the independent variable from the instance. */
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           fmi3Float64 values[], size_t nValues) {
     size_t i, j;
     CHECK(P_ANY, "fmi3GetFloat64");
-    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3GetFloat64") ||
+    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3GetFloat64") ||
         bad_count(f, nValueReferences, nValues, "fmi3GetFloat64"))
         return fmi3Error;
     for (i = 0; i < nValueReferences; i = j + 1) {
@@ -355,79 +244,45 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
 /* All values at once (parameters that must change together: one call); on a refusal nothing is set. */
 fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           const fmi3Float64 values[], size_t nValues) {
-    size_t i, bad = 0;
-    int rc;
+    size_t i;
     CHECK(P_SET, "fmi3SetFloat64");
-    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3SetFloat64") ||
+    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3SetFloat64") ||
         bad_count(f, nValueReferences, nValues, "fmi3SetFloat64"))
         return fmi3Error;
     for (i = 0; i < nValueReferences; i++)
         if (valueReferences[i] >= time_vr(f)) {
-            logf_(f, fmi3Error, "fmi3SetFloat64: %s value reference %u", valueReferences[i] == time_vr(f) ?
+            mbs_fmi_logf(f, fmi3Error, "fmi3SetFloat64: %s value reference %u", valueReferences[i] == time_vr(f) ?
                   "the independent variable (time) cannot be set: fmi3SetTime or fmi3DoStep move it;" : "unknown",
                   valueReferences[i]);
             return fmi3Error;
         }
-    rc = mbs_set_reals(f->sim, valueReferences, nValueReferences, values, &bad);
-    if (rc != MBS_OK)
-        return setting(f, (int)valueReferences[bad < nValueReferences ? bad : 0], rc, "fmi3SetFloat64");
-    for (i = 0; i < nValueReferences; i++)
-        setting(f, (int)valueReferences[i], MBS_OK, "fmi3SetFloat64");
-    return fmi3OK;
+    CORE(mbs_fmi_set_reals(f, valueReferences, nValueReferences, values, "fmi3SetFloat64"));
 }
 
-static int vr_int(Fmu *f, fmi3ValueReference vr, const char *fn) {
-    if (vr < (fmi3ValueReference)mbs_model_nvars(f->model))
-        return (int)vr;
-    logf_(f, fmi3Error, "%s: value reference %u is not a String", fn, vr);
-    return -1;
-}
+#define UNKNOWN_VR "%s: value reference %u is not a String"  /* (fn, vr): mbs_fmi_vr */
 
 fmi3Status fmi3GetString(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                          fmi3String values[], size_t nValues) {
-    size_t i;
     CHECK(P_ANY, "fmi3GetString");
-    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3GetString") ||
+    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3GetString") ||
         bad_count(f, nValueReferences, nValues, "fmi3GetString"))
         return fmi3Error;
-    for (i = 0; i < nValueReferences; i++) {
-        int r = vr_int(f, valueReferences[i], "fmi3GetString");
-        if (r < 0)
-            return fmi3Error;
-        if (mbs_get_string(f->sim, r, &values[i]) != MBS_OK)
-            return engine_status(f, MBS_ERROR, "fmi3GetString");
-    }
-    return fmi3OK;
+    CORE(mbs_fmi_get_strings(f, valueReferences, nValueReferences, values, UNKNOWN_VR, "fmi3GetString"));
 }
 
 fmi3Status fmi3SetString(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                          const fmi3String values[], size_t nValues) {
-    size_t i;
     CHECK(P_SET, "fmi3SetString");
-    if (bad_array(f, valueReferences, values, nValueReferences, "fmi3SetString") ||
+    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3SetString") ||
         bad_count(f, nValueReferences, nValues, "fmi3SetString"))
         return fmi3Error;
-    for (i = 0; i < nValueReferences; i++) {
-        int r = vr_int(f, valueReferences[i], "fmi3SetString");
-        if (r < 0)
-            return fmi3Error;
-        if (!values[i]) {
-            logf_(f, fmi3Error, "fmi3SetString: NULL string for value reference %u", valueReferences[i]);
-            return fmi3Error;
-        }
-        if (setting(f, r, mbs_set_string(f->sim, r, values[i]), "fmi3SetString") >= fmi3Error)
-            return fmi3Error;
-    }
-    return fmi3OK;
+    CORE(mbs_fmi_set_strings(f, valueReferences, nValueReferences, values, UNKNOWN_VR, "fmi3SetString"));
 }
 
 /* The model has Float64 and String variables only. */
 static fmi3Status no_such_type(fmi3Instance instance, size_t nvr, const char *fn) {
     CHECK(P_ANY, fn);
-    if (nvr == 0)
-        return fmi3OK;
-    logf_(f, fmi3Error, "%s: this model has no variables of that type (Float64 and String only)", fn);
-    return fmi3Error;
+    CORE(mbs_fmi_no_such_type(f, nvr, " (Float64 and String only)", fn));
 }
 #define NO_SUCH_TYPE(GET, SET, T)                                                                                     \
     fmi3Status GET(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, T values[], size_t nValues) {   \
@@ -472,7 +327,7 @@ fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference vr[], si
 /* ---- what this FMU does not provide: fmi3Error with a message ---- */
 static fmi3Status not_provided(fmi3Instance instance, const char *fn, const char *why) {
     CHECK(P_ANY | P_FATAL, fn);
-    logf_(f, fmi3Error, "%s: not provided (%s)", fn, why);
+    mbs_fmi_logf(f, fmi3Error, "%s: not provided (%s)", fn, why);
     return fmi3Error;
 }
 #define NOT_PROVIDED(fn, why) return not_provided(instance, #fn, why)
@@ -569,137 +424,43 @@ fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueRefere
 }
 
 /* ---- FMU state: the engine's byte layout, in memory and serialized (fmi_common.c) ---- */
-/* A state handed out by any live instance of this FMU (same model: it restores into any of them). */
-static MbsFmuState *state_of(Fmu *f, fmi3FMUState s, const char *fn) {
-    if (mbs_reg_find(&states, s))
-        return (MbsFmuState *)s;
-    logf_(f, fmi3Error, "%s: not an FMU state of this FMU's live instances (never handed out, or freed)", fn);
-    return NULL;
-}
-
 fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
-    MbsFmuState *st;
     CHECK(P_ANY, "fmi3GetFMUState");
-    if (!FMUState) {
-        logf_(f, fmi3Error, "fmi3GetFMUState: NULL pointer");
-        return fmi3Error;
-    }
-    st = (MbsFmuState *)*FMUState;
-    if (st && !state_of(f, st, "fmi3GetFMUState"))
-        return fmi3Error;
-    if (!(st = mbs_fmu_state_sized(&states, st, f, mbs_state_size(f->sim)))) {
-        logf_(f, fmi3Error, "fmi3GetFMUState: out of memory");
-        return fmi3Error;
-    }
-    *FMUState = st;
-    return engine_status(f, mbs_state_save(f->sim, st->bytes, st->len), "fmi3GetFMUState");
+    CORE(mbs_fmi_get_state(f, FMUState, "fmi3GetFMUState"));
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance instance, fmi3FMUState FMUState) {
-    MbsFmuState *st;
     CHECK(P_ANY, "fmi3SetFMUState");
-    if (!(st = state_of(f, FMUState, "fmi3SetFMUState")))
-        return fmi3Error;
-    if (mbs_state_load(f->sim, st->bytes, st->len) != MBS_OK) {
-        engine_status(f, MBS_ERROR, "fmi3SetFMUState (instance unchanged)");
-        return fmi3Error;
-    }
-    if (!mbs_initialized(f->sim))  /* a state from before initialization: initialize again */
-        f->phase = P_INSTANTIATED;
-    else if (f->iface == I_CS)
-        f->phase = P_STEP;
-    else if (!(f->phase & (P_EVENT | P_CONT)))
-        f->phase = P_EVENT;
-    return fmi3OK;
+    CORE(mbs_fmi_set_state(f, FMUState, "fmi3SetFMUState"));
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
-    MbsFmuState *st;
     CHECK(P_ANY, "fmi3FreeFMUState");
-    if (!FMUState) {
-        logf_(f, fmi3Error, "fmi3FreeFMUState: NULL state pointer");
-        return fmi3Error;
-    }
-    if (!*FMUState)
-        return fmi3OK;  /* freeing NULL is a no-op */
-    if (!(st = state_of(f, *FMUState, "fmi3FreeFMUState")))
-        return fmi3Error;
-    if (mbs_reg_drop(&states, st))
-        free(st);
-    *FMUState = NULL;
-    return fmi3OK;
+    CORE(mbs_fmi_free_state(f, FMUState, "fmi3FreeFMUState"));
 }
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance instance, fmi3FMUState FMUState, size_t *size) {
-    MbsFmuState *st;
     CHECK(P_ANY, "fmi3SerializedFMUStateSize");
-    if (!(st = state_of(f, FMUState, "fmi3SerializedFMUStateSize")))
-        return fmi3Error;
-    if (!size) {
-        logf_(f, fmi3Error, "fmi3SerializedFMUStateSize: NULL size pointer");
-        return fmi3Error;
-    }
-    *size = st->len;
-    return fmi3OK;
+    CORE(mbs_fmi_state_size(f, FMUState, size, "fmi3SerializedFMUStateSize"));
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance instance, fmi3FMUState FMUState, fmi3Byte serializedState[],
                                  size_t size) {
-    MbsFmuState *st;
     CHECK(P_ANY, "fmi3SerializeFMUState");
-    if (!(st = state_of(f, FMUState, "fmi3SerializeFMUState")))
-        return fmi3Error;
-    if (!serializedState) {
-        logf_(f, fmi3Error, "fmi3SerializeFMUState: NULL buffer");
-        return fmi3Error;
-    }
-    if (size < st->len) {
-        logf_(f, fmi3Error, "fmi3SerializeFMUState: buffer of %lu bytes for a state of %lu",
-              (unsigned long)size, (unsigned long)st->len);
-        return fmi3Error;
-    }
-    memcpy(serializedState, st->bytes, st->len);
-    return fmi3OK;
+    CORE(mbs_fmi_serialize(f, FMUState, serializedState, size, "fmi3SerializeFMUState"));
 }
 
-/* Only bytes that load into this instance (mbs_fmu_state_check: its own state restored afterwards) are
- * copied into a new state. */
 fmi3Status fmi3DeserializeFMUState(fmi3Instance instance, const fmi3Byte serializedState[], size_t size,
                                    fmi3FMUState *FMUState) {
-    MbsFmuState *st;
-    int rc;
     CHECK(P_ANY, "fmi3DeserializeFMUState");
-    if (!FMUState || !serializedState) {
-        logf_(f, fmi3Error, "fmi3DeserializeFMUState: NULL pointer");
-        return fmi3Error;
-    }
-    rc = mbs_fmu_state_check(f->sim, serializedState, size);
-    if (rc == -1) {
-        f->phase = P_FATAL;
-        logf_(f, fmi3Fatal, "fmi3DeserializeFMUState: the instance's own state did not load back: %s",
-              mbs_message(f->sim));
-        return fmi3Fatal;
-    }
-    if (rc != MBS_OK) {
-        if (rc == -2)
-            logf_(f, fmi3Error, "fmi3DeserializeFMUState: out of memory");
-        else
-            engine_status(f, MBS_ERROR, "fmi3DeserializeFMUState");
-        return fmi3Error;
-    }
-    if (!(st = mbs_fmu_state_copy(&states, f, serializedState, size))) {
-        logf_(f, fmi3Error, "fmi3DeserializeFMUState: out of memory");
-        return fmi3Error;
-    }
-    *FMUState = st;  /* an output argument: whatever it held is not ours to free */
-    return fmi3OK;
+    CORE(mbs_fmi_deserialize(f, serializedState, size, FMUState, "fmi3DeserializeFMUState"));
 }
 
 /* ---- co-simulation ---- */
-static int null_outputs(Fmu *f, const void *a, const void *b, const void *c, const void *d, const char *fn) {
+static int null_outputs(MbsFmiHead *f, const void *a, const void *b, const void *c, const void *d, const char *fn) {
     if (a && b && c && d)
         return 0;
-    logf_(f, fmi3Error, "%s: NULL output argument", fn);
+    mbs_fmi_logf(f, fmi3Error, "%s: NULL output argument", fn);
     return 1;
 }
 
@@ -711,12 +472,8 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     CHECK(I_CS | P_STEP, "fmi3DoStep");
     if (null_outputs(f, eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime, "fmi3DoStep"))
         return fmi3Error;
-    if (!isfinite(currentCommunicationPoint) || !isfinite(communicationStepSize) || communicationStepSize <= 0 ||
-        currentCommunicationPoint + communicationStepSize == currentCommunicationPoint) {
-        logf_(f, fmi3Error, "fmi3DoStep: bad step t=%g, h=%g (need finite t and h > 0 that advances t)",
-              currentCommunicationPoint, communicationStepSize);
+    if (mbs_fmi_bad_step(f, currentCommunicationPoint, communicationStepSize, "fmi3DoStep"))
         return fmi3Error;
-    }
     /* a refused or failed step leaves the instance at its last good point: the phase stays */
     st = engine_status(f, mbs_do_step(f->sim, currentCommunicationPoint, communicationStepSize), "fmi3DoStep");
     *eventHandlingNeeded = fmi3False;
@@ -767,23 +524,23 @@ fmi3Status fmi3CompletedIntegratorStep(fmi3Instance instance, fmi3Boolean noSetF
 
 fmi3Status fmi3SetTime(fmi3Instance instance, fmi3Float64 time) {
     CHECK(I_ME | P_EVENT | P_CONT, "fmi3SetTime");
-    return engine_status(f, mbs_set_time(f->sim, time), "fmi3SetTime") == fmi3OK ? fmi3OK : fmi3Error;
+    CORE(mbs_fmi_ok_or_error(f, mbs_set_time(f->sim, time), "fmi3SetTime"));
 }
 
 /* The host's array has exactly the model's length (fmi3GetNumberOfContinuousStates). */
-static int bad_states(Fmu *f, const void *x, size_t n, const char *fn) {
-    if (x && n == (size_t)nstates(f))
+static int bad_states(MbsFmiHead *f, const void *x, size_t n, const char *fn) {
+    if (x && n == mbs_fmi_nstates(f))
         return 0;
-    logf_(f, fmi3Error, "%s: %s %lu states, the model has %d", fn, x ? "" : "NULL array for", (unsigned long)n,
-          nstates(f));
+    mbs_fmi_logf(f, fmi3Error, "%s: %s %lu states, the model has %d", fn, x ? "" : "NULL array for",
+                 (unsigned long)n, (int)mbs_fmi_nstates(f));
     return 1;
 }
 
 fmi3Status fmi3SetContinuousStates(fmi3Instance instance, const fmi3Float64 continuousStates[],
                                    size_t nContinuousStates) {
     CHECK(I_ME | P_CONT, "fmi3SetContinuousStates");
-    return engine_status(f, mbs_set_state(f->sim, continuousStates, nContinuousStates), "fmi3SetContinuousStates")
-           == fmi3OK ? fmi3OK : fmi3Error;
+    CORE(mbs_fmi_ok_or_error(f, mbs_set_state(f->sim, continuousStates, nContinuousStates),
+                             "fmi3SetContinuousStates"));
 }
 
 fmi3Status fmi3GetContinuousStates(fmi3Instance instance, fmi3Float64 continuousStates[], size_t nContinuousStates) {
@@ -818,7 +575,7 @@ fmi3Status fmi3GetEventIndicators(fmi3Instance instance, fmi3Float64 eventIndica
     CHECK(I_ME | P_ANY, "fmi3GetEventIndicators");
     if (nEventIndicators == 0)
         return fmi3OK;
-    logf_(f, fmi3Error, "fmi3GetEventIndicators: %lu event indicators asked for, the model has none",
+    mbs_fmi_logf(f, fmi3Error, "fmi3GetEventIndicators: %lu event indicators asked for, the model has none",
           (unsigned long)nEventIndicators);
     return fmi3Error;
 }
@@ -835,6 +592,6 @@ fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance instance, size_t *nConti
     CHECK(I_ME | P_ANY, "fmi3GetNumberOfContinuousStates");
     if (null_outputs(f, nContinuousStates, f, f, f, "fmi3GetNumberOfContinuousStates"))
         return fmi3Error;
-    *nContinuousStates = (size_t)nstates(f);
+    *nContinuousStates = mbs_fmi_nstates(f);
     return fmi3OK;
 }
