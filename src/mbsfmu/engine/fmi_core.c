@@ -218,6 +218,14 @@ int mbs_fmi_no_such_type(MbsFmiHead *h, size_t nvr, const char *more, const char
     return MBS_FMI_ERROR;
 }
 
+/* A NULL argument p: 1 with the message "fn: what". */
+static int null_arg(MbsFmiHead *h, const void *p, const char *what, const char *fn) {
+    if (p)
+        return 0;
+    mbs_fmi_logf(h, MBS_FMI_ERROR, "%s: %s", fn, what);
+    return 1;
+}
+
 /* ---- FMU states: the engine's byte layout, in memory and serialized (fmi_common.c) ---- */
 /* A state handed out by any live instance of this FMU (same model: it restores into any of them). */
 static MbsFmuState *state_of(MbsFmiHead *h, void *s, const char *fn) {
@@ -230,10 +238,8 @@ static MbsFmuState *state_of(MbsFmiHead *h, void *s, const char *fn) {
 
 int mbs_fmi_get_state(MbsFmiHead *h, void **state, const char *fn) {
     MbsFmuState *st;
-    if (!state) {
-        mbs_fmi_logf(h, MBS_FMI_ERROR, "%s: NULL pointer", fn);
+    if (null_arg(h, state, "NULL pointer", fn))
         return MBS_FMI_ERROR;
-    }
     st = (MbsFmuState *)*state;
     if (st && !state_of(h, st, fn))
         return MBS_FMI_ERROR;
@@ -266,10 +272,8 @@ int mbs_fmi_set_state(MbsFmiHead *h, void *state, const char *fn) {
 
 int mbs_fmi_free_state(MbsFmiHead *h, void **state, const char *fn) {
     MbsFmuState *st;
-    if (!state) {
-        mbs_fmi_logf(h, MBS_FMI_ERROR, "%s: NULL state pointer", fn);
+    if (null_arg(h, state, "NULL state pointer", fn))
         return MBS_FMI_ERROR;
-    }
     if (!*state)
         return MBS_FMI_OK;  /* freeing NULL is a no-op */
     if (!(st = state_of(h, *state, fn)) || !mbs_reg_drop(h->states, st))
@@ -283,10 +287,8 @@ int mbs_fmi_state_size(MbsFmiHead *h, void *state, size_t *size, const char *fn)
     MbsFmuState *st;
     if (!(st = state_of(h, state, fn)))
         return MBS_FMI_ERROR;
-    if (!size) {
-        mbs_fmi_logf(h, MBS_FMI_ERROR, "%s: NULL size pointer", fn);
+    if (null_arg(h, size, "NULL size pointer", fn))
         return MBS_FMI_ERROR;
-    }
     *size = st->len;
     return MBS_FMI_OK;
 }
@@ -295,10 +297,8 @@ int mbs_fmi_serialize(MbsFmiHead *h, void *state, void *out, size_t size, const 
     MbsFmuState *st;
     if (!(st = state_of(h, state, fn)))
         return MBS_FMI_ERROR;
-    if (!out) {
-        mbs_fmi_logf(h, MBS_FMI_ERROR, "%s: NULL buffer", fn);
+    if (null_arg(h, out, "NULL buffer", fn))
         return MBS_FMI_ERROR;
-    }
     if (size < st->len) {
         mbs_fmi_logf(h, MBS_FMI_ERROR, "%s: buffer of %lu bytes for a state of %lu", fn, (unsigned long)size,
                      (unsigned long)st->len);
