@@ -495,7 +495,7 @@ def test_plain_c_host_cs_and_me_without_python(built, host, tmp_path):
     """The C importer in a mount namespace where every Python installation is hidden: co-simulation equal to
     fmpy's run of the same FMU bit for bit; model exchange by explicit Euler equal to the same Euler steps in
     numpy over the in-process right-hand side."""
-    from test_fmu_native import _python_dirs
+    from test_fmu_native import run_without_python
     models = ["double_pendulum", "spinning_top", "flexible_pendulum"]
     runs, n, h = {}, 30, 1e-3
     for m in models:
@@ -508,19 +508,8 @@ def test_plain_c_host_cs_and_me_without_python(built, host, tmp_path):
         base = [str(host), str(lib), str(d / "resources") + "/", md.guid, "-o", ",".join(map(str, outs)),
                 "-n", str(n), "-h", str(h), "-m"]
         runs[m] = (base, base + ["-E"])
-    hidden = _python_dirs()
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    script = "".join(f'mount --bind "{empty}" "{p}" || exit 97\n' for p in hidden) + \
-        f'"{sys.executable}" -c pass 2>/dev/null && exit 98\n' + \
-        "".join(f'echo "RUN {m} {k}"; ' + " ".join(f'"{a}"' for a in args) + " || exit 96\n"
-                for m, both in runs.items() for k, args in zip(("cs", "me"), both))
-    r = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True,
-                       env={"PATH": "/usr/bin:/bin"}, timeout=300)
-    if r.returncode == 97 or (r.returncode == 1 and r.stderr.startswith("unshare")):
-        pytest.skip(f"no user+mount namespace here: {r.stderr.strip()[:200]}")
-    assert r.returncode == 0, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
-    chunks = {tuple(c.split()[:2]): c for c in r.stdout.split("RUN ")[1:]}
+    chunks = run_without_python({(m, k): args for m, both in runs.items() for k, args in zip(("cs", "me"), both)},
+                                tmp_path)
     for m in models:
         cs, me = _rows(chunks[m, "cs"]), _rows(chunks[m, "me"])
         assert "LIBPYTHON no" in chunks[m, "cs"] and "DONE" in chunks[m, "cs"] and "DONE" in chunks[m, "me"], m

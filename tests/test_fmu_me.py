@@ -202,7 +202,7 @@ def test_plain_c_host_euler_equals_a_numpy_euler_over_the_engine(built, tmp_path
     """tests/c/fmu_host.c -E on every shipped model, in a mount namespace where every Python installation is
     hidden (no libpython mapped): x += h·ẋ over fmi2GetDerivatives, bit for bit the same numbers as the same loop
     in numpy over the in-process engine's right-hand side (mbs_rhs)."""
-    from test_fmu_native import _python_dirs, _unpack
+    from test_fmu_native import _unpack, run_without_python
     exe = tmp_path / "fmu_host"
     subprocess.run([native.compiler(), "-O2", "-o", str(exe), str(REPO / "tests/c/fmu_host.c"), "-ldl"], check=True)
     n, h = 40, 1e-4
@@ -213,18 +213,7 @@ def test_plain_c_host_euler_equals_a_numpy_euler_over_the_engine(built, tmp_path
         lib = d / "binaries" / "linux64" / f"{md.modelExchange.modelIdentifier}.so"
         runs[m] = [str(exe), str(lib), (d / "resources").as_uri(), md.guid, "-E", "-x", str(len(states)),
                    "-n", str(n), "-h", str(h), "-o", ",".join(map(str, states)), "-p", "-m"]
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    script = "".join(f'mount --bind "{empty}" "{p}" || exit 97\n' for p in _python_dirs()) + \
-        f'"{sys.executable}" -c pass 2>/dev/null && exit 98\n' + \
-        "".join(f'echo "MODEL {m}"; ' + " ".join(f'"{a}"' for a in args) + " || exit 96\n" for m, args in runs.items())
-    r = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True,
-                       env={"PATH": "/usr/bin:/bin"}, timeout=300)
-    if r.returncode == 97 or (r.returncode == 1 and r.stderr.startswith("unshare")):
-        pytest.skip(f"no user+mount namespace here: {r.stderr.strip()[:200]}")
-    assert r.returncode == 0, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
-    chunks = dict(c.split("\n", 1) for c in r.stdout.split("MODEL ")[1:])
-    assert list(chunks) == MODELS
+    chunks = run_without_python(runs, tmp_path)
     for m, out in chunks.items():
         assert "LIBPYTHON no" in out and "DONE" in out, m
         rows = np.array([list(map(float, ln.split()[1:])) for ln in out.splitlines() if ln.startswith("OUT ")])

@@ -10,6 +10,7 @@ from __future__ import annotations
 import ctypes
 import glob
 import os
+import re
 import shutil
 import struct
 import subprocess
@@ -463,6 +464,27 @@ def _python_dirs():
     return [d for d in dirs if not any(d.startswith(o + "/") for o in dirs)]  # outermost only
 
 
+def run_without_python(runs, tmp_path):
+    """Run each command of `runs` ({key: argv}) in one user+mount namespace where every Python installation is
+    hidden and no Python on PATH starts; {key: its standard output}, in the order of `runs`. Skips where no such
+    namespace can be made."""
+    keys = list(runs)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    script = "".join(f'mount --bind "{empty}" "{p}" || exit 97\n' for p in _python_dirs()) + \
+        f'"{sys.executable}" -c pass 2>/dev/null && exit 98\n' \
+        'for p in python3 python; do command -v $p >/dev/null && $p -c pass 2>/dev/null && exit 98; done\n' + \
+        "".join(f'echo "RUN {i}"; ' + " ".join(f'"{a}"' for a in runs[k]) + " || exit 96\n" for i, k in enumerate(keys))
+    r = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True,
+                       env={"PATH": "/usr/bin:/bin"}, timeout=300)
+    if r.returncode == 97 or (r.returncode == 1 and r.stderr.startswith("unshare")):
+        pytest.skip(f"no user+mount namespace here: {r.stderr.strip()[:200]}")
+    assert r.returncode == 0, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
+    parts = re.split(r"^RUN (\d+)\n", r.stdout, flags=re.M)[1:]
+    assert [int(i) for i in parts[::2]] == list(range(len(keys))), r.stdout[-2000:]
+    return dict(zip(keys, parts[1::2]))
+
+
 def test_plain_c_host_without_python_equals_fmpy(built, host, tmp_path):
     """Every shipped model's native FMU in a plain C host, in one mount namespace where every Python
     installation is hidden (and no libpython is mapped): the same numbers as fmpy, bit for bit."""
@@ -472,21 +494,8 @@ def test_plain_c_host_without_python_equals_fmpy(built, host, tmp_path):
         lib = d / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
         runs[m] = [str(host), str(lib), (d / "resources").as_uri(), md.guid,
                    "-o", ",".join(map(str, outs)), "-n", str(STEPS), "-h", "0.01", "-p", "-m"]
-    hidden = _python_dirs()
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    script = "".join(f'mount --bind "{empty}" "{p}" || exit 97\n' for p in hidden) + \
-        f'"{sys.executable}" -c pass 2>/dev/null && exit 98\n' \
-        'for p in python3 python; do command -v $p >/dev/null && $p -c pass 2>/dev/null && exit 98; done\n' + \
-        "".join(f'echo "MODEL {m}"; ' + " ".join(f'"{a}"' for a in args) + " || exit 96\n" for m, args in runs.items())
-    r = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True, text=True,
-                       env={"PATH": "/usr/bin:/bin"}, timeout=300)
-    if r.returncode == 97 or (r.returncode == 1 and r.stderr.startswith("unshare")):
-        pytest.skip(f"no user+mount namespace here: {r.stderr.strip()[:200]}")
-    assert r.returncode == 0, (r.returncode, r.stdout[-2000:], r.stderr[-2000:])
-    chunks = r.stdout.split("MODEL ")[1:]
-    assert [c.split()[0] for c in chunks] == MODELS
-    for m, out in zip(MODELS, chunks):
+    chunks = run_without_python(runs, tmp_path)
+    for m, out in chunks.items():
         assert "LIBPYTHON no" in out and "DONE" in out, m
         rows = _host_rows(out)
         ref = _fmpy_rows(built[m], tmp_path / f"fmpy_{m}", STEPS, 0.01)
