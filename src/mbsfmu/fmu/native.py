@@ -30,7 +30,6 @@ from pathlib import Path
 
 from .. import files
 from .common import drawing_resource, mbsfmu_version, model_description, model_description3, write_zip
-from .variables import variables as fmu_variables
 
 ENGINE = Path(__file__).resolve().parent.parent / "engine"
 FMI_LAYER = ENGINE / "fmi2.c"
@@ -175,14 +174,13 @@ def guid_for(spec: dict, version: str) -> str:
 def build_native(scene, dest: Path, fmi: str = "2") -> Path:
     """Write the FMU ``dest`` (``build.fmu_path``: ``<outdir>/<name>.fmu``, native kind, FMI version ``fmi``)
     for a loaded scene; returns its path."""
-    from ..engine.compile import compile_scene
+    from ..simulation import compiled
 
     spec = json.loads(json.dumps(scene.spec if hasattr(scene, "spec") else scene))
     name = dest.stem
     version = mbsfmu_version()
     guid = guid_for(spec, version)
-    variables = fmu_variables(spec, derivatives=True)  # model exchange too
-    blob = compile_scene(spec, variables, guid)
+    blob, variables, _ = compiled(spec, guid, derivatives=True)  # model exchange too (animate checks the same)
     sources = source_files(blob, fmi)
     extra = drawing_resource(spec)
     if fmi == "3":
