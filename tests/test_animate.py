@@ -346,7 +346,7 @@ def drawn_points(data, F):
     nb = len(data["scene"]["bodies"])
     n_nodes = sum(e["nodes"] for e in data["scene"]["elastic"])
     nodes = F[:, 7 * nb:7 * nb + 3 * n_nodes].reshape(len(F), n_nodes, 3)
-    return np.concatenate([np.stack(pts, axis=1)] + ([nodes] if n_nodes else []), axis=1)
+    return np.concatenate(([np.stack(pts, axis=1)] if pts else []) + ([nodes] if n_nodes else []), axis=1)
 
 
 STOP = {"spinup_beam": 3.0, "crane": 3.0, "flexible_pendulum": 1.0}  # flexible_pendulum: ~9 s of numpy-path run per simulated s
