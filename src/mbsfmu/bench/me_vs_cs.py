@@ -189,6 +189,14 @@ def markdown(results, command):
                   f"differs by {res['floor']:.1e}. {res['rounds']} rounds. Load average (1 min) at the start / after "
                   "the sweeps / at the end: " + " / ".join(f"{x:.2f}" for x in res["load"]) + " on 2 cores.", "",
                   "Time ratios at equal error (> 1: model exchange is slower):", ""] + ratio_table(res)
+        lowest = {}
+        for r in res["rows"]:
+            key = f"{r['interface']}:{r['method'] if r['interface'] == 'ME' else 'engine'}"
+            if math.isfinite(r["error"]) and r["error"] < lowest.get(key, {"error": math.inf})["error"]:
+                lowest[key] = r
+        lines += ["", "Lowest error each reached within the sweep: " + "; ".join(
+            f"{k} {r['error']:.1e} ({'' if k.startswith('ME') else r['method'] + ' '}{r['setting']}, {r['cpu_ms']:.0f} ms)"
+            for k, r in lowest.items()) + "."]
         if res["notes"]:
             lines += ["", "Notes:", ""] + [f"- {n}" for n in res["notes"]]
         lines += ["", f"![work-precision {res['name']}](me_vs_cs.{res['name']}.png)", ""]
