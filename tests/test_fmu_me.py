@@ -172,6 +172,24 @@ def test_nominals_reach_the_host(built, m):
     s.freeInstance()
 
 
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf")])
+def test_compiled_nominals_and_corrupt_ones_refused(value):
+    """The engine answers the variables' nominals (the compiled scene's D region at H_D_NOMINAL); a scene.bin
+    whose nominal is not a positive finite number is refused when loaded (a host would divide by it)."""
+    import struct
+    from test_domains import _corrupt
+    from mbsfmu.engine import EngineError, Instance, layout as L
+    sim = Simulation(_scene("robot_arm_elastic").spec)
+    states = {v.name: v.nominal for v in variables(sim.spec) if v.kind in (L.MBS_V_Y, L.MBS_V_YD)}
+    assert Instance(sim.blob).nominals() == list(states.values())
+    nsec = struct.unpack_from("<i", sim.blob, 72)[0]
+    head = next(off for sid, _, off, _ in (struct.unpack_from("<iiqq", sim.blob, 76 + 24 * n) for n in range(nsec))
+                if sid == L.S_HEADER)
+    d_nominal = struct.unpack_from("<i", sim.blob, head + 4 * L.H_D_NOMINAL)[0]
+    with pytest.raises(EngineError, match="corrupt nominal of continuous state 3"):
+        Instance(_corrupt(sim.blob, L.S_D, d_nominal + 3, value))
+
+
 def test_modal_nominal_is_the_static_deflection_under_gravity():
     """The flapwise bending mode of flexible_pendulum's clamped beam (tip-normalized) gets the nominal of its
     static deflection under the beam's own weight: Euler-Bernoulli's tip deflection ρA g L⁴ / (8 EI) (the first
