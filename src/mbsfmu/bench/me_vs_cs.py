@@ -29,13 +29,11 @@ import argparse
 import math
 import os
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .. import files
 from . import output
 from .fmu_peers import CASES, MODELS, case, error
 from .work_precision import reference
@@ -212,20 +210,10 @@ def main(argv=None):
     ap.add_argument("--stop", type=float, default=None, help="shorter experiments (the cases' own by default)")
     ap.add_argument("--quick", action="store_true", help="coarse sweeps, one round (a smoke run, not for the report)")
     a = ap.parse_args(argv)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    command = "python -m mbsfmu.bench.me_vs_cs " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
-    results = []
-    with tempfile.TemporaryDirectory(prefix="mbsfmu_me_cs_") as tmp:
-        for name in a.cases:
-            res = run_case(name, Path(tmp) / name, quick=a.quick, budget=a.budget, stop=a.stop,
-                           rounds=1 if a.quick else a.rounds)
-            plot(res, out / f"me_vs_cs.{name}.png")
-            results.append(res)
-    output.write_csv([r for res in results for r in csv_rows(res)], out / "me_vs_cs.csv", COLUMNS, 5)
-    files.write_text(out / "me_vs_cs.md", markdown(results, command.strip()))
-    print(out / "me_vs_cs.md")
-    return results
+    return output.case_reports("me_vs_cs", "mbsfmu.bench.me_vs_cs", argv, a.out, a.cases,
+                               lambda name, tmp: run_case(name, tmp, quick=a.quick, budget=a.budget, stop=a.stop,
+                                                          rounds=1 if a.quick else a.rounds),
+                               plot, csv_rows, COLUMNS, markdown)
 
 
 if __name__ == "__main__":
