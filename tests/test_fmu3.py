@@ -80,8 +80,8 @@ def test_every_model_validates_with_both_interfaces(built):
         v3 = {v.valueReference: v for v in md.modelVariables if v.name != "time"}
         for v in md2.modelVariables:
             w = v3[v.valueReference]
-            assert (w.name, w.causality, w.variability, w.unit, w.start) == \
-                   (v.name, v.causality, v.variability, v.unit, v.start), (m, v.name)
+            assert (w.name, w.causality, w.variability, w.unit, w.start, w.nominal) == \
+                   (v.name, v.causality, v.variability, v.unit, v.start, v.nominal), (m, v.name)
         (time,) = [v for v in md.modelVariables if v.causality == "independent"]
         assert time.valueReference == len(md.modelVariables) - 1 and time.unit == "s"
         der = [v for v in md.modelVariables if v.derivative is not None]
@@ -113,11 +113,14 @@ def _scale(ref):
 
 @pytest.mark.parametrize("model", MODELS)
 def test_model_exchange_under_cvode_matches_simulate(built, model):
-    """Rigid models over 0.3 s at rtol 1e-10; elastic models over 0.1 s at rtol 1e-12: fmpy's CVode takes
-    atol = rtol · nominal = rtol, far above modal coordinates of 1e-7 m (at rtol 1e-10 their error is up to 2e-4 of
-    their range: the host's tolerance, not the FMU's)."""
+    """Rigid models over 0.3 s, elastic ones over 0.1 s, all at rtol 1e-10: fmpy's CVode takes atol = rtol ·
+    nominal, and each state's nominal is its size in the scene (fmi3GetNominalsOfContinuousStates; with nominals
+    1 the modal coordinates of 1e-7 were off by up to 2e-4 of their range at this rtol). spinup_beam at rtol
+    1e-12: its spin-up starts smoothly from rest, so in 0.1 s its modes move a millionth of their size over the
+    experiment, which its nominals are."""
     fmu3 = built[model][0]
-    stop, h, rtol = (0.1, 5e-4, 1e-12) if model in ELASTIC else (0.3, 0.01, 1e-10)
+    stop, h = (0.1, 5e-4) if model in ELASTIC else (0.3, 0.01)
+    rtol = 1e-12 if model == "spinup_beam" else 1e-10
     md, _ = _outputs(fmu3)
     states = [v.derivative.name for v in md.modelVariables if v.derivative is not None]
     r = simulate_fmu(str(fmu3), fmi_type="ModelExchange", solver="CVode", relative_tolerance=rtol, stop_time=stop,
@@ -147,7 +150,8 @@ def _fmu3(fmu, cls, name):
 
 def test_derivatives_are_the_engines_right_hand_side(built):
     """fmi3GetContinuousStateDerivatives at states the host sets (off the trajectory, quaternions not of unit
-    norm, inputs set) equals the in-process engine's f(t, x) there bit for bit, and der(·) variables read it."""
+    norm, inputs set) equals the in-process engine's f(t, x) there bit for bit, and der(·) variables read it;
+    fmi3GetNominalsOfContinuousStates answers the declared nominals."""
     rng = np.random.default_rng(3)
     for m in ("spinning_top", "driven_crank", "robot_arm_elastic"):
         fmu = built[m][0]
@@ -176,6 +180,9 @@ def test_derivatives_are_the_engines_right_hand_side(built):
             assert dx.tolist() == ref.tolist(), m
             ders = [v.valueReference for v in md.modelVariables if v.derivative is not None]
             assert me.getFloat64(ders) == ref.tolist(), m
+        nominals = np.zeros(n)  # what a host's error weights take: the states' declared nominals
+        me.getNominalsOfContinuousStates(_ptr(nominals), n)
+        assert nominals.tolist() == [float(v.derivative.nominal) for v in md.modelVariables if v.derivative], m
         me.terminate()
         me.freeInstance()
 

@@ -31,13 +31,11 @@ import argparse
 import math
 import os
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .. import files
 from ..engine import layout as L
 from . import output
 from .work_precision import REPEATS, TARGET_ERROR, _best_of, build_exudyn, comm_points, exudyn_supported, reference, \
@@ -516,18 +514,9 @@ def main(argv=None):
     ap.add_argument("--budget", type=float, default=1.0, help="CPU seconds of one run after which a sweep stops")
     ap.add_argument("--quick", action="store_true", help="coarse sweeps (a smoke run, not for the report)")
     a = ap.parse_args(argv)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    command = "python -m mbsfmu.bench.fmu_peers " + " ".join(argv if argv is not None else __import__("sys").argv[1:])
-    results = []
-    with tempfile.TemporaryDirectory(prefix="mbsfmu_peers_") as tmp:
-        for name in a.cases:
-            res = run_case(name, Path(tmp) / name, quick=a.quick, budget=a.budget, rounds=a.rounds)
-            plot(res, out / f"fmu_peers.{name}.png")
-            results.append(res)
-    output.write_csv([r for res in results for r in csv_rows(res)], out / "fmu_peers.csv", COLUMNS, 5)
-    files.write_text(out / "fmu_peers.md", markdown(results, command.strip()))
-    print(out / "fmu_peers.md")
+    output.case_reports("fmu_peers", "mbsfmu.bench.fmu_peers", argv, a.out, a.cases,
+                        lambda name, tmp: run_case(name, tmp, quick=a.quick, budget=a.budget, rounds=a.rounds),
+                        plot, csv_rows, COLUMNS, markdown)
 
 
 if __name__ == "__main__":

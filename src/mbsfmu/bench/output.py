@@ -2,6 +2,9 @@
 mbsfmu.files: a run that fails or is killed leaves the previous report)."""
 
 import csv
+import sys
+import tempfile
+from pathlib import Path
 
 from .. import files
 
@@ -34,3 +37,21 @@ def save_figure(fig, path, **kw):
     with files.replacing(path) as tmp:
         fig.savefig(tmp, **kw)
     plt.close(fig)
+
+
+def case_reports(stem, prog, argv, out, cases, run_case, plot, csv_rows, columns, markdown):
+    """The report of a benchmark over named cases: run_case(name, workdir) for each (in a temporary folder), its
+    figure plot(result, <out>/<stem>.<name>.png), then <stem>.csv (csv_rows(result) with `columns`) and <stem>.md
+    (markdown(results, the command line)). Returns the results."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    command = f"python -m {prog} " + " ".join(sys.argv[1:] if argv is None else argv)
+    results = []
+    with tempfile.TemporaryDirectory(prefix=f"mbsfmu_{stem}_") as tmp:
+        for name in cases:
+            results.append(run_case(name, Path(tmp) / name))
+            plot(results[-1], out / f"{stem}.{name}.png")
+    write_csv([r for res in results for r in csv_rows(res)], out / f"{stem}.csv", columns, 5)
+    files.write_text(out / f"{stem}.md", markdown(results, command.strip()))
+    print(out / f"{stem}.md")
+    return results

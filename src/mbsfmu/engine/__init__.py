@@ -150,6 +150,10 @@ class Instance:
         p = self.lib.mbs_state(self.ptr)
         return p[:self.n]
 
+    def nominals(self):
+        """Nominal values of [y; ẏ] as the compiled scene carries them (a list)."""
+        return self.lib.mbs_nominals(self.ptr)[:self.n]
+
     def run(self, ts):
         """numpy array of rows [y; ẏ] at the times ts (ts[0] = now)."""
         import numpy as np

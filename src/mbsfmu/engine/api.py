@@ -30,6 +30,7 @@ SIGNATURES = {
     "mbs_run": (c_int, [c_void_p, c_void_p, c_int, c_void_p]),
     "mbs_time": (c_double, [c_void_p]),
     "mbs_state": (P_double, [c_void_p]),
+    "mbs_nominals": (P_double, [c_void_p]),
     "mbs_message": (c_char_p, [c_void_p]),
     "mbs_stats": (None, [c_void_p, ctypes.POINTER(ctypes.c_long), P_double]),
     "mbs_state_size": (c_size_t, [c_void_p]),

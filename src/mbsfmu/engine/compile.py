@@ -142,7 +142,7 @@ def compile_scene(spec, variables, guid="", model=None):
     R = _Rules(P.bound)
     nb, f, npos = len(m.bodies), m.nvel, m.npos
     regions = {"body": np.zeros((nb, L.DB)), "force": np.zeros((max(len(m.bound_forces), 0), L.DF)), "g": np.zeros(3),
-               "x0": np.zeros(npos + f), "out": np.zeros((len(m.outputs), 3)), "integ": np.zeros(L.DI)}
+               "x0": np.zeros(npos + f), "nominal": np.zeros(npos + f), "out": np.zeros((len(m.outputs), 3)), "integ": np.zeros(L.DI)}
     ib = np.full((nb, L.IB), -1, dtype=np.int32)
     db = regions["body"]
     x0 = regions["x0"]
@@ -291,7 +291,11 @@ def compile_scene(spec, variables, guid="", model=None):
     ri[L.DI_RTOL], ri[L.DI_ATOL], ri[L.DI_MAX_STEP], ri[L.DI_STEP] = (integ[k] for k in ("rtol", "atol", "max_step", "step"))
     ri[L.DI_RHO_INF] = integ.get("rho_inf", 0.8)
     # layout of D, then the symbolic targets resolved
-    order = ("body", "force", "g", "x0", "out", "integ")
+    nominal = regions["nominal"]  # the continuous states' nominals, as the variables carry them (fmi*GetNominals...)
+    for v in variables:
+        if v.kind in (L.MBS_V_Y, L.MBS_V_YD):
+            nominal[v.index + npos * (v.kind == L.MBS_V_YD)] = v.nominal
+    order = ("body", "force", "g", "x0", "nominal", "out", "integ")
     offsets, pos = {}, len(params) + len(P.consts)
     for name in order:
         offsets[name] = pos
@@ -321,7 +325,7 @@ def compile_scene(spec, variables, guid="", model=None):
                   NVARS=len(vars_), NOUT=len(m.outputs), NPROG=len(prog), NCODE=len(P.code),
                   HAS_GRAVITY=int(m.has_gravity), METHOD=L.METHODS.index(integ["method"]), NCARDAN=int(ncardan),
                   FEATURES=features, MAXSTACK=L.MBS_MAXSTACK, D_PARAM=0, D_CONST=len(params), D_BODY=offsets["body"],
-                  D_FORCE=offsets["force"], D_G=offsets["g"], D_X0=offsets["x0"], D_OUT=offsets["out"],
+                  D_FORCE=offsets["force"], D_G=offsets["g"], D_X0=offsets["x0"], D_NOMINAL=offsets["nominal"], D_OUT=offsets["out"],
                   D_INTEG=offsets["integ"], ND=nd)
     names = b"".join(n.encode() + b"\0" for n in list(m.coordinates) + [b.name for b in m.bodies] + [v.name for v in variables])
     sections = [(L.S_HEADER, np.array([header[e[0][2:]] for e in L.LISTS["MBS_HEADER"]], dtype=np.int32)),

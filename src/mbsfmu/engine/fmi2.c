@@ -471,11 +471,9 @@ fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
 }
 
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
-    size_t i;
     CHECK(P_STATES | P_INSTANTIATED | P_INIT, "fmi2GetNominalsOfContinuousStates");
     if (bad_count(f, x_nominal, nx, "fmi2GetNominalsOfContinuousStates"))
         return fmi2Error;
-    for (i = 0; i < nx; i++)
-        x_nominal[i] = 1.0;  /* coordinates of order one (m, rad, modal coordinates): the FMI default */
+    memcpy(x_nominal, mbs_nominals(f->sim), nx * sizeof *x_nominal);  /* fixed at build (the scene's sizes) */
     return fmi2OK;
 }

@@ -85,6 +85,7 @@ MBS_API int mbs_run(MbsInstance *s, const double *ts, int n, double *X);
 MBS_API double mbs_time(const MbsInstance *s);
 MBS_API int mbs_initialized(const MbsInstance *s);  /* 1 after mbs_initialize (or a state loaded from then) */
 MBS_API const double *mbs_state(const MbsInstance *s);  /* [y; ẏ], npos + nvel */
+MBS_API const double *mbs_nominals(const MbsInstance *s);  /* nominal values of [y; ẏ] (fmu/variables.py) */
 MBS_API const char *mbs_message(const MbsInstance *s);   /* last failure, "" if none */
 /* steps, rejected, rhs_evaluations, jac_evaluations, lu_decompositions, switched (0/1) */
 MBS_API void mbs_stats(const MbsInstance *s, long out[6], double *switched_at);

@@ -21,7 +21,7 @@
 #define MBS_VALUE(...) MBS_VALUE_(__VA_ARGS__, ~)
 #define MBS_VALUE_(name, value, ...) name = (value),
 
-#define MBS_FORMAT_VERSION 1 /* version of the compiled-scene layout this engine reads */
+#define MBS_FORMAT_VERSION 2 /* version of the compiled-scene layout this engine reads */
 #define MBS_MAXSTACK 64
 /* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py refuses a
  * larger scene first, with its size) */
@@ -60,7 +60,8 @@ enum { MBS_SECTIONS(MBS_CODE) S_NSECTIONS };
 #define MBS_HEADER(X) \
     X(H_NB) X(H_NPOS) X(H_NVEL) X(H_NFORCE) X(H_NQUAT) X(H_NPLAIN) X(H_NDRV) X(H_NVEC) X(H_NINPUT) X(H_NPARAM) \
     X(H_NVARS) X(H_NOUT) X(H_NPROG) X(H_NCODE) X(H_HAS_GRAVITY) X(H_METHOD) X(H_NCARDAN) X(H_FEATURES) \
-    X(H_MAXSTACK) X(H_D_PARAM) X(H_D_CONST) X(H_D_BODY) X(H_D_FORCE) X(H_D_G) X(H_D_X0) X(H_D_OUT) X(H_D_INTEG) \
+    X(H_MAXSTACK) X(H_D_PARAM) X(H_D_CONST) X(H_D_BODY) X(H_D_FORCE) X(H_D_G) X(H_D_X0) X(H_D_NOMINAL) \
+    X(H_D_OUT) X(H_D_INTEG) \
     X(H_ND)
 enum { MBS_HEADER(MBS_CODE) H_SIZE };
 

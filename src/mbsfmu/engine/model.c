@@ -1,5 +1,6 @@
 /* Loading the compiled scene: every count, offset and index is checked here, once, so that a corrupt or
  * foreign file ends in a message instead of a crash, and the per-step code can trust the tables. */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -51,7 +52,7 @@ static int check_header(const int32_t *H, char *err, size_t errlen)
     const int64_t nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], nf = H[H_NFORCE];
     if (!(H[H_D_PARAM] == 0 && H[H_D_CONST] == H[H_NPARAM] && H[H_D_CONST] <= H[H_D_BODY] &&
           H[H_D_FORCE] == H[H_D_BODY] + nb * DB && H[H_D_G] == H[H_D_FORCE] + nf * DF && H[H_D_X0] == H[H_D_G] + 3 &&
-          H[H_D_OUT] == (int64_t)H[H_D_X0] + np + nv && H[H_D_INTEG] == H[H_D_OUT] + 3 * (int64_t)H[H_NOUT] &&
+          H[H_D_NOMINAL] == (int64_t)H[H_D_X0] + np + nv && H[H_D_OUT] == (int64_t)H[H_D_NOMINAL] + np + nv && H[H_D_INTEG] == H[H_D_OUT] + 3 * (int64_t)H[H_NOUT] &&
           H[H_ND] == (int64_t)H[H_D_INTEG] + DI))
         BAD("corrupt number layout (the header's counts and offsets into D disagree)");
     if (!in(H[H_METHOD], 0, MBS_NMETHODS))
@@ -226,6 +227,9 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     SEC(m->prog, S_PROG, 0, 4 * (int64_t)H[H_NPROG]);
     SEC(m->code, S_CODE, 0, H[H_NCODE]);
     SEC(m->D, S_D, 1, H[H_ND]);
+    for (int k = 0; k < np + nv; k++)  /* a host divides by them (its error weights): positive and finite */
+        if (!(m->D[H[H_D_NOMINAL] + k] > 0 && isfinite(m->D[H[H_D_NOMINAL] + k])))
+            FAIL("corrupt nominal of continuous state %d (%g, a positive number)", k, m->D[H[H_D_NOMINAL] + k]);
     m->elastic_i = section(b, len, tab, nsec, S_ELASTIC_I, 0, -1, &ne_i);
     m->elastic_d = section(b, len, tab, nsec, S_ELASTIC_D, 1, -1, &ne_d);
     m->n_elastic_i = m->elastic_i ? ne_i : 0;

@@ -840,6 +840,7 @@ int mbs_run(MbsInstance *s, const double *ts, int n, double *X)
 double mbs_time(const MbsInstance *s) { return s->time; }
 int mbs_initialized(const MbsInstance *s) { return s->initialized; }
 const double *mbs_state(const MbsInstance *s) { return s->x; }
+const double *mbs_nominals(const MbsInstance *s) { return s->m->D + s->m->hdr[H_D_NOMINAL]; }
 
 void mbs_stats(const MbsInstance *s, long out[6], double *switched_at)
 {

@@ -222,6 +222,8 @@ def model_description(spec: dict, name: str, variables, version: str, guid: str 
                 tattr["unit"] = v.unit
             if v.derivative_of is not None:
                 tattr["derivative"] = str(v.derivative_of.vr + 1)
+            if v.nominal is not None:
+                tattr["nominal"] = _fmt(v.nominal)
             if v.causality in ("parameter", "input"):
                 tattr["start"] = _fmt(0.0 if v.start is None else v.start)
             SubElement(node, "Real", tattr)
@@ -301,6 +303,8 @@ def model_description3(spec: dict, name: str, variables, version: str, token: st
             attr["unit"] = v.unit
         if v.causality in ("parameter", "input"):
             attr["start"] = _fmt(0.0 if v.start is None else v.start)
+        if v.nominal is not None:
+            attr["nominal"] = _fmt(v.nominal)
         if v.derivative_of is not None:
             attr["derivative"] = str(v.derivative_of.vr)
         SubElement(mv, "Float64", attr)

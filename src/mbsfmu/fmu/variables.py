@@ -7,7 +7,11 @@ table from here and never reads a name back. Contract: docs/fmu.md, "Variables".
 
 Model exchange (the native kind) adds one derivative variable per continuous state after all others
 (``variables(spec, derivatives=True)``); ``continuous_states`` pairs them up for any FMI version's writer.
+Every y.* and yd.* (the continuous states) carries its ``nominal`` (``state_nominals``): a host's absolute
+tolerance is rtol × nominal, so each is the size the state physically has in this scene.
 """
+
+import numpy as np
 
 from ..engine import layout as L
 from ..engine.elastic_tables import structural_parameters
@@ -28,7 +32,7 @@ class Variable:
     the engine's variable-table row (``kind``, ``index``)."""
 
     __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start", "vr", "kind", "index",
-                 "derivative_of", "depends_on")
+                 "derivative_of", "depends_on", "nominal")
 
     def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0,
                  kind=None, index=0, derivative_of=None):
@@ -37,6 +41,7 @@ class Variable:
         self.kind, self.index, self.vr = kind, index, None
         self.derivative_of = derivative_of  # the state Variable this is the time derivative of (model exchange)
         self.depends_on = None  # a derivative's states (kind "constant": ẏ_pos = ẏ) or None: every state and input
+        self.nominal = None  # a continuous state's (y.*, yd.*) nominal value: state_nominals
 
     def __repr__(self):
         return f"Variable({self.name!r}, {self.causality}, {self.unit})"
@@ -98,6 +103,8 @@ def _outputs(spec, model):
     out += [Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}",
                      kind=L.MBS_V_YD, index=i)
             for i, (c, u) in enumerate(zip(model.velocity_coordinates, units_vel))]
+    for v, nominal in zip(out, np.concatenate(state_nominals(model))):
+        v.nominal = float(nominal)
     for i, o in enumerate(spec["outputs"]):  # each output point: 6 engine values, r then v
         for s, (qty, sym, unit) in enumerate((("position", "r", "m"), ("velocity", "v", "m/s"))):
             if qty in o["quantities"]:
@@ -106,6 +113,47 @@ def _outputs(spec, model):
                                  kind=L.MBS_V_OUT, index=6 * i + 3 * s + k)
                         for k, ax in enumerate("xyz")]
     return out
+
+
+STANDARD_GRAVITY = 9.80665  # m/s²: the reference load of a scene without gravity
+
+
+def characteristic_length(model):
+    """ℓ (m): the largest length the scene's bodies set out — joint offsets, centers of mass, radii of gyration
+    √(tr I / 2m), elastic nodes' positions; 1 m if there is none."""
+    lengths = [1e-300]
+    for b in model.bodies:
+        lengths += [np.linalg.norm(b.at) if b.at is not None else 0.0, np.linalg.norm(b.c) if b.c is not None else 0.0]
+        if b.m > 0:
+            lengths.append(np.sqrt(np.trace(b.I) / (2 * b.m)))
+        if b.elastic:
+            lengths.append(np.linalg.norm(b.nodal.R_RP, axis=1).max())
+    ell = max(lengths)
+    return ell if ell > 1e-300 else 1.0
+
+
+def state_nominals(model):
+    """Nominal values of y and ẏ (docs/fmu.md, "Nominal values"), from the scene's bound data: with ℓ the
+    characteristic length, g the gravity's magnitude (standard gravity if none) and T = √(ℓ/g),
+      angles, quaternion components: 1;   lengths: ℓ;
+      modal coordinate k of an elastic body: its static deflection under the body's own inertia loaded by g,
+        q_k = max(g |C_t[:, k]|, g |C_r0[:, k]| / ℓ) / K_kk  (translational, rotational coupling: an acceleration
+        g or an angular one g/ℓ), 1 where neither reaches the mode;
+      every rate: its coordinate's nominal / T (the scene's motion, not the mode's own period, sets how fast
+        an elastic coordinate moves: most of it follows the loads quasi-statically)."""
+    ell = characteristic_length(model)
+    g = np.linalg.norm(model.g) if model.has_gravity else STANDARD_GRAVITY
+    T = np.sqrt(ell / g)
+    units_pos, units_vel = model.coordinate_units()
+    pos = np.array([ell if u == "m" else 1.0 for u in units_pos])
+    vel = np.array([(ell if u == "m/s" else 1.0) / T for u in units_vel])
+    for b in (b for b in model.bodies if b.elastic):
+        load = g * np.maximum(np.linalg.norm(b.inv.C_t, axis=0), np.linalg.norm(b.inv.C_r0, axis=0) / ell)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = load / np.diag(b.inv.K)
+        pos[b.q_idx] = np.where(np.isfinite(q) & (q > 0), q, 1.0)
+        vel[b.qd_idx] = pos[b.q_idx] / T
+    return pos, vel
 
 
 def continuous_states(variables):
