@@ -148,6 +148,7 @@ def compile_scene(spec, variables, guid="", model=None):
     x0 = regions["x0"]
     drives = [(i, k, d) for i, b in enumerate(m.bodies) for k, *d in b.drives]
     ncardan = 0
+    ib[:, L.IB_CARRIER] = carriers(m)
     for r in range(3):  # rules in the loader's order (the first broken one is the one named): gravity, bodies, ...
         regions["g"][r] = P.number(spec["gravity"][r], env, "g", r)
         R.add(domains.MAGNITUDE, "g", r, f"gravity[{r}]")
@@ -332,6 +333,20 @@ def compile_scene(spec, variables, guid="", model=None):
                 (L.S_VDOM, vdom), (L.S_RULES, rules), (L.S_RULE_NAMES, rule_names),
                 (L.S_LIMITS, _limits(spec))]
     return _pack(sections, guid)
+
+
+def carriers(model):
+    """The body that carries each body on the recursive path (IB_CARRIER): a body welded to its parent (a fixed
+    joint on a rigid parent, not at an elastic node) moves with it and joins its carrier (-1: the world), the rest
+    carry themselves. The engine derives each carrier's composite mass and inertia at bind time (mbs_derive: the
+    numbers may depend on parameters), so its recursion runs over the moving bodies only, as Pinocchio merges a
+    URDF's fixed links; the kinematics, outputs and force points keep every body."""
+    out = []
+    for i, b in enumerate(model.bodies):
+        p = b.parent
+        welded = b.type.code == L.J_FIXED and not b.elastic and b.node is None and (p < 0 or not model.bodies[p].elastic)
+        out.append((out[p] if p >= 0 else -1) if welded else i)
+    return out
 
 
 def _pack(sections, guid):

@@ -91,12 +91,15 @@ enum { MBS_FORCES(MBS_CODE) FE_N };
     X(IB_IROT, 1)       /* initial rotation of spherical/free joints: same codes */ \
     X(IB_IROT_MASK, 1)  /* Cardan: bit k set = angle k comes from the initial rotation */ \
     X(IB_ELASTIC, 1)    /* index of the body's elastic data, -1 rigid */ \
-    X(IB_NODE, 1)       /* node of the elastic parent the joint sits at, -1 none */
+    X(IB_NODE, 1)       /* node of the elastic parent the joint sits at, -1 none */ \
+    X(IB_CARRIER, 1)    /* the body that carries it (compile.py: carriers): itself, its parent's carrier, -1 world */
 enum { MBS_BODY_I(MBS_FIELD) IB };
 
-/* double row per body: derived (used per step), then raw (written by bind programs) */
+/* double row per body: derived (used per step), then raw (written by bind programs). DB_MC, DB_CC, DB_IC: the
+ * mass, centre of mass and inertia about it of the body with the bodies welded to it (IB_CARRIER; mbs_derive) */
 #define MBS_BODY_D(X) \
     X(DB_A1, 3) X(DB_A2, 3) X(DB_AT, 3) X(DB_R0, 9) X(DB_M, 1) X(DB_C, 3) X(DB_I, 9) \
+    X(DB_MC, 1) X(DB_CC, 3) X(DB_IC, 9) \
     X(DB_A1_RAW, 3) X(DB_A2_RAW, 3) X(DB_ROT_RAW, 9) X(DB_IROT_RAW, 9)
 enum { MBS_BODY_D(MBS_FIELD) DB };
 

@@ -39,7 +39,7 @@ struct MbsModel {
  * layout's offsets at compile time (a field moved in mbs_layout.h without this view stops the build). */
 typedef struct {
     int32_t parent, jtype, npos, nvel, massive, pos[7], vel[6], drv[7];
-    int32_t rot, irot, irot_mask, elastic, node; /* see MBS_BODY_I */
+    int32_t rot, irot, irot_mask, elastic, node, carrier; /* see MBS_BODY_I */
 } MbsBodyI;
 #define MBS_VIEW_CHECK(name, cond) typedef char mbs_view_check_##name[(cond) ? 1 : -1]
 #define MBS_BODY_FIELD(member, FIELD) \
@@ -49,6 +49,7 @@ MBS_BODY_FIELD(parent, IB_PARENT); MBS_BODY_FIELD(jtype, IB_JTYPE); MBS_BODY_FIE
 MBS_BODY_FIELD(nvel, IB_NVEL); MBS_BODY_FIELD(massive, IB_MASSIVE); MBS_BODY_FIELD(pos, IB_POS);
 MBS_BODY_FIELD(vel, IB_VEL); MBS_BODY_FIELD(drv, IB_DRV); MBS_BODY_FIELD(rot, IB_ROT); MBS_BODY_FIELD(irot, IB_IROT);
 MBS_BODY_FIELD(irot_mask, IB_IROT_MASK); MBS_BODY_FIELD(elastic, IB_ELASTIC); MBS_BODY_FIELD(node, IB_NODE);
+MBS_BODY_FIELD(carrier, IB_CARRIER);
 MBS_VIEW_CHECK(body_size, sizeof(MbsBodyI) == sizeof(int32_t) * IB);
 static inline const MbsBodyI *mbs_body_i(const MbsModel *m, int i) { return (const MbsBodyI *)(m->ib + (size_t)i * IB); }
 
@@ -68,6 +69,7 @@ static inline const MbsForceI *mbs_force_i(const MbsModel *m, int k) { return (c
  * MBS_FORCE_D (the bind programs write them as numbers of D; the engine reads fields) */
 typedef struct {
     double a1[3], a2[3], at[3], R0[9], m, c[3], I[9];     /* derived: used per step */
+    double mc, cc[3], Ic[9];                               /* derived: with the bodies welded to it */
     double a1_raw[3], a2_raw[3], rot_raw[9], irot_raw[9];  /* raw: written by the bind programs */
 } MbsBodyD;
 #define MBS_DOUBLE_FIELD(T, member, FIELD) \
@@ -75,7 +77,8 @@ typedef struct {
                    sizeof(((T *)0)->member) == sizeof(double) * (FIELD##_END_ + 1 - FIELD))
 MBS_DOUBLE_FIELD(MbsBodyD, a1, DB_A1); MBS_DOUBLE_FIELD(MbsBodyD, a2, DB_A2); MBS_DOUBLE_FIELD(MbsBodyD, at, DB_AT);
 MBS_DOUBLE_FIELD(MbsBodyD, R0, DB_R0); MBS_DOUBLE_FIELD(MbsBodyD, m, DB_M); MBS_DOUBLE_FIELD(MbsBodyD, c, DB_C);
-MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I); MBS_DOUBLE_FIELD(MbsBodyD, a1_raw, DB_A1_RAW);
+MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I); MBS_DOUBLE_FIELD(MbsBodyD, mc, DB_MC); MBS_DOUBLE_FIELD(MbsBodyD, cc, DB_CC); MBS_DOUBLE_FIELD(MbsBodyD, Ic, DB_IC);
+MBS_DOUBLE_FIELD(MbsBodyD, a1_raw, DB_A1_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, a2_raw, DB_A2_RAW); MBS_DOUBLE_FIELD(MbsBodyD, rot_raw, DB_ROT_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, irot_raw, DB_IROT_RAW);
 MBS_VIEW_CHECK(bodyd_size, sizeof(MbsBodyD) == sizeof(double) * DB);
@@ -167,7 +170,7 @@ void mbs_crba_rnea(const MbsEval *e);                 /* M, k, q (inspection: mb
 void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign); /* F at x (x NULL: a torque) */
 void mbs_point(const MbsEval *e, int i, const double *r_b, double *x, double *v, double *J);
 void mbs_add_JtF(const MbsEval *e, int i, const double *J, const double *F, double sign, double *q);
-void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations from the raw numbers */
+void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations, composites from the raw numbers */
 void mbs_initial_state(const MbsModel *m, const double *D, double *x0);
 /* elastic.c (only for scenes with elastic bodies; F_ELASTIC) */
 #ifdef MBS_WITH_ELASTIC

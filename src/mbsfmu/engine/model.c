@@ -105,7 +105,8 @@ static int check_owners(const MbsModel *m, char *err, size_t errlen)
     return 0;
 }
 
-/* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range;
+/* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range, its
+ * carrier itself or (welded) its parent's;
  * no more drives than driven coordinates, the header's Cardan count the body table's. Elastic data and nodes are
  * named only by a scene with the elastic feature (whose tables mbs_elastic_validate checks against them). */
 static int check_bodies(const MbsModel *m, char *err, size_t errlen)
@@ -132,6 +133,11 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
         if (bi->elastic < -1 || bi->node < -1 || (!elastic && (bi->elastic >= 0 || bi->node >= 0)))
             BAD("corrupt body table (body %d: elastic data %d, node %d in a scene %s elastic bodies)", i,
                 (int)bi->elastic, (int)bi->node, elastic ? "with" : "without");
+        const MbsBodyI *bp = bi->parent >= 0 ? mbs_body_i(m, bi->parent) : NULL;
+        if (bi->carrier != i && !(t == J_FIXED && bi->elastic < 0 && bi->node < 0 && (!bp || bp->elastic < 0) &&
+                                  bi->carrier == (bp ? bp->carrier : -1)))
+            BAD("corrupt body table (body %d: carrier %d, valid: itself, or for a rigid body on a fixed joint its "
+                "rigid parent's carrier)", i, (int)bi->carrier);
     }
     if (ndrv > driven) BAD("corrupt header (%d drives for %lld driven coordinates)", ndrv, (long long)driven);
     if (H[H_NCARDAN] != cardan)
