@@ -54,16 +54,15 @@ static void inertia_times(const double *restrict I, const double *restrict h, co
     }
 }
 
-/* Carrier i's spatial inertia (with the bodies welded to it: mbs_derive's composite) about its origin in world
+/* A carrier's spatial inertia (with the bodies welded to it: mbs_composites) about its origin in world
  * axes (6 × 6) and its first moment h = m c. */
-static void spatial_inertia(const MbsEval *e, int i, const double *wk, double *I, double *h)
+static void spatial_inertia(const double *wk, double *I, double *h)
 {
-    const MbsBodyD *bd = mbs_body_d(e, i);
-    const double *S = wk + W_S, m = bd->mc;
+    const double *S = wk + W_S, m = wk[AB_MC];
     double c[3], SI[9];
-    mv(S, bd->cc, c);
+    mv(S, wk + AB_CC, c);
     for (int r = 0; r < 3; r++) h[r] = m * c[r];
-    mm(S, bd->Ic, SI);
+    mm(S, wk + AB_IC, SI);
     const double cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
     for (int r = 0; r < 3; r++)
         for (int k = 0; k < 3; k++)  /* Ī_o = S Ī Sᵀ + m (c·c E − c cᵀ) */
@@ -86,6 +85,58 @@ static int carrier_parent(const MbsModel *m, const MbsBodyI *bi)
     return bi->parent < 0 ? -1 : mbs_body_i(m, bi->parent)->carrier;
 }
 
+/* I += m (d·d E − d dᵀ): the inertia of mass m at offset d from the reference point (parallel axes) */
+static void add_parallel_axes(double m, const double *d, double *I)
+{
+    const double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) I[3 * r + c] += m * ((r == c) * dd - d[r] * d[c]);
+}
+
+/* Body k (composite wk), welded to its parent at its joint frame (at, R0), joins the parent's composite (wp):
+ * m' = m + m_k, c' = (m c + m_k c_k) / m', Ī' = Ī + m (c − c')~ + R0 Ī_k R0ᵀ + m_k (c_k − c')~ with c_k = at + R0 c_k
+ * in the parent's frame (~: the parallel-axis term). */
+static void weld(const MbsBodyD *bk, const double *wk, double *wp)
+{
+    double ck[3], RI[9], dc[3], dk[3];
+    mv(bk->R0, wk + AB_CC, ck);
+    for (int r = 0; r < 3; r++) ck[r] += bk->at[r];
+    const double m = wp[AB_MC], mk = wk[AB_MC], mt = m + mk;
+    double *c = wp + AB_CC, *I = wp + AB_IC;
+    for (int r = 0; r < 3; r++) {
+        const double c_ = mt > 0.0 ? (m * c[r] + mk * ck[r]) / mt : c[r];
+        dc[r] = c[r] - c_;
+        dk[r] = ck[r] - c_;
+        c[r] = c_;
+    }
+    add_parallel_axes(m, dc, I);
+    add_parallel_axes(mk, dk, I);
+    mm(bk->R0, wk + AB_IC, RI);
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++)
+            I[3 * r + q] += RI[3 * r] * bk->R0[3 * q] + RI[3 * r + 1] * bk->R0[3 * q + 1] + RI[3 * r + 2] * bk->R0[3 * q + 2];
+    wp[AB_MC] = mt;
+}
+
+/* At bind time (after mbs_derive): each body's composite, leaves first: its own mass, centre of mass and inertia
+ * joined by the composites of the bodies welded to it, so a carrier's is that of all it carries. The numbers may
+ * depend on parameters, so they are derived here, not compiled. */
+void mbs_composites(const MbsModel *m, const double *D, double *work)
+{
+    for (int i = 0; i < NB(m); i++) {
+        const MbsBodyD *bd = mbs_body_row(m, D, i);
+        double *wk = work + (size_t)i * m->stride;
+        wk[AB_MC] = bd->m;
+        memcpy(wk + AB_CC, bd->c, 3 * sizeof(double));
+        memcpy(wk + AB_IC, bd->I, 9 * sizeof(double));
+    }
+    for (int i = NB(m) - 1; i >= 0; i--) {
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        if (bi->carrier != i && bi->parent >= 0)  /* welded to a body (one welded to the world is carried by none) */
+            weld(mbs_body_row(m, D, i), work + (size_t)i * m->stride, work + (size_t)bi->parent * m->stride);
+    }
+}
+
 /* Per carrier: I into AB_IA, P into AB_P, gravity's I (0, g) into AB_F (the force elements add to it). */
 static void bias_forces(const MbsEval *e)
 {
@@ -97,7 +148,7 @@ static void bias_forces(const MbsEval *e)
         double *wk = mbs_body_work(e, i), *I = wk + AB_IA, *P = wk + AB_P, *F = wk + AB_F;
         const double *w = wk + W_W, *al = wk + W_AL;
         double h[3], v[6], a[6], Iv[6];
-        spatial_inertia(e, i, wk, I, h);
+        spatial_inertia(wk, I, h);
         cross(w, wk + W_V, a + 3);
         for (int r = 0; r < 3; r++) {
             v[r] = w[r];

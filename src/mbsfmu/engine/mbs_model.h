@@ -69,7 +69,6 @@ static inline const MbsForceI *mbs_force_i(const MbsModel *m, int k) { return (c
  * MBS_FORCE_D (the bind programs write them as numbers of D; the engine reads fields) */
 typedef struct {
     double a1[3], a2[3], at[3], R0[9], m, c[3], I[9];     /* derived: used per step */
-    double mc, cc[3], Ic[9];                               /* derived: with the bodies welded to it */
     double a1_raw[3], a2_raw[3], rot_raw[9], irot_raw[9];  /* raw: written by the bind programs */
 } MbsBodyD;
 #define MBS_DOUBLE_FIELD(T, member, FIELD) \
@@ -77,7 +76,7 @@ typedef struct {
                    sizeof(((T *)0)->member) == sizeof(double) * (FIELD##_END_ + 1 - FIELD))
 MBS_DOUBLE_FIELD(MbsBodyD, a1, DB_A1); MBS_DOUBLE_FIELD(MbsBodyD, a2, DB_A2); MBS_DOUBLE_FIELD(MbsBodyD, at, DB_AT);
 MBS_DOUBLE_FIELD(MbsBodyD, R0, DB_R0); MBS_DOUBLE_FIELD(MbsBodyD, m, DB_M); MBS_DOUBLE_FIELD(MbsBodyD, c, DB_C);
-MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I); MBS_DOUBLE_FIELD(MbsBodyD, mc, DB_MC); MBS_DOUBLE_FIELD(MbsBodyD, cc, DB_CC); MBS_DOUBLE_FIELD(MbsBodyD, Ic, DB_IC);
+MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I);
 MBS_DOUBLE_FIELD(MbsBodyD, a1_raw, DB_A1_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, a2_raw, DB_A2_RAW); MBS_DOUBLE_FIELD(MbsBodyD, rot_raw, DB_ROT_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, irot_raw, DB_IROT_RAW);
@@ -130,7 +129,10 @@ typedef struct {
 #define AB_L 147          /* Cholesky factor L of D, nv × nv */
 #define AB_Z 183          /* L⁻¹ u */
 #define AB_ACC 189        /* spatial acceleration beyond the bias (Σ S ÿ of the path to the root) */
-#define AB_SIZE 195
+#define AB_MC 195         /* mass, centre of mass (body frame), inertia about it (body axes) of the body with the */
+#define AB_CC 196         /* bodies welded to it (IB_CARRIER): written at bind time (mbs_composites), read per step */
+#define AB_IC 199
+#define AB_SIZE 208
 
 /* The evaluation path, chosen from the scene's header in this one place (compile.py's workspace check follows it):
  * elastic scenes keep the dense path (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic
@@ -138,7 +140,8 @@ typedef struct {
  * articulated-body algorithm (dynamics.c: linear). */
 static inline int mbs_dense_path(const int32_t *hdr)
 {
-    return (hdr[H_FEATURES] & F_ELASTIC) || hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL;
+    return (hdr[H_FEATURES] & F_ELASTIC) ||
+           (hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL && hdr[H_NB] - hdr[H_NCARRIER] <= hdr[H_NCARRIER]);
 }
 /* doubles of an instance's evaluation workspace: per body, scratch (two 3 × f Jacobians) and M on the dense path */
 static inline double mbs_work_doubles(const int32_t *hdr)
@@ -165,12 +168,13 @@ void mbs_applied_forces(const MbsEval *e);
 int mbs_eval_rhs(const MbsEval *e);                   /* 0, or MBS_F_SINGULAR */
 int mbs_cholesky_solve(int n, double *M, double *r);
 /* dynamics.c: the recursive path (rigid scenes, !m->dense) */
+void mbs_composites(const MbsModel *m, const double *D, double *work);  /* at bind: the carriers' inertias */
 int mbs_aba(const MbsEval *e);                        /* ÿ into e->xdot: 0, or MBS_F_SINGULAR */
 void mbs_crba_rnea(const MbsEval *e);                 /* M, k, q (inspection: mbs_equations) */
 void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign); /* F at x (x NULL: a torque) */
 void mbs_point(const MbsEval *e, int i, const double *r_b, double *x, double *v, double *J);
 void mbs_add_JtF(const MbsEval *e, int i, const double *J, const double *F, double sign, double *q);
-void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations, composites from the raw numbers */
+void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations from the raw numbers */
 void mbs_initial_state(const MbsModel *m, const double *D, double *x0);
 /* elastic.c (only for scenes with elastic bodies; F_ELASTIC) */
 #ifdef MBS_WITH_ELASTIC

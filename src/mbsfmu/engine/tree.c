@@ -556,41 +556,6 @@ static void rotation(int code, const double *raw, double *R)
     }
 }
 
-/* I += m (d·d E − d dᵀ): the inertia of mass m at offset d from the reference point (parallel axes) */
-static void add_parallel_axes(double m, const double *d, double *I)
-{
-    const double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++) I[3 * r + c] += m * ((r == c) * dd - d[r] * d[c]);
-}
-
-/* Body k, welded to its parent at the joint frame (at, R0), joins the parent's mass, centre of mass and inertia
- * about it (each already with what is welded to it): m' = m + m_k, c' = (m c + m_k c_k) / m', Ī' = Ī + m (c − c')~ +
- * R0 Ī_k R0ᵀ + m_k (c_k − c')~, c_k = at + R0 c_k in the parent's frame (~: the parallel-axis term). */
-static void weld(MbsBodyD *parent, const MbsBodyD *k)
-{
-    double ck[3], RI[9], dc[3], dk[3];
-    mv(k->R0, k->cc, ck);
-    for (int r = 0; r < 3; r++) ck[r] += k->at[r];
-    const double m = parent->mc, mt = m + k->mc;
-    for (int r = 0; r < 3; r++) {
-        const double c = mt > 0.0 ? (m * parent->cc[r] + k->mc * ck[r]) / mt : parent->cc[r];
-        dc[r] = parent->cc[r] - c;
-        dk[r] = ck[r] - c;
-        parent->cc[r] = c;
-    }
-    add_parallel_axes(m, dc, parent->Ic);
-    add_parallel_axes(k->mc, dk, parent->Ic);
-    mm(k->R0, k->Ic, RI);
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++)
-            parent->Ic[3 * r + c] += RI[3 * r] * k->R0[3 * c] + RI[3 * r + 1] * k->R0[3 * c + 1] + RI[3 * r + 2] * k->R0[3 * c + 2];
-    parent->mc = mt;
-}
-
-/* Axes and joint rotations from the raw numbers; then each body's composite, leaves first: its own mass,
- * centre of mass and inertia, joined by those of the bodies welded to it, so a carrier's is that of all it carries
- * (the recursive path's bodies, dynamics.c). */
 void mbs_derive(const MbsModel *m, double *D)
 {
     for (int i = 0; i < NB(m); i++) {
@@ -602,14 +567,6 @@ void mbs_derive(const MbsModel *m, double *D)
         if (t == J_UNIVERSAL || t == J_PLANAR)
             unit(bd->a2_raw, bd->a2);
         rotation(bi->rot, bd->rot_raw, bd->R0);
-        bd->mc = bd->m;
-        memcpy(bd->cc, bd->c, sizeof bd->cc);
-        memcpy(bd->Ic, bd->I, sizeof bd->Ic);
-    }
-    for (int i = NB(m) - 1; i >= 0; i--) {
-        const MbsBodyI *bi = mbs_body_i(m, i);
-        if (bi->carrier != i && bi->parent >= 0)  /* welded to a body (to the world: carried by none) */
-            weld((MbsBodyD *)mbs_body_row(m, D, bi->parent), mbs_body_row(m, D, i));
     }
 }
 
