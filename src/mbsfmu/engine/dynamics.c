@@ -2,6 +2,12 @@
  * (Featherstone's FDab) and, for inspection, M by the composite-rigid-body algorithm and k, q by the recursive
  * Newton–Euler pass. The path of rigid scenes (mbs_dense_path); elastic ones keep tree.c's dense equations.
  *
+ * The recursions run over the carriers only (IB_CARRIER, compile.py: carriers): a body welded to its rigid parent
+ * (a fixed joint) moves with it, so its mass, centre of mass and inertia join its carrier's, as Pinocchio merges a
+ * URDF's fixed links. mbs_composites derives these merged inertias at bind time, leaves first, into the
+ * per-instance workspace (they may depend on parameters); forces on a welded body act on its carrier. The
+ * kinematics, outputs and force points keep every body.
+ *
  * Spatial vectors in world axes about each body's origin o (Pinocchio's LOCAL_WORLD_ALIGNED): a motion (ω, v),
  * v the velocity of the body point at o; a force (n, F), n its moment about o. Between a body and its parent only
  * the point moves, by d = o − o_parent: motions m → (ω, v − d × ω), forces f → (n + d × F, F), inertias Tᵀ I T.

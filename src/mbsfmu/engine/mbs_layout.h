@@ -21,7 +21,7 @@
 #define MBS_VALUE(...) MBS_VALUE_(__VA_ARGS__, ~)
 #define MBS_VALUE_(name, value, ...) name = (value),
 
-#define MBS_FORMAT_VERSION 1 /* version of the compiled-scene layout this engine reads */
+#define MBS_FORMAT_VERSION 3 /* version of the compiled-scene layout this engine reads (3: H_NCARRIER, IB_CARRIER) */
 #define MBS_MAXSTACK 64
 /* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py refuses a
  * larger scene first, with its size) */
