@@ -362,8 +362,8 @@ _C_LOOP = {}
 
 
 def c_loop(pair, python_us, seconds=0.3, batch=2e-3):
-    """µs per mbs_rhs of the pair's scene called in a C loop (rhs_loop.c) on its states in turn: the best of batches of about
-    `batch` seconds (at least one call) over `seconds`; None without a C compiler."""
+    """µs per mbs_rhs of the pair's scene called in a C loop (rhs_loop.c) on its states in turn: the best of batches
+    of about `batch` seconds (at least one call) over `seconds`; None without a C compiler."""
     from ..engine.build import library_path
     from ..fmu.native import compiler
     if "exe" not in _C_LOOP:
