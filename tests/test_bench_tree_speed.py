@@ -3,6 +3,7 @@ every side (the deviations it reports), the C loop, and the growth exponents it 
 
 import csv
 
+import numpy as np
 import pytest
 
 pytest.importorskip("pinocchio")
@@ -38,3 +39,21 @@ def test_growth_exponents_of_power_laws():
     s = tree_speed.slope(rows)
     assert s["mbsfmu"] == (pytest.approx(3), (100, 3000)) and s["pinocchio"] == (pytest.approx(1), (100, 1000))
     assert "mujoco" not in s
+
+
+def test_timed_calls_cycle_through_distinct_states():
+    """Each timed call is at the next state of the cycle, the same for both peers, so the engine's kinematics (kept
+    while the state's bits stay the same) run on every call: after mbsfmu's call k its ÿ is the one at state k, and
+    pin.aba's answer of call k, mapped back, is that same ÿ (Pinocchio against the engine, state by state)."""
+    from mbsfmu.bench.pinocchio_twin import from_pin_acceleration, to_pin
+    pair = tree_speed.Pair(tree_speed.chain_scene(5), states=3)
+    pair.add_pinocchio()
+    npos = pair.sim.npos
+    assert not np.allclose(pair.ydd[0], pair.ydd[1]) and not np.allclose(pair.ydd[1], pair.ydd[2])
+    for k in range(7):
+        y, yd = pair.states[k % 3]
+        pair.calls["mbsfmu"]()
+        assert np.array_equal(pair.out[npos:], pair.ydd[k % 3])
+        _, v, _, P = to_pin(pair.ev, y, yd, free_flyer=True)
+        a = from_pin_acceleration(pair.ev, y, v, pair.calls["pinocchio"](), P, free_flyer=True)
+        assert np.max(np.abs(a - pair.ydd[k % 3])) < 1e-12 * max(1.0, np.max(np.abs(a)))

@@ -211,3 +211,57 @@ def test_bodies_are_ordered_parents_first_in_linear_time():
     t0 = time.process_time()
     order = _parents_first(chain)
     assert time.process_time() - t0 < 1.0 and [b["name"] for b in order] == [f"b{i}" for i in range(10000)]
+
+
+WELDED = """mbsfmu: 1
+name: welded
+gravity: [0.2, -0.5, -9.81]
+parameters: {m_w: 1.5}
+bodies:
+  stand: {parent: world, joint: {type: fixed, at: [0.1, 0, 0.3]}, mass: 5, inertia: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
+  hub: {parent: world, joint: {type: free, at: [0, 0.2, 1]}, mass: 3, center_of_mass: [0.05, 0, 0.02],
+        inertia: [[0.1, 0.01, 0], [0.01, 0.2, 0], [0, 0, 0.15]]}
+  w1: {parent: hub, joint: {type: fixed, at: [0.3, 0.1, 0], rotation: {axis: [1, 2, 3], angle: 0.7}}, mass: m_w,
+       center_of_mass: [0.1, -0.05, 0.2], inertia: [[0.02, 0.001, 0], [0.001, 0.03, 0.002], [0, 0.002, 0.04]]}
+  w2: {parent: w1, joint: {type: fixed, at: [0, 0.2, 0.1], rotation: {axis: [0, 1, 0], angle: -1.1}}, mass: 0}
+  arm: {parent: w2, joint: {type: revolute, axis: [0, 0, 1], at: [0.1, 0, 0]}, mass: 1.2,
+        center_of_mass: [0.2, 0, 0], inertia: [[0.01, 0, 0], [0, 0.05, 0], [0, 0, 0.05]]}
+  tip: {parent: arm, joint: {type: fixed, at: [0.4, 0, 0], rotation: {axis: [1, 0, 0], angle: 0.4}}, mass: 0.3,
+        center_of_mass: [0.02, 0.01, 0], inertia: [[0.001, 0, 0], [0, 0.002, 0], [0, 0, 0.002]]}
+  finger: {parent: tip, joint: {type: universal, axes: [[1, 0, 0], [0, 1, 0]], at: [0.05, 0, 0]}, mass: 0.2,
+           center_of_mass: [0, 0, 0.05], inertia: [[0.001, 0, 0], [0, 0.001, 0], [0, 0, 0.0005]]}
+  pad: {parent: finger, joint: {type: fixed, at: [0, 0, 0.1]}, mass: 0}
+forces:
+  - {type: spring_damper, bodies: [stand, pad], at: [[0, 0, 0.1], [0.01, 0, 0]], stiffness: 20, damping: 0.5, length: 0.3}
+  - {type: force, body: w2, at: [0.1, 0.2, 0], frame: body, value: ["sin(t)", 1, 0.5]}
+  - {type: torque, body: tip, frame: body, value: [0.1, -0.3, 0.2]}
+  - {type: force, body: pad, at: [0, 0.02, 0], frame: world, value: [0, 0, -2]}
+"""
+
+
+def test_welded_and_massless_links_join_their_carriers():
+    """Bodies on fixed joints (massive and massless, in chains, one on the world, moving bodies on them, forces
+    and torques on them in both frames) are welded to their carriers (compile.carriers): the recursive path's M,
+    k, q and ÿ equal the numpy reference's, which keeps every body, to 1e-12, also after the parameter that sets a
+    welded body's mass changes (the composites are derived at bind time)."""
+    from mbsfmu.engine.compile import carriers
+    spec = mbsfmu.loads(WELDED).spec
+    ev, sim = mbsfmu.compile(spec), Simulation(spec)
+    names = [b.name for b in ev.model.bodies]
+    c = carriers(ev.model)
+    assert {n: names[k] if k >= 0 else None for n, k in zip(names, c)} == {
+        "stand": None, "hub": "hub", "w1": "hub", "w2": "hub", "arm": "arm", "tip": "arm", "finger": "finger",
+        "pad": "finger"}
+    rng = np.random.default_rng(3)
+    for m_w in (1.5, 4.0):
+        sim.set("m_w", m_w)  # the engine's parameter; the reference's scene with it as its value
+        ev = mbsfmu.compile(mbsfmu.loads(WELDED.replace("m_w: 1.5", f"m_w: {m_w}")).spec)
+        for t in (0.0, 0.8):
+            y, yd = _state(ev, rng)
+            x = np.concatenate([y, yd])
+            M, k, q = ev.equations(y, yd, t)
+            scale = max(1.0, np.abs(M).max(), np.abs(k).max(), np.abs(q).max())
+            for want, got in zip((M, k, q), sim.engine.equations(t, x)):
+                np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * scale)
+            ydd = np.linalg.solve(M, q - k)
+            np.testing.assert_allclose(sim.f(t, x)[len(y):], ydd, rtol=0, atol=1e-12 * np.linalg.cond(M) * np.abs(ydd).max())

@@ -538,3 +538,35 @@ def test_elastic_ur5_native_fmu_builds_and_validates(tmp_path):
     from fmpy.validation import validate_fmu
     fmu = mbsfmu.build_fmu(_elastic_ur5(1e3), tmp_path, kind="native")
     assert validate_fmu(str(fmu)) == []
+
+
+def test_fixed_and_massless_links_match_pinocchio(tmp_path):
+    """A fixed-base arm whose moving links hang on fixed ones (massive, rotated, massless, in a chain, one on the
+    world): the engine's ÿ (its recursive path, fixed links welded to their carriers) against pin.aba on
+    Pinocchio's own model of the URDF, which merges the fixed links itself."""
+    joint = '<joint name="{n}" type="{t}"><parent link="{p}"/><child link="{c}"/><origin xyz="{xyz}" rpy="{rpy}"/>' \
+            '<axis xyz="{a}"/></joint>'
+    links = [_link("base", m=4), _link("l1", c="0.1 0 0.05"), _link("f1", m=0.7, c="0 0.05 0", rpy="0.3 0 0.2"),
+             '<link name="f2"/>', _link("l2", m=1.1, c="0.2 0 0"), _link("f3", m=0.2, c="0.01 0 0"),
+             _link("l3", m=0.5, c="0 0 0.1", ixx=0.01, iyy=0.02, izz=0.015), '<link name="f4"/>']
+    joints = [("j1", "revolute", "base", "l1", "0 0 0.2", "0 0 0", "0 0 1"),
+              ("w1", "fixed", "l1", "f1", "0.3 0 0", "0.5 -0.2 1.0", "1 0 0"),
+              ("w2", "fixed", "f1", "f2", "0 0.1 0", "0 0.7 0", "1 0 0"),
+              ("j2", "revolute", "f2", "l2", "0.1 0 0", "0 0 0", "0 1 0"),
+              ("w3", "fixed", "l2", "f3", "0.4 0 0", "0.2 0 0", "1 0 0"),
+              ("j3", "revolute", "f3", "l3", "0.05 0 0", "0 0 0", "1 0 0"),
+              ("w4", "fixed", "l3", "f4", "0 0 0.2", "0 0 0", "1 0 0")]
+    body = "\n".join(links + [joint.format(n=n, t=t, p=p, c=c, xyz=x, rpy=r, a=a) for n, t, p, c, x, r, a in joints])
+    path = _urdf(tmp_path, body.replace('<axis xyz="1 0 0"/></joint>', "</joint>").replace(
+        'type="revolute"', 'type="continuous"'))
+    scene = mbsfmu.loads(f"mbsfmu: 1\nurdf: {{file: {path.name}}}\n", base=tmp_path)
+    ev, sim = mbsfmu.compile(scene), Simulation(scene.spec)
+    pm = pin.buildModelFromUrdf(str(path))
+    pd, twin = pm.createData(), _Twin(ev, pm)
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        y, yd, _ = _random_state(ev, rng)
+        q, v, _, _ = twin.state(y, yd, np.zeros(len(yd)))
+        ydd_p = pin.aba(pm, pd, q, v, np.zeros(pm.nv))[twin.P]
+        np.testing.assert_allclose(sim.f(0.0, np.concatenate([y, yd]))[len(y):], ydd_p, rtol=0,
+                                   atol=1e-12 * max(1.0, np.abs(ydd_p).max()))

@@ -3,8 +3,10 @@
  *   rhs_loop ENGINE.so SCENE.bin X.bin CALLS BATCHES   → prints "RHS <µs per call of the best batch>"
  *
  * Many short batches: on a shared machine the best one is the one no other process interrupted.
- * X.bin: the state [y; ẏ] as little-endian doubles. The engine library is opened with dlopen (the in-process
- * one of mbsfmu.engine.build.library_path), so that this loop runs exactly the code ctypes calls. */
+ * X.bin: one or more states [y; ẏ] as little-endian doubles, called in turn (the engine keeps its kinematics
+ * while the state's bits stay the same: a single state would time that cache). The engine library is opened
+ * with dlopen (the in-process one of mbsfmu.engine.build.library_path), so that this loop runs exactly the code
+ * ctypes calls. */
 #include <dlfcn.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -46,11 +48,12 @@ int main(int argc, char **argv) {
         fprintf(stderr, "instance\n");
         return 1;
     }
-    int n = npos(m) + nvel(m);
-    double *x = malloc(n * sizeof *x), *xdot = malloc(n * sizeof *xdot);
+    long n = npos(m) + nvel(m), states = 0;
     FILE *f = fopen(argv[3], "rb");
-    if (!x || !xdot || !f || fread(x, sizeof *x, n, f) != (size_t)n) {
-        fprintf(stderr, "state: %d doubles expected\n", n);
+    if (f && !fseek(f, 0, SEEK_END)) states = ftell(f) / (long)(n * sizeof(double));
+    double *x = states > 0 ? malloc(states * n * sizeof *x) : NULL, *xdot = malloc(n * sizeof *xdot);
+    if (!x || !xdot || fseek(f, 0, SEEK_SET) || fread(x, sizeof *x, states * n, f) != (size_t)(states * n)) {
+        fprintf(stderr, "states: a multiple of %ld doubles expected\n", n);
         return 1;
     }
     fclose(f);
@@ -58,8 +61,8 @@ int main(int argc, char **argv) {
     double best = 1e300;
     for (long b = 0; b < batches; b++) {
         double t0 = now();
-        for (long k = 0; k < calls; k++)
-            if (rhs(s, 0.0, x, xdot) > 1) {
+        for (long k = 0, j = 0; k < calls; k++, j = j + 1 < states ? j + 1 : 0)
+            if (rhs(s, 0.0, x + j * n, xdot) > 1) {
                 fprintf(stderr, "mbs_rhs failed\n");
                 return 1;
             }

@@ -4,7 +4,7 @@
     that stand, walk or fly, `FLOATING`; `repair` where the plain load refuses an unphysical or massless link,
     as `--repair` would); the ones the scene format refuses by design (`<mimic>`: a closed constraint) are
     listed with their reason. Pinocchio gets the same tree (bench/pinocchio_twin.py, its own free flyer for a
-    floating base) and its ÿ is checked against ours at the timed state.
+    floating base) and its ÿ is checked against ours at the timed states.
 (b) Random revolute chains of N = 10 … 10,000 bodies (random axes, offsets, masses, inertias; gravity), each
     size in a fresh process, so that its peak resident set (RSS) is the size's: the engine's while compiling the
     loaded scene, creating the instance and calling the right-hand side, before any peer is loaded. Sizes the
@@ -13,7 +13,9 @@
 
 Timing: the right-hand side ẋ = f(t, x) through ctypes (`mbs_rhs`) into a preallocated array, against
 `pin.aba(model, data, q, v, tau)` on preallocated arrays: both called the same way from Python, in alternating
-batches; best and median batch, µs per call; the ratio of the bests. The empty ctypes call (`mbs_time`) is
+batches; best and median batch, µs per call; the ratio of the bests. Every call is at the next of STATES distinct
+random states, the same for every peer (Pair): the engine keeps its kinematics while the state's bits stay the
+same, so one state would time that cache against Pinocchio's full aba. The empty ctypes call (`mbs_time`) is
 listed: the part of a small robot's time that is the call from Python. (c) The same right-hand side in a C
 loop (bench/rhs_loop.c over the engine library): the engine without Python.
 
@@ -25,6 +27,7 @@ from 100 to 10,000.
 """
 
 import argparse
+import itertools
 import json
 import math
 import statistics
@@ -52,6 +55,10 @@ TARGETS = {"robot": 1.0, 100: 1.5, 1000: 2.0}
 # Pinocchio 4.1's Data of an N-body chain grows as N³ (measured: 0.07, 0.5, 4 GB at N = 100, 200, 400): no
 # Pinocchio beyond this size (1000 bodies would take about 60 GB)
 PIN_MAX_CHAIN = 300
+# distinct random states every timed call cycles through, the same for every peer (Pair)
+STATES = 64
+# MuJoCo's share of them: one MjData each (28 MB at N = 1000)
+MUJOCO_STATES = 4
 
 
 # ------------------------------------------------------------------------------------------------ scenes
@@ -100,27 +107,35 @@ def chain_scene(n, seed=0):
 
 # ------------------------------------------------------------------------------------------------ calls
 class Pair:
-    """One scene's right-hand side (mbsfmu, through ctypes into a preallocated array) at a random state as a
-    no-argument call, and its peers on the same tree at the same state (add_pinocchio, add_mujoco): `calls`
-    {name: call}, `deviations` {peer: max |ÿ − ÿ_peer| / max(1, |ÿ_peer|)}."""
+    """One scene's right-hand side (mbsfmu, through ctypes into a preallocated array) as a no-argument call that
+    cycles through `states` distinct random states, and its peers on the same tree cycling through the same
+    states (add_pinocchio, add_mujoco): `calls` {name: call}, `deviations` {peer: max over the states of
+    max |ÿ − ÿ_peer| / max(1, |ÿ_peer|)}. Distinct states because the engine keeps its kinematics while t and
+    x's bits stay the same (sim.c: kinematics): at one state every timed call after the first would skip them,
+    while pin.aba recomputes everything."""
 
-    def __init__(self, scene, seed=0):
+    def __init__(self, scene, seed=0, states=STATES):
         import mbsfmu
         self.sim = sim = engine_of(scene)
         self.ev = mbsfmu.compile(scene)
-        self.y, self.yd = random_state(self.ev, np.random.default_rng(seed))
-        self.x, self.out = np.r_[self.y, self.yd], np.empty(sim.engine.n)
-        lib, ptr, xp, op = sim.engine.lib, sim.engine.ptr, self.x.ctypes.data, self.out.ctypes.data
-        sim.engine.rhs(0.0, self.x, self.out)  # once through the checked path: a failing state raises here
-        self.ydd = self.out[sim.npos:]
-        self.calls = {"mbsfmu": lambda: lib.mbs_rhs(ptr, 0.0, xp, op)}
+        rng = np.random.default_rng(seed)
+        self.states = [random_state(self.ev, rng) for _ in range(states)]
+        self.X = np.array([np.r_[y, yd] for y, yd in self.states])  # one state [y; ẏ] a row
+        self.out = np.empty(sim.engine.n)
+        self.ydd = []
+        for x in self.X:  # through the checked path: a failing state raises here
+            sim.engine.rhs(0.0, x, self.out)
+            self.ydd.append(self.out[sim.npos:].copy())
+        lib, ptr, op = sim.engine.lib, sim.engine.ptr, self.out.ctypes.data
+        self.calls = {"mbsfmu": cycling(lib.mbs_rhs, [(ptr, 0.0, x.ctypes.data, op) for x in self.X])}
         self.empty = lambda: lib.mbs_time(ptr)
         self.nv = sim.nvel
         self.deviations = {}
 
     def add_pinocchio(self):
-        """pin.aba(model, data, q, v, tau) on preallocated arrays (a floating base as Pinocchio's free flyer, the
-        URDF's joint damping as tau); the MB its model and data add to the peak resident set."""
+        """pin.aba(model, data, q, v, tau) on preallocated arrays, one (q, v, tau) a state (a floating base as
+        Pinocchio's free flyer, the URDF's joint damping as tau); the MB its model and data add to the peak
+        resident set."""
         import pinocchio as pin
 
         from .pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin
@@ -128,27 +143,44 @@ class Pair:
         reset_peak_rss()
         model = pinocchio_model(ev, free_flyer=True)
         data = model.createData()
-        q, v, _, P = to_pin(ev, self.y, self.yd, free_flyer=True)
-        tau = joint_dampers(ev, self.yd, P, model.nv)
-        self.calls["pinocchio"] = call = lambda: pin.aba(model, data, q, v, tau)
-        self.deviations["pinocchio"] = _deviation(self.ydd, from_pin_acceleration(ev, self.y, v, call(), P, free_flyer=True))
-        return peak_rss_mb() - before
+        mb = peak_rss_mb() - before
+        args, dev = [], 0.0
+        for (y, yd), ydd in zip(self.states, self.ydd):
+            q, v, _, P = to_pin(ev, y, yd, free_flyer=True)
+            tau = joint_dampers(ev, yd, P, model.nv)
+            args.append((model, data, q, v, tau))
+            a = pin.aba(model, data, q, v, tau)
+            dev = max(dev, _deviation(ydd, from_pin_acceleration(ev, y, v, a, P, free_flyer=True)))
+        self.calls["pinocchio"] = cycling(pin.aba, args)
+        self.deviations["pinocchio"] = dev
+        return mb
 
     def add_mujoco(self):
-        """MuJoCo's mj_forward (contacts and constraints off: forward dynamics only) on the same tree at the
-        same state; else the reason: not installed, not mapped (mujoco_model), refused by MuJoCo's compiler
-        (trees deeper than 1024 bodies)."""
+        """MuJoCo's mj_forward (contacts and constraints off: forward dynamics only) on the same tree, cycling
+        through the first MUJOCO_STATES states, each in its own MjData (mj_forward reads the state from its
+        data: copying it in from Python would cost more than a small tree's forward dynamics); else the reason:
+        not installed, not mapped (mujoco_model), refused by MuJoCo's compiler (trees deeper than 1024 bodies)."""
         try:
             import mujoco
             M = mujoco_model(self.ev)
         except (ImportError, NotImplementedError, ValueError) as e:
             return f"{type(e).__name__}: {e}".splitlines()[0]
-        D = mujoco.MjData(M)
-        D.qpos[:], D.qvel[:] = self.y, self.yd
-        self.calls["mujoco"] = call = lambda: mujoco.mj_forward(M, D)
-        call()
-        self.deviations["mujoco"] = _deviation(self.ydd, D.qacc)
+        datas, dev = [], 0.0
+        for (y, yd), ydd in list(zip(self.states, self.ydd))[:MUJOCO_STATES]:
+            D = mujoco.MjData(M)
+            D.qpos[:], D.qvel[:] = y, yd
+            mujoco.mj_forward(M, D)
+            dev = max(dev, _deviation(ydd, D.qacc))
+            datas.append((M, D))
+        self.calls["mujoco"] = cycling(mujoco.mj_forward, datas)
+        self.deviations["mujoco"] = dev
         return None
+
+
+def cycling(fn, args):
+    """A no-argument call of fn on each of the argument tuples in turn: the same cycling cost for every peer."""
+    it = itertools.cycle(args)
+    return lambda: fn(*next(it))
 
 
 _MUJOCO_OFF = ("CONTACT", "CONSTRAINT", "LIMIT", "EQUALITY", "FRICTIONLOSS", "SPRING", "DAMPER", "ACTUATION",
@@ -330,8 +362,8 @@ _C_LOOP = {}
 
 
 def c_loop(pair, python_us, seconds=0.3, batch=2e-3):
-    """µs per mbs_rhs of the pair's scene and state called in a C loop (rhs_loop.c): the best of batches of about
-    `batch` seconds (at least one call) over `seconds`; None without a C compiler."""
+    """µs per mbs_rhs of the pair's scene called in a C loop (rhs_loop.c) on its states in turn: the best of batches
+    of about `batch` seconds (at least one call) over `seconds`; None without a C compiler."""
     from ..engine.build import library_path
     from ..fmu.native import compiler
     if "exe" not in _C_LOOP:
@@ -349,7 +381,7 @@ def c_loop(pair, python_us, seconds=0.3, batch=2e-3):
     batches = max(5, int(seconds / (calls * python_us * 1e-6)))
     with tempfile.TemporaryDirectory(prefix="mbsfmu_rhs_loop_") as d:
         (Path(d) / "scene.bin").write_bytes(pair.sim.blob)
-        pair.x.astype("<f8").tofile(Path(d) / "x.bin")
+        pair.X.astype("<f8").tofile(Path(d) / "x.bin")
         r = subprocess.run([str(_C_LOOP["exe"]), str(library_path()), str(Path(d) / "scene.bin"), str(Path(d) / "x.bin"),
                             str(calls), str(batches)], capture_output=True, text=True, timeout=3600)
     if r.returncode != 0:
@@ -428,10 +460,12 @@ def markdown(robot_rows, refused, chain_rows, cmd):
              "side of the engine (`mbs_rhs` through ctypes into a preallocated array: ẏ and ÿ) against "
              "`pin.aba(model, data, q, v, tau)` on preallocated arrays and MuJoCo's `mj_forward` (contacts and "
              "constraints off), all from Python, alternating batches; best and median batch; ratio = mbsfmu's best / "
-             "the peer's best. C loop: the same `mbs_rhs` called from C (bench/rhs_loop.c), best of batches "
-             "of about 2 ms. Empty "
+             f"the peer's best. The states vary per call: each call is at the next of {STATES} distinct random "
+             f"states, the same for every peer (MuJoCo: the first {MUJOCO_STATES}, one `MjData` each), so the "
+             "engine's kinematics, kept while the state's bits stay the same, run on every call. C loop: the same "
+             "`mbs_rhs` on the same states called from C (bench/rhs_loop.c), best of batches of about 2 ms. Empty "
              "ctypes call: `mbs_time`, the floor of a call from Python. Deviation: max |ÿ − ÿ_peer| / max(1, |ÿ_peer|) "
-             "at the timed state (the same tree: bench/pinocchio_twin.py, `mujoco_model`). Timed on a "
+             "over the timed states (the same tree: bench/pinocchio_twin.py, `mujoco_model`). Timed on a "
              "shared 2-core machine: the best batch is the cost, the medians show the load.", "",
              "![time against size](tree_speed.png)", ""]
     if chain_rows:

@@ -131,7 +131,9 @@ def compile_scene(spec, variables, guid="", model=None):
     m, env = model, dict(model.env)
     # on the dense path (elastic scenes, mbs_dense_path) the engine keeps per body dense Jacobian rows (6 f
     # doubles): refuse what it could not allocate (the recursive path's workspace, linear, is bounded by limits)
-    dense = m.has_elastic or m.nvel <= L.MBS_DENSE_MAX_NVEL
+    carrier = carriers(m)
+    ncarrier = sum(c == i for i, c in enumerate(carrier))
+    dense = m.has_elastic or (m.nvel <= L.MBS_DENSE_MAX_NVEL and len(m.bodies) - ncarrier <= ncarrier)
     need = 8 * len(m.bodies) * (26 + 6 * m.nvel) + 8 * m.nvel ** 2
     if dense and need > L.MBS_MAX_WORKSPACE:
         raise ValueError(f"scene too large for the engine: {len(m.bodies)} bodies with {m.nvel} velocity coordinates "
@@ -148,6 +150,7 @@ def compile_scene(spec, variables, guid="", model=None):
     x0 = regions["x0"]
     drives = [(i, k, d) for i, b in enumerate(m.bodies) for k, *d in b.drives]
     ncardan = 0
+    ib[:, L.IB_CARRIER] = carrier
     for r in range(3):  # rules in the loader's order (the first broken one is the one named): gravity, bodies, ...
         regions["g"][r] = P.number(spec["gravity"][r], env, "g", r)
         R.add(domains.MAGNITUDE, "g", r, f"gravity[{r}]")
@@ -324,6 +327,7 @@ def compile_scene(spec, variables, guid="", model=None):
                   NDRV=len(drives), NVEC=len(inputs) + len(timed), NINPUT=len(inputs), NPARAM=len(params),
                   NVARS=len(vars_), NOUT=len(m.outputs), NPROG=len(prog), NCODE=len(P.code),
                   HAS_GRAVITY=int(m.has_gravity), METHOD=L.METHODS.index(integ["method"]), NCARDAN=int(ncardan),
+                  NCARRIER=ncarrier,
                   FEATURES=features, MAXSTACK=L.MBS_MAXSTACK, D_PARAM=0, D_CONST=len(params), D_BODY=offsets["body"],
                   D_FORCE=offsets["force"], D_G=offsets["g"], D_X0=offsets["x0"], D_NOMINAL=offsets["nominal"], D_OUT=offsets["out"],
                   D_INTEG=offsets["integ"], ND=nd)
@@ -336,6 +340,20 @@ def compile_scene(spec, variables, guid="", model=None):
                 (L.S_VDOM, vdom), (L.S_RULES, rules), (L.S_RULE_NAMES, rule_names),
                 (L.S_LIMITS, _limits(spec))]
     return _pack(sections, guid)
+
+
+def carriers(model):
+    """The body that carries each body on the recursive path (IB_CARRIER): a body welded to its parent (a fixed
+    joint on a rigid parent, not at an elastic node) moves with it and joins its carrier (-1: the world), the rest
+    carry themselves. The engine derives each carrier's composite mass and inertia at bind time (mbs_derive: the
+    numbers may depend on parameters), so its recursion runs over the moving bodies only, as Pinocchio merges a
+    URDF's fixed links; the kinematics, outputs and force points keep every body."""
+    out = []
+    for i, b in enumerate(model.bodies):
+        p = b.parent
+        welded = b.type.code == L.J_FIXED and not b.elastic and b.node is None and (p < 0 or not model.bodies[p].elastic)
+        out.append((out[p] if p >= 0 else -1) if welded else i)
+    return out
 
 
 def _pack(sections, guid):

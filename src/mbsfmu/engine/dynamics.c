@@ -2,6 +2,12 @@
  * (Featherstone's FDab) and, for inspection, M by the composite-rigid-body algorithm and k, q by the recursive
  * Newton–Euler pass. The path of rigid scenes (mbs_dense_path); elastic ones keep tree.c's dense equations.
  *
+ * The recursions run over the carriers only (IB_CARRIER, compile.py: carriers): a body welded to its rigid parent
+ * (a fixed joint) moves with it, so its mass, centre of mass and inertia join its carrier's, as Pinocchio merges a
+ * URDF's fixed links. mbs_composites derives these merged inertias at bind time, leaves first, into the
+ * per-instance workspace (they may depend on parameters); forces on a welded body act on its carrier. The
+ * kinematics, outputs and force points keep every body.
+ *
  * Spatial vectors in world axes about each body's origin o (Pinocchio's LOCAL_WORLD_ALIGNED): a motion (ω, v),
  * v the velocity of the body point at o; a force (n, F), n its moment about o. Between a body and its parent only
  * the point moves, by d = o − o_parent: motions m → (ω, v − d × ω), forces f → (n + d × F, F), inertias Tᵀ I T.
@@ -54,15 +60,15 @@ static void inertia_times(const double *restrict I, const double *restrict h, co
     }
 }
 
-/* Body i's spatial inertia about its origin in world axes (6 × 6) and its first moment h = m c. */
-static void spatial_inertia(const MbsEval *e, int i, const double *wk, double *I, double *h)
+/* A carrier's spatial inertia (with the bodies welded to it: mbs_composites) about its origin in world
+ * axes (6 × 6) and its first moment h = m c. */
+static void spatial_inertia(const double *wk, double *I, double *h)
 {
-    const MbsBodyD *bd = mbs_body_d(e, i);
-    const double *S = wk + W_S, m = bd->m;
+    const double *S = wk + W_S, m = wk[AB_MC];
     double c[3], SI[9];
-    mv(S, bd->c, c);
+    mv(S, wk + AB_CC, c);
     for (int r = 0; r < 3; r++) h[r] = m * c[r];
-    mm(S, bd->I, SI);
+    mm(S, wk + AB_IC, SI);
     const double cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
     for (int r = 0; r < 3; r++)
         for (int k = 0; k < 3; k++)  /* Ī_o = S Ī Sᵀ + m (c·c E − c cᵀ) */
@@ -77,17 +83,78 @@ static void spatial_inertia(const MbsEval *e, int i, const double *wk, double *I
         }
 }
 
-/* Per body: I into AB_IA, P into AB_P, gravity's I (0, g) into AB_F (the force elements add to it). */
+/* The recursion runs over the carriers (IB_CARRIER: the moving bodies, each with what is welded to it); a
+ * carrier's parent in it is its parent's carrier, -1 the world. */
+static int carries_itself(const MbsModel *m, int i) { return mbs_body_i(m, i)->carrier == i; }
+static int carrier_parent(const MbsModel *m, const MbsBodyI *bi)
+{
+    return bi->parent < 0 ? -1 : mbs_body_i(m, bi->parent)->carrier;
+}
+
+/* I += m (d·d E − d dᵀ): the inertia of mass m at offset d from the reference point (parallel axes) */
+static void add_parallel_axes(double m, const double *d, double *I)
+{
+    const double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) I[3 * r + c] += m * ((r == c) * dd - d[r] * d[c]);
+}
+
+/* Body k (composite wk), welded to its parent at its joint frame (at, R0), joins the parent's composite (wp):
+ * m' = m + m_k, c' = (m c + m_k c_k) / m', Ī' = Ī + m (c − c')~ + R0 Ī_k R0ᵀ + m_k (c_k − c')~ with c_k = at + R0 c_k
+ * in the parent's frame (~: the parallel-axis term). */
+static void weld(const MbsBodyD *bk, const double *wk, double *wp)
+{
+    double ck[3], RI[9], dc[3], dk[3];
+    mv(bk->R0, wk + AB_CC, ck);
+    for (int r = 0; r < 3; r++) ck[r] += bk->at[r];
+    const double m = wp[AB_MC], mk = wk[AB_MC], mt = m + mk;
+    double *c = wp + AB_CC, *I = wp + AB_IC;
+    for (int r = 0; r < 3; r++) {
+        const double c_ = mt > 0.0 ? (m * c[r] + mk * ck[r]) / mt : c[r];
+        dc[r] = c[r] - c_;
+        dk[r] = ck[r] - c_;
+        c[r] = c_;
+    }
+    add_parallel_axes(m, dc, I);
+    add_parallel_axes(mk, dk, I);
+    mm(bk->R0, wk + AB_IC, RI);
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++)
+            I[3 * r + q] += RI[3 * r] * bk->R0[3 * q] + RI[3 * r + 1] * bk->R0[3 * q + 1] + RI[3 * r + 2] * bk->R0[3 * q + 2];
+    wp[AB_MC] = mt;
+}
+
+/* At bind time (after mbs_derive): each body's composite, leaves first: its own mass, centre of mass and inertia
+ * joined by the composites of the bodies welded to it, so a carrier's is that of all it carries. The numbers may
+ * depend on parameters, so they are derived here, not compiled. */
+void mbs_composites(const MbsModel *m, const double *D, double *work)
+{
+    for (int i = 0; i < NB(m); i++) {
+        const MbsBodyD *bd = mbs_body_row(m, D, i);
+        double *wk = work + (size_t)i * m->stride;
+        wk[AB_MC] = bd->m;
+        memcpy(wk + AB_CC, bd->c, 3 * sizeof(double));
+        memcpy(wk + AB_IC, bd->I, 9 * sizeof(double));
+    }
+    for (int i = NB(m) - 1; i >= 0; i--) {
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        if (bi->carrier != i && bi->parent >= 0)  /* welded to a body (one welded to the world is carried by none) */
+            weld(mbs_body_row(m, D, i), work + (size_t)i * m->stride, work + (size_t)bi->parent * m->stride);
+    }
+}
+
+/* Per carrier: I into AB_IA, P into AB_P, gravity's I (0, g) into AB_F (the force elements add to it). */
 static void bias_forces(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const double *g = e->D + m->hdr[H_D_G];
     const int gravity = m->hdr[H_HAS_GRAVITY];
     for (int i = 0; i < NB(m); i++) {
+        if (!carries_itself(m, i)) continue;
         double *wk = mbs_body_work(e, i), *I = wk + AB_IA, *P = wk + AB_P, *F = wk + AB_F;
         const double *w = wk + W_W, *al = wk + W_AL;
         double h[3], v[6], a[6], Iv[6];
-        spatial_inertia(e, i, wk, I, h);
+        spatial_inertia(wk, I, h);
         cross(w, wk + W_V, a + 3);
         for (int r = 0; r < 3; r++) {
             v[r] = w[r];
@@ -109,6 +176,8 @@ static void bias_forces(const MbsEval *e)
 
 void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign)
 {
+    i = mbs_body_i(e->m, i)->carrier;  /* a welded body's force acts on its carrier; the world's takes none */
+    if (i < 0) return;
     double *wk = mbs_body_work(e, i), *f = wk + AB_F, n[3], r_[3];
     if (!x) {
         for (int r = 0; r < 3; r++) f[r] += sign * F[r];
@@ -172,7 +241,9 @@ static int articulated_inertias(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     for (int i = NB(m) - 1; i >= 0; i--) {
+        if (!carries_itself(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
+        const int parent = carrier_parent(m, bi);
         double *wk = mbs_body_work(e, i), *IA = wk + AB_IA, *W = wk + AB_W, *L = wk + AB_L, *z = wk + AB_Z;
         const double *S = wk + AB_S;
         const int nv = (int)wk[AB_NV];
@@ -207,7 +278,7 @@ static int articulated_inertias(const MbsEval *e)
                 z[k] /= L[nv * k + k];
             }
         }
-        if (bi->parent < 0) continue;
+        if (parent < 0) continue;
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 6; r++) p[r] += W[6 * k + r] * z[k];
         for (int r = 0; r < 6; r++)  /* I_A − W Wᵀ is symmetric: one triangle computed */
@@ -216,8 +287,8 @@ static int articulated_inertias(const MbsEval *e)
                 for (int k = 0; k < nv; k++) x -= W[6 * k + r] * W[6 * k + c];
                 IA[6 * r + c] = IA[6 * c + r] = x;
             }
-        double d[3], *pw = mbs_body_work(e, bi->parent);
-        offset(e, wk, bi->parent, d);
+        double d[3], *pw = mbs_body_work(e, parent);
+        offset(e, wk, parent, d);
         add_inertia_at(d, IA, pw + AB_IA);
         add_force_at(d, p, pw + AB_P);
     }
@@ -231,16 +302,18 @@ static void accelerations(const MbsEval *e)
     double *ydd = e->xdot + NPOS(m);
     static const double Z[6] = {0, 0, 0, 0, 0, 0};
     for (int i = 0; i < NB(m); i++) {
+        if (!carries_itself(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
+        const int parent = carrier_parent(m, bi);
         double *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, x[6];
         const double *L = wk + AB_L, *S = wk + AB_S, *ap = acc;
         const int nv = (int)wk[AB_NV];
-        if (bi->parent < 0)
+        if (parent < 0)
             memcpy(acc, Z, sizeof Z);
         else {  /* (α, a − d × α) */
-            const double *pa = mbs_body_work(e, bi->parent) + AB_ACC;
+            const double *pa = mbs_body_work(e, parent) + AB_ACC;
             double d[3], dxa[3];
-            offset(e, wk, bi->parent, d);
+            offset(e, wk, parent, d);
             cross(d, pa, dxa);
             for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
         }
@@ -275,7 +348,9 @@ void mbs_crba_rnea(const MbsEval *e)
     memset(e->M, 0, (size_t)f * f * sizeof(double));
     memset(e->k, 0, (size_t)f * sizeof(double));
     for (int i = NB(m) - 1; i >= 0; i--) {
+        if (!carries_itself(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
+        const int parent = carrier_parent(m, bi);
         double *wk = mbs_body_work(e, i);
         for (int k = 0, c = 0; k < (int)wk[AB_NV]; k++, c++) {
             while (bi->vel[c] < 0) c++;
@@ -292,17 +367,18 @@ void mbs_crba_rnea(const MbsEval *e)
                     e->M[(size_t)bj->vel[d] * f + bi->vel[c]] = e->M[(size_t)bi->vel[c] * f + bj->vel[d]] =
                         dot6(wj + AB_S + 6 * l, Fa);
                 }
-                if (bj->parent < 0) break;
+                const int pj = carrier_parent(m, bj);
+                if (pj < 0) break;
                 double d[3], Fj[6] = {0, 0, 0, 0, 0, 0};
-                offset(e, wj, bj->parent, d);
+                offset(e, wj, pj, d);
                 add_force_at(d, Fa, Fj);
                 memcpy(Fa, Fj, sizeof Fj);
-                j = bj->parent;
+                j = pj;
             }
         }
-        if (bi->parent < 0) continue;
-        double d[3], *pw = mbs_body_work(e, bi->parent);
-        offset(e, wk, bi->parent, d);
+        if (parent < 0) continue;
+        double d[3], *pw = mbs_body_work(e, parent);
+        offset(e, wk, parent, d);
         add_inertia_at(d, wk + AB_IA, pw + AB_IA);
         add_force_at(d, wk + AB_P, pw + AB_P);
         add_force_at(d, wk + AB_F, pw + AB_F);

@@ -39,7 +39,7 @@ struct MbsModel {
  * layout's offsets at compile time (a field moved in mbs_layout.h without this view stops the build). */
 typedef struct {
     int32_t parent, jtype, npos, nvel, massive, pos[7], vel[6], drv[7];
-    int32_t rot, irot, irot_mask, elastic, node; /* see MBS_BODY_I */
+    int32_t rot, irot, irot_mask, elastic, node, carrier; /* see MBS_BODY_I */
 } MbsBodyI;
 #define MBS_VIEW_CHECK(name, cond) typedef char mbs_view_check_##name[(cond) ? 1 : -1]
 #define MBS_BODY_FIELD(member, FIELD) \
@@ -49,6 +49,7 @@ MBS_BODY_FIELD(parent, IB_PARENT); MBS_BODY_FIELD(jtype, IB_JTYPE); MBS_BODY_FIE
 MBS_BODY_FIELD(nvel, IB_NVEL); MBS_BODY_FIELD(massive, IB_MASSIVE); MBS_BODY_FIELD(pos, IB_POS);
 MBS_BODY_FIELD(vel, IB_VEL); MBS_BODY_FIELD(drv, IB_DRV); MBS_BODY_FIELD(rot, IB_ROT); MBS_BODY_FIELD(irot, IB_IROT);
 MBS_BODY_FIELD(irot_mask, IB_IROT_MASK); MBS_BODY_FIELD(elastic, IB_ELASTIC); MBS_BODY_FIELD(node, IB_NODE);
+MBS_BODY_FIELD(carrier, IB_CARRIER);
 MBS_VIEW_CHECK(body_size, sizeof(MbsBodyI) == sizeof(int32_t) * IB);
 static inline const MbsBodyI *mbs_body_i(const MbsModel *m, int i) { return (const MbsBodyI *)(m->ib + (size_t)i * IB); }
 
@@ -75,7 +76,8 @@ typedef struct {
                    sizeof(((T *)0)->member) == sizeof(double) * (FIELD##_END_ + 1 - FIELD))
 MBS_DOUBLE_FIELD(MbsBodyD, a1, DB_A1); MBS_DOUBLE_FIELD(MbsBodyD, a2, DB_A2); MBS_DOUBLE_FIELD(MbsBodyD, at, DB_AT);
 MBS_DOUBLE_FIELD(MbsBodyD, R0, DB_R0); MBS_DOUBLE_FIELD(MbsBodyD, m, DB_M); MBS_DOUBLE_FIELD(MbsBodyD, c, DB_C);
-MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I); MBS_DOUBLE_FIELD(MbsBodyD, a1_raw, DB_A1_RAW);
+MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I);
+MBS_DOUBLE_FIELD(MbsBodyD, a1_raw, DB_A1_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, a2_raw, DB_A2_RAW); MBS_DOUBLE_FIELD(MbsBodyD, rot_raw, DB_ROT_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, irot_raw, DB_IROT_RAW);
 MBS_VIEW_CHECK(bodyd_size, sizeof(MbsBodyD) == sizeof(double) * DB);
@@ -127,7 +129,10 @@ typedef struct {
 #define AB_L 147          /* Cholesky factor L of D, nv × nv */
 #define AB_Z 183          /* L⁻¹ u */
 #define AB_ACC 189        /* spatial acceleration beyond the bias (Σ S ÿ of the path to the root) */
-#define AB_SIZE 195
+#define AB_MC 195         /* mass, centre of mass (body frame), inertia about it (body axes) of the body with the */
+#define AB_CC 196         /* bodies welded to it (IB_CARRIER): written at bind time (mbs_composites), read per step */
+#define AB_IC 199
+#define AB_SIZE 208
 
 /* The evaluation path, chosen from the scene's header in this one place (compile.py's workspace check follows it):
  * elastic scenes keep the dense path (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic
@@ -135,7 +140,8 @@ typedef struct {
  * articulated-body algorithm (dynamics.c: linear). */
 static inline int mbs_dense_path(const int32_t *hdr)
 {
-    return (hdr[H_FEATURES] & F_ELASTIC) || hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL;
+    return (hdr[H_FEATURES] & F_ELASTIC) ||
+           (hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL && hdr[H_NB] - hdr[H_NCARRIER] <= hdr[H_NCARRIER]);
 }
 /* doubles of an instance's evaluation workspace: per body, scratch (two 3 × f Jacobians) and M on the dense path */
 static inline double mbs_work_doubles(const int32_t *hdr)
@@ -162,6 +168,7 @@ void mbs_applied_forces(const MbsEval *e);
 int mbs_eval_rhs(const MbsEval *e);                   /* 0, or MBS_F_SINGULAR */
 int mbs_cholesky_solve(int n, double *M, double *r);
 /* dynamics.c: the recursive path (rigid scenes, !m->dense) */
+void mbs_composites(const MbsModel *m, const double *D, double *work);  /* at bind: the carriers' inertias */
 int mbs_aba(const MbsEval *e);                        /* ÿ into e->xdot: 0, or MBS_F_SINGULAR */
 void mbs_crba_rnea(const MbsEval *e);                 /* M, k, q (inspection: mbs_equations) */
 void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign); /* F at x (x NULL: a torque) */

@@ -106,14 +106,15 @@ static int check_owners(const MbsModel *m, char *err, size_t errlen)
     return 0;
 }
 
-/* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range;
- * no more drives than driven coordinates, the header's Cardan count the body table's. Elastic data and nodes are
+/* Each body: parent before it, joint type with its own coordinate counts, coordinates or drive slots in range, its
+ * carrier itself or (welded) its parent's; no more drives than driven coordinates, the header's Cardan and carrier
+ * counts the body table's. Elastic data and nodes are
  * named only by a scene with the elastic feature (whose tables mbs_elastic_validate checks against them). */
 static int check_bodies(const MbsModel *m, char *err, size_t errlen)
 {
     const int32_t *H = m->hdr;
     const int nb = H[H_NB], np = H[H_NPOS], nv = H[H_NVEL], ndrv = H[H_NDRV], elastic = H[H_FEATURES] & F_ELASTIC;
-    int64_t driven = 0, cardan = 0;
+    int64_t driven = 0, cardan = 0, carriers = 0;
     for (int i = 0; i < nb; i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
         const int t = bi->jtype;
@@ -133,10 +134,18 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
         if (bi->elastic < -1 || bi->node < -1 || (!elastic && (bi->elastic >= 0 || bi->node >= 0)))
             BAD("corrupt body table (body %d: elastic data %d, node %d in a scene %s elastic bodies)", i,
                 (int)bi->elastic, (int)bi->node, elastic ? "with" : "without");
+        const MbsBodyI *bp = bi->parent >= 0 ? mbs_body_i(m, bi->parent) : NULL;
+        if (bi->carrier != i && !(t == J_FIXED && bi->elastic < 0 && bi->node < 0 && (!bp || bp->elastic < 0) &&
+                                  bi->carrier == (bp ? bp->carrier : -1)))
+            BAD("corrupt body table (body %d: carrier %d, valid: itself, or for a rigid body on a fixed joint its "
+                "rigid parent's carrier)", i, (int)bi->carrier);
+        carriers += bi->carrier == i;
     }
     if (ndrv > driven) BAD("corrupt header (%d drives for %lld driven coordinates)", ndrv, (long long)driven);
     if (H[H_NCARDAN] != cardan)
         BAD("corrupt header (%d Cardan joints, the body table has %lld)", (int)H[H_NCARDAN], (long long)cardan);
+    if (H[H_NCARRIER] != carriers)
+        BAD("corrupt header (%d carriers, the body table has %lld)", (int)H[H_NCARRIER], (long long)carriers);
     return mbs_dense_path(H) ? 0 : check_owners(m, err, errlen);
 }
 

@@ -472,6 +472,7 @@ static int bind(MbsInstance *s)
     mbs_run_programs(m, 0, s->D, NULL, 0.0);
 #endif
     mbs_derive(m, s->D);
+    if (!m->dense) mbs_composites(m, s->D, s->work);
     if (check_rules(s) || check_times(s)) return MBS_ERROR;
 #ifdef MBS_WITH_ELASTIC
     if ((m->hdr[H_FEATURES] & F_ELASTIC) && mbs_elastic_bind(m, s->D, s->msg, sizeof s->msg))
