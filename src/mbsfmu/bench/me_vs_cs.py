@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..engine import layout as L
 from . import output
 from .fmu_peers import CASES, MODELS, case, error
 from .work_precision import reference
@@ -41,7 +42,6 @@ from .work_precision import reference
 RTOLS = tuple(10.0 ** -k for k in range(4, 13))
 EULER_DIVISORS = tuple(4 ** k for k in range(7))  # 1 … 4096
 RK4_DIVISORS = (1, 2, 4, 8, 16, 32, 64)
-CS_ADAPTIVE = ("dop853", "dopri5", "radau5", "auto")
 LEVELS = (1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8)  # the error levels of the ratio table
 FLOOR = 1e-10  # a sweep stops after a run below this error (tighter is the reference's business)
 COLUMNS = ["model", "interface", "method", "setting", "cpu_ms", "cpu_ms_min", "error", "rounds"]
@@ -52,7 +52,7 @@ def plan(dt, quick=False):
     rtols = RTOLS[::4] if quick else RTOLS
     out = [("ME", "CVode", f"rtol={r:.0e}", {"rtol": r}) for r in rtols]
     out += [("ME", "Euler", f"h={dt / k:.4g}", {"h": dt / k}) for k in (EULER_DIVISORS[:4:3] if quick else EULER_DIVISORS)]
-    for m in CS_ADAPTIVE[:1] if quick else CS_ADAPTIVE:
+    for m in ("dop853",) if quick else L.ADAPTIVE:   # every adaptive integrator of the engine's table
         out += [("CS", m, f"rtol={r:.0e}", {"rtol": r, "atol": r * 1e-2}) for r in rtols]
     out += [("CS", "rk4", f"h={dt / k:.4g}", {"h": dt / k}) for k in (RK4_DIVISORS[::3] if quick else RK4_DIVISORS)]
     return out
