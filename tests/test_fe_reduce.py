@@ -235,9 +235,12 @@ def test_either_factorization_gives_the_full_models_modes_and_cutoff_count(monke
 @pytest.mark.parametrize("cvxopt", [True, False], ids=["cholmod", "superlu"])
 def test_an_indefinite_stiffness_is_one_line_naming_its_negative_eigenvalues(monkeypatch, cvxopt):
     """K − cM, c between the full clamped model's 3rd and 4th eigenvalues (dense LAPACK): three negative
-    eigenvalues.  The Cholesky of K − σM fails (with cvxopt), the LU's negative pivots count them (Sylvester):
-    one ModelError line that says three."""
+    eigenvalues.  The Cholesky of K − σM fails (with cvxopt, even where the caller set cvxopt to LDLᵀ, which
+    would not fail), the LU's negative pivots count them (Sylvester): one ModelError line that says three."""
     calls = _factorization(monkeypatch, cvxopt)
+    if cvxopt:
+        from cvxopt import cholmod
+        monkeypatch.setitem(cholmod.options, "supernodal", 0)
     X, M, K, root = _rectangular_bar()
     f = dense_frequencies(K, M, root, count=4)
     c = (np.pi * (f[2] + f[3])) ** 2            # (2π · their mean)²
@@ -247,6 +250,7 @@ def test_an_indefinite_stiffness_is_one_line_naming_its_negative_eigenvalues(mon
     text = str(err.value)
     assert "\n" not in text and "not positive semi-definite (3 eigenvalue(s) below" in text, text
     assert calls == ([(K.shape[0] // 3, True), (K.shape[0] - 3 * len(root), False)] if cvxopt else [])
+    assert not cvxopt or cholmod.options == {"supernodal": 0}
 
 
 # -- invariants from the consistent mass ----------------------------------------------------------------

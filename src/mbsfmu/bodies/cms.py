@@ -91,11 +91,16 @@ def _cholesky(A):
     except ImportError:
         return None
     C = _cvxopt_lower(A)
+    options = dict(cholmod.options)         # (cvxopt's settings are global: the caller's are put back)
+    cholmod.options["supernodal"] = 2       # LLᵀ: an LDLᵀ (0, or 1's choice) would factor an indefinite A
     try:
         F = cholmod.symbolic(C, uplo="L")
         cholmod.numeric(C, F)
     except ArithmeticError:
         return None
+    finally:
+        cholmod.options.clear()
+        cholmod.options.update(options)
 
     def solve(b):
         x = matrix(np.asarray(b, dtype=float).reshape(len(b), -1))   # a copy, which CHOLMOD overwrites
