@@ -91,8 +91,8 @@ def _cholesky(A):
     except ImportError:
         return None
     C = _cvxopt_lower(A)
-    options = dict(cholmod.options)         # (cvxopt's settings are global: the caller's are put back)
-    cholmod.options["supernodal"] = 2       # LLᵀ: an LDLᵀ (0, or 1's choice) would factor an indefinite A
+    options = dict(cholmod.options)   # cvxopt's settings are global: its defaults here, the caller's put back
+    cholmod.options.clear()           # (supernodal LLᵀ, which fails on an indefinite A where an LDLᵀ would not)
     try:
         F = cholmod.symbolic(C, uplo="L")
         cholmod.numeric(C, F)
