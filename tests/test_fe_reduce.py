@@ -193,6 +193,68 @@ def test_cutoff_gives_exactly_the_modes_below_it():
     assert len(r["frequencies"]) == 5 and np.allclose(r["frequencies"], ref[:5], rtol=1e-8)
 
 
+# -- the factorizations: CHOLMOD's Cholesky (cvxopt, the fe extra) and SuperLU's LU without it ------------
+
+def _factorization(monkeypatch, cvxopt):
+    """cms's factorizations as with cvxopt installed (the Cholesky, and AMD orders the LU) or without it; the
+    list of the Cholesky's calls: (order of the matrix, factored: else not positive definite)."""
+    calls = []
+    if not cvxopt:
+        monkeypatch.setattr(cms, "_cholesky", lambda A: None)
+        monkeypatch.setattr(cms, "_amd", lambda A: None)
+        return calls
+    pytest.importorskip("cvxopt")
+    cholesky = cms._cholesky
+
+    def spy(A):
+        solve = cholesky(A)
+        calls.append((A.shape[0], solve is not None))
+        return solve
+    monkeypatch.setattr(cms, "_cholesky", spy)
+    return calls
+
+
+def _rectangular_bar():
+    """A tet10 bar of 1275 DOFs with a 100 × 60 mm section (no two bending modes alike), its x = 0 face."""
+    X, M, K = bar(nx=8, n=2, size=(L, H, 0.6 * H))
+    return X, M, K, np.flatnonzero(X[:, 0] == 0)
+
+
+@pytest.mark.parametrize("cvxopt", [True, False], ids=["cholmod", "superlu"])
+def test_either_factorization_gives_the_full_models_modes_and_cutoff_count(monkeypatch, cvxopt):
+    """Craig–Bampton of a clamped bar with a cut-off between the full model's 6th and 7th frequencies (dense
+    LAPACK): exactly six modes (the LU's inertia count) at the full model's frequencies (eigsh on the Cholesky
+    or on the LU) to 1e-8 (the dense solve's own roundoff at the first: 1e-9)."""
+    calls = _factorization(monkeypatch, cvxopt)
+    X, M, K, root = _rectangular_bar()
+    ref = dense_frequencies(K, M, root, count=8)
+    r = cms.reduce(fe.FEModel(X, M, K, {}, "bar"), interface=root, reference=[0, 0, 0],
+                   cutoff_hz=0.5 * (ref[5] + ref[6]))
+    assert len(r["frequencies"]) == 6 and np.allclose(r["frequencies"], ref[:6], rtol=1e-8, atol=0)
+    assert [ok for _, ok in calls] == ([True, True] if cvxopt else [])   # the mass check, then K − σM
+
+
+@pytest.mark.parametrize("cvxopt", [True, False], ids=["cholmod", "superlu"])
+def test_an_indefinite_stiffness_is_one_line_naming_its_negative_eigenvalues(monkeypatch, cvxopt):
+    """K − cM, c between the full clamped model's 3rd and 4th eigenvalues (dense LAPACK): three negative
+    eigenvalues.  The Cholesky of K − σM fails (with cvxopt, even where the caller set cvxopt to LDLᵀ, which
+    would not fail), the LU's negative pivots count them (Sylvester): one ModelError line that says three."""
+    calls = _factorization(monkeypatch, cvxopt)
+    if cvxopt:
+        from cvxopt import cholmod
+        monkeypatch.setitem(cholmod.options, "supernodal", 0)
+    X, M, K, root = _rectangular_bar()
+    f = dense_frequencies(K, M, root, count=4)
+    c = (np.pi * (f[2] + f[3])) ** 2            # (2π · their mean)²
+    with pytest.raises(ModelError) as err:
+        cms.reduce(fe.FEModel(X, M, sp.csr_matrix(K - c * M), {}, "bar"), interface=root, reference=[0, 0, 0],
+                   modes=4)
+    text = str(err.value)
+    assert "\n" not in text and "not positive semi-definite (3 eigenvalue(s) below" in text, text
+    assert calls == ([(K.shape[0] // 3, True), (K.shape[0] - 3 * len(root), False)] if cvxopt else [])
+    assert not cvxopt or cholmod.options == {"supernodal": 0}
+
+
 # -- invariants from the consistent mass ----------------------------------------------------------------
 
 def test_box_moments_are_the_closed_form_integrals():
