@@ -350,7 +350,7 @@ def nodal_stress(basis, order, E, nu, U, at):
     from skfem import Basis
     from skfem.models.elasticity import lame_parameters
     lam, mu = lame_parameters(E, nu)
-    at = np.asarray(at, dtype=np.int64)
+    at, back = np.unique(np.asarray(at, dtype=np.int64), return_inverse=True)   # a node asked twice: once
     n = U.shape[1]
     u = np.empty_like(U)
     u[order] = U                                          # node-major → scikit-fem's DOF order
@@ -370,7 +370,7 @@ def nodal_stress(basis, order, E, nu, U, at):
     grad /= count[:, None, None, None]
     eps = 0.5 * (grad + np.swapaxes(grad, 1, 2))
     sigma = 2 * mu * eps + lam * np.einsum("pkkn->pn", eps)[:, None, None, :] * np.eye(3)[None, :, :, None]
-    return np.stack([sigma[:, a, b] for a, b in VOIGT], axis=1)
+    return np.stack([sigma[:, a, b] for a, b in VOIGT], axis=1)[back]
 
 
 def _node_major(basis, element):
