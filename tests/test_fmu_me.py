@@ -140,7 +140,7 @@ def test_cvode_equals_the_engine(built, m):
     nominal) per step, and a nearly constant signal has next to no range). Elastic scenes to
     1e-5: CVode's BDF damps their lightly damped modes (measured 3e-6 to 5e-6; the derivatives themselves equal
     the engine's right-hand side bit for bit, test_hostile_model_exchange_calls)."""
-    stop, step = (0.02, 1e-4) if m == "fe_link" else (STOP, None)  # fe_link: stiff, ≤ 500 CVode steps per point
+    stop, step = (0.02, 1e-4) if m in ("fe_link", "fe_stress") else (STOP, None)  # stiff: ≤ 500 CVode steps per point
     t, ref = _reference(m, stop=stop, step=step)
     r = simulate_fmu(str(built[m]), fmi_type="ModelExchange", solver="CVode", relative_tolerance=1e-10,
                      stop_time=stop, output_interval=t[1] - t[0])
