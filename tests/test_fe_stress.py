@@ -117,7 +117,7 @@ def test_a_bar_pulled_at_its_ends_has_von_mises_F_over_A(tmp_path):
     q = static_q(spec, [(0, [-F, 0, 0], np.zeros(3)), (1, [F, 0, 0], np.zeros(3))])
     sim = at_state(spec, q)
     assert [sim.get(n) for n in names] == pytest.approx([F / a ** 2] * len(names), rel=1e-6)
-    ts = [0.0, 0.005, 0.01]
+    ts = [0.0, 0.0005, 0.001]   # (the axial modes of a 0.4 m steel bar: kHz, small steps)
     X = sim.run(ts)
     for x, t_ in zip(X, ts):
         assert list(sim.output_values(x, t_).values()) == pytest.approx([F / a ** 2] * len(names), rel=1e-6)
@@ -166,9 +166,10 @@ def test_cantilever_bending_stress_against_beam_theory_and_the_full_static_solut
 
 
 def test_fmu_outputs_equal_the_in_process_run_and_other_scenes_are_unchanged(tmp_path):
-    """A hinged tet10 link swinging under gravity with two stress nodes: the native FMUs (FMI 2 and 3) and the
-    pythonfmu FMU give the in-process von Mises outputs, and the scene without `stress:` has the same
-    trajectory bit for bit, no stress section nor variable, and the same native engine sources and switches."""
+    """A hinged tet10 link swinging under gravity with two stress nodes: the native and the pythonfmu FMU give
+    the in-process von Mises outputs (FMI 3 = FMI 2 on every output: test_fmu3 on models/fe_stress.yaml), and
+    the scene without `stress:` has the same trajectory bit for bit, no stress section nor variable, and the
+    same native engine sources and switches."""
     fmpy = pytest.importorskip("fmpy")
     cantilever(tmp_path)
     base = (f"mesh: bar.inp, material: {MATERIAL}, element: tet10, interface: {{node_set: root, reference: "
@@ -191,12 +192,12 @@ def test_fmu_outputs_equal_the_in_process_run_and_other_scenes_are_unchanged(tmp
     ref = np.array([[sim.output_values(np.r_[y, yd], ti)[n] for n in ("vm.part.gauge", "vm.part.5")]
                     for ti, y, yd in zip(t, Y, YD)])
     assert ref[-1].min() > 1e4   # bending under gravity: tens of kPa and more
-    for kind, fmi in (("native", "2"), ("native", "3"), ("pythonfmu", "2")):
-        fmu = mbsfmu.build_fmu(with_stress, tmp_path / f"{kind}{fmi}", kind=kind, fmi=fmi)
+    for kind in ("native", "pythonfmu"):
+        fmu = mbsfmu.build_fmu(with_stress, tmp_path / kind, kind=kind)
         res = fmpy.simulate_fmu(str(fmu), stop_time=0.04, output_interval=0.02,
                                 output=["vm.part.gauge", "vm.part.5"])
         got = np.column_stack([res["vm.part.gauge"], res["vm.part.5"]])
-        assert np.allclose(got, ref, rtol=1e-12, atol=0), (kind, fmi)
+        assert np.allclose(got, ref, rtol=1e-12, atol=0), kind
 
 
 def test_hostile_stress_keys_are_refused_with_one_line(tmp_path, monkeypatch):

@@ -317,7 +317,7 @@ def compile_scene(spec, variables, guid="", model=None):
         for i, e in elastic_index.items():
             ib[i, L.IB_ELASTIC] = e
         if any(v.kind == L.MBS_V_VM for v in variables):   # only then: other scenes compile as before
-            stress = list(zip((L.S_STRESS_I, L.S_STRESS_D), stress_sections(m, elastic_index)))
+            stress = list(zip((L.S_STRESS_I, L.S_STRESS_D), stress_sections(m, spec, elastic_index)))
     header = dict(NB=nb, NPOS=npos, NVEL=f, NFORCE=len(m.bound_forces), NQUAT=len(quat), NPLAIN=len(m.plain_pos),
                   NDRV=len(drives), NVEC=len(inputs) + len(timed), NINPUT=len(inputs), NPARAM=len(params),
                   NVARS=len(vars_), NOUT=len(m.outputs), NPROG=len(prog), NCODE=len(P.code),

@@ -22,6 +22,7 @@ declares them fixed (`structural_parameters`).
 
 import numpy as np
 
+from ..errors import ModelError
 from ..expr import parse
 from . import layout as L
 
@@ -85,17 +86,21 @@ def stress_points(spec):
             for name in b["elastic"]["fe"].get("stress_names", ())]
 
 
-def stress_sections(model, elastic_index):
-    """(S_STRESS_I, S_STRESS_D) of a compiled Model ({body index: elastic index} from elastic_sections)."""
+def stress_sections(model, spec, elastic_index):
+    """(S_STRESS_I, S_STRESS_D) of a compiled Model ({body index: elastic index} from elastic_sections), rows in
+    stress_points' order."""
     from ..bodies.cms import stress_table
     rows, blocks, off = [], [], 0
-    for i, b in enumerate(model.bodies):
-        fe = (b.elastic or {}).get("fe") or {}
+    for b in spec["bodies"]:
+        fe = (b.get("elastic") or {}).get("fe") or {}
         if "stress_names" not in fe:
             continue
-        S = stress_table(fe, key=f"bodies.{b.name}.elastic.fe")
+        S = stress_table(fe, key=f"bodies.{b['name']}.elastic.fe")
+        if len(S) != len(fe["stress_names"]):
+            raise ModelError(f"{len(fe['stress_names'])} stress node names for {len(S)} stress nodes",
+                             key=f"bodies.{b['name']}.elastic.fe.stress_names")
         for sigma in S:
-            rows.append((elastic_index[i], off))
+            rows.append((elastic_index[model.index[b["name"]]], off))
             blocks.append(sigma.ravel())
             off += sigma.size
     return np.array(rows, np.int32).reshape(-1, 2), np.concatenate(blocks)
