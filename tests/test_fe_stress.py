@@ -200,6 +200,20 @@ def test_fmu_outputs_equal_the_in_process_run_and_other_scenes_are_unchanged(tmp
         assert np.allclose(got, ref, rtol=1e-12, atol=0), kind
 
 
+def test_engine_outputs_are_the_numpy_references_at_random_states():
+    """models/fe_stress.yaml: the engine's von Mises (and point) outputs = the numpy evaluator's σ = Σ σ_k q_k
+    at random states, to 1e-12."""
+    spec = mbsfmu.load(Path(__file__).resolve().parents[1] / "models" / "fe_stress.yaml").spec
+    ev, sim = mbsfmu.compile(spec), Simulation(spec)
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        y, yd = rng.normal(size=len(ev.coordinates)) * 1e-4, rng.normal(size=len(ev.velocity_coordinates))
+        got, want = sim.output_values(np.r_[y, yd], 0.1), ev.output_values(y, yd, 0.1)
+        assert list(got) == list(want) and {"vm.link.gauge_top", "vm.link.gauge_bottom"} <= set(want)
+        for name in want:
+            assert got[name] == pytest.approx(want[name], rel=1e-12, abs=1e-15)
+
+
 def test_hostile_stress_keys_are_refused_with_one_line(tmp_path, monkeypatch):
     (Lx, b, h), full, gauge = cantilever(tmp_path)
     base = f"mesh: bar.inp, material: {MATERIAL}, interface: {{node_set: root, reference: [0, 0, 0]}}, modes: 2"
