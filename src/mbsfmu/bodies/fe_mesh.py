@@ -15,6 +15,9 @@ scikit-fem's edge order. DOFs are node-major, x y z per node; scikit-fem numbers
 `_node_major` maps them explicitly. Node sets: the file's point sets, and the points of its named cell sets
 (Abaqus *ELSET, gmsh physical groups), mapped to these nodes; a file's midside point maps to its edge's node.
 
+Stresses: the FEModel carries `stress` (nodal_stress on this mesh and material), from which cms.py takes each
+mode's stress at the nodes a scene's `stress:` names.
+
 Bounded: the file is read whole (at most limits.FE_MESH_BYTES), meshio parses a private copy of it in a child
 process under limits.FE_PARSE_BYTES and FE_PARSE_SECONDS, the assembled size is checked against limits.FE_DOFS
 before any assembly, which goes CHUNK_CELLS elements at a time, and nothing outside the one file is read

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 
-from ..bodies.cms import stress_table
 from ..expr import parse
 from ..kinematics.rotations import cross, matrix_to_quat, quat_rate_matrix
 from .model import Model, initial_rotation
@@ -40,6 +39,7 @@ class Evaluator:
         for b in m.spec["bodies"]:
             fe = (b.get("elastic") or {}).get("fe") or {}
             if "stress_names" in fe:
+                from ..bodies.cms import stress_table   # here: bodies imports scene, which imports this package
                 q_idx = m.bodies[m.index[b["name"]]].q_idx
                 self._stress += [(f"vm.{b['name']}.{name}", q_idx, S)
                                  for name, S in zip(fe["stress_names"], stress_table(fe))]
