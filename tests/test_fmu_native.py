@@ -599,7 +599,11 @@ def test_win64_dll_runs_under_wine(built, host, tmp_path):
         assert win.returncode == 0 and "DONE" in win.stdout, (m, win.stdout[-2000:], win.stderr[-2000:])
         a, b = _host_rows(win.stdout), _host_rows(lin)
         assert a.shape == b.shape == (STEPS + 1, len(outs) + 1), m
-        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12, err_msg=m)
+        # each signal to 1e-12 of its largest value over the run (absolute 1e-12 below 1): elastic coordinates
+        # (~1e-5 m) pass by that absolute slack, and a von Mises stress in Pa (~1e5) follows them, so where it is
+        # small it differs as they do (fe_stress: 5e-12 relative at 6e3 Pa, 7e-14 of its largest value)
+        scale = np.maximum(np.abs(b).max(axis=0), 1.0)
+        assert np.all(np.abs(a - b) <= 1e-12 * (np.abs(b) + scale)), (m, np.max(np.abs(a - b) / scale))
 
 
 def test_command_line_builds_native(tmp_path):

@@ -89,7 +89,8 @@ def _slots(spec):
     n_points = {o["name"]: len(o["quantities"]) for o in spec["outputs"]}
     return {L.MBS_V_PARAM: len(spec["parameters"]), L.MBS_V_QIN: m.nvel, L.MBS_V_Y: m.npos, L.MBS_V_YD: m.nvel,
             L.MBS_V_FIN: 3 * sum("input" in f for f in spec["forces"]),
-            L.MBS_V_OUT: 3 * sum(n_points.values()), L.MBS_V_DER: m.npos + m.nvel}
+            L.MBS_V_OUT: 3 * sum(n_points.values()), L.MBS_V_DER: m.npos + m.nvel,
+            L.MBS_V_VM: sum(len((b["elastic"] or {}).get("fe", {}).get("stress_nodes", [])) for b in spec["bodies"])}
 
 
 @pytest.mark.parametrize("path", MODELS, ids=[p.stem for p in MODELS])

@@ -255,7 +255,7 @@ def _run_scene(path, args):
     sim.initialize(e["start"])  # binds the parameters the output points depend on
     outputs = [v for v in sim.variables if v.causality == "output"]  # y.*, yd.*, then the points
     cols = np.hstack([Y, YD, np.zeros((len(t), len(outputs) - Y.shape[1] - YD.shape[1]))])
-    if spec["outputs"]:
+    if len(outputs) > Y.shape[1] + YD.shape[1]:   # `outputs:` points or von Mises stresses
         names = [v.name for v in outputs]
         for k, (ti, y, yd) in enumerate(zip(t, Y, YD)):
             if hasattr(sim, "output_values"):

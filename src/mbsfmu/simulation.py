@@ -13,6 +13,7 @@ import uuid
 import numpy as np
 
 from .engine import Instance
+from .engine import layout as L
 from .engine.compile import compile_scene
 from .equations.model import Model
 from .errors import IntegrationError
@@ -169,7 +170,7 @@ class Simulation:
         return self.engine.rhs(t, x)
 
     def output_values(self, x, t=None):
-        """{FMU output name: value} of the `outputs:` points at state x."""
+        """{FMU output name: value} of the `outputs:` points and the von Mises stresses at state x."""
         out, t = {}, self.time if t is None else t
         for o, spec_o in enumerate(self.spec["outputs"]):
             p = self.engine.output_point(o, t, x)
@@ -177,6 +178,9 @@ class Simulation:
                 if qty in spec_o["quantities"]:
                     for a, ax in enumerate("xyz"):
                         out[f"{spec_o['name']}.{sym}.{ax}"] = float(p[3 * k + a])
+        for v in self.variables:
+            if v.kind == L.MBS_V_VM:
+                out[v.name] = self.engine.von_mises(v.index, x)
         return out
 
     # -- state ----------------------------------------------------------------------------------------

@@ -496,10 +496,12 @@ def moments(model, Phi):
 
 
 def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(), modes=None, cutoff_hz=None,
-           load_points=(), coupling="rbe2", weights=None):
+           load_points=(), coupling="rbe2", weights=None, stress=()):
     """The reduced body as plain arrays (what the normalized scene and the cache hold): kept nodes R_RP, Phi,
     Psi, modal stiffness, the mass moments, the frequencies (Hz) and the full model's in the band the reduction
-    claims (full_frequencies: `mbsfmu check` compares them)."""
+    claims (full_frequencies: `mbsfmu check` compares them).  `stress`: node indices (one array, or one index,
+    per entry) whose stress modes the body keeps (stress_modes)."""
+    _check_stress(model, stress)
     _check_mass(model)
     if interface is not None:
         interface, weights = _interface_nodes(interface, reference, coupling, weights)
@@ -569,7 +571,35 @@ def reduce(model, method="craig-bampton", interface=None, reference=None, keep=(
     return {"R_RP": R_RP, "Phi": Phi_kept, "Psi": Psi_kept, "stiffness": K_ee,
             "frequencies": np.sqrt(np.clip(lam, 0, None)) / (2 * np.pi), "full_frequencies": full,
             "m": np.array(mo.m), "S0": mo.S0,
-            "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B}
+            "S_RR": mo.S_RR, "C_t": mo.C_t, "A": mo.A, "B": mo.B, **stress_modes(model, Phi, stress)}
+
+
+def _check_stress(model, stress):
+    """Stress modes need the elements (a mesh), and at most limits.FE_STRESS_NODES nodes: refused before any
+    mode is computed."""
+    if not len(stress):
+        return
+    if model.stress is None:
+        raise ModelError("stress outputs need a solid mesh (mesh: and material:): mass and stiffness matrices "
+                         "carry no elements to take stresses from", key="stress",
+                         hint="give the part as a mesh, or leave stress out")
+    count = sum(np.size(s) for s in stress)
+    if count > limits.FE_STRESS_NODES:
+        raise ModelError(f"{count} stress nodes asked, at most {limits.FE_STRESS_NODES}", key="stress",
+                         hint="name fewer nodes or smaller node sets")
+
+
+def stress_modes(model, Phi, stress):
+    """{} without stress nodes; else stress (rows, 6, n): each mode's stress at the nodes (fe_mesh.nodal_stress,
+    Voigt xx yy zz xy yz zx, Pa per unit q), stress_nodes (rows: FE node indices, the entries' nodes in order)
+    and stress_counts (rows per entry)."""
+    if not len(stress):
+        return {}
+    nodes = [np.atleast_1d(np.asarray(s, dtype=np.int64)) for s in stress]
+    at = np.concatenate(nodes)
+    N, _, n = Phi.shape
+    return {"stress": model.stress(Phi.reshape(3 * N, n), at), "stress_nodes": at,
+            "stress_counts": np.array([len(s) for s in nodes])}
 
 
 COUPLINGS = ("rbe2", "rbe3")
@@ -626,6 +656,7 @@ def _largest(Phi):
 
 REDUCED = ("R_RP", "Phi", "Psi", "stiffness", "frequencies", "m", "S0", "S_RR", "C_t", "A", "B")
 CACHED = REDUCED + ("full_frequencies",)   # the full model's frequencies: for `mbsfmu check`, not the body
+STRESS = ("stress", "stress_nodes", "stress_counts")   # only for a body with stress nodes (stress_modes)
 
 
 def nodal_data(reduced, damping_ratio=0.0, key="elastic.fe"):
@@ -652,6 +683,21 @@ def nodal_data(reduced, damping_ratio=0.0, key="elastic.fe"):
     D = damping_from_ratio(mo.M_ee, r["stiffness"], damping_ratio) if damping_ratio else None
     return NodalData(r["R_RP"], np.zeros(len(r["R_RP"])), r["Phi"], r["stiffness"], Psi=r["Psi"], damping=D,
                      mass_points=mo, frequencies=2 * np.pi * r["frequencies"])
+
+
+def stress_table(reduced, key="elastic.fe"):
+    """The stress modes (rows, 6, n) of a reduced body with stress nodes (as reduce, the cache or the normalized
+    scene hold them): shapes, counts and finiteness checked, ModelError otherwise."""
+    try:
+        n = np.asarray(reduced["stiffness"], float).shape[0]
+        S = np.asarray(reduced["stress"], float).reshape(-1, 6, n)
+        rows, counts = np.asarray(reduced["stress_nodes"]), np.asarray(reduced["stress_counts"])
+        ok = len(S) == len(rows) == counts.sum() and 1 <= len(S) <= limits.FE_STRESS_NODES and np.all(np.isfinite(S))
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise ModelError(f"the reduced body's stress modes are damaged ({e})", key=key) from None
+    if not ok:
+        raise ModelError("the reduced body's stress modes are damaged (counts or values)", key=key)
+    return S
 
 
 # -- cache ---------------------------------------------------------------------------------------------
@@ -699,7 +745,8 @@ def _resolve(model, params):
     iface = params["interface"]
     return {"interface": None if iface is None else nodes(iface, "interface.node_set" if isinstance(iface, str) else "interface.nodes"),
             "keep": [nodes(k, "keep") for k in params["keep"]],
-            "load_points": [nodes(k, "load_points") for k in params.get("load_points", ())]}
+            "load_points": [nodes(k, "load_points") for k in params.get("load_points", ())],
+            "stress": [nodes(k, "stress") for k in params.get("stress", ())]}
 
 
 def reduce_cached(files, inputs, build):
@@ -707,10 +754,12 @@ def reduce_cached(files, inputs, build):
     path = cache_dir() / f"{cache_key(files, inputs)}.npz"
     try:
         with np.load(path, allow_pickle=False) as z:
-            reduced = {k: z[k] for k in CACHED}
+            reduced = {k: z[k] for k in CACHED + (STRESS if inputs.get("stress") else ())}
         nodal_data(reduced)   # a damaged entry fails here and is computed again
         if not 1 <= len(reduced["full_frequencies"]) <= len(reduced["frequencies"]):
             raise ValueError("damaged")
+        if inputs.get("stress"):
+            stress_table(reduced)
         return reduced
     except (OSError, KeyError, ValueError, IndexError, TypeError):
         pass

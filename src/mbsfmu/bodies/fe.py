@@ -33,6 +33,7 @@ class FEModel:
     K: sp.csr_matrix
     node_sets: dict = field(default_factory=dict)   # name -> node indices (0-based)
     source: str = ""                                # file name(s), for messages
+    stress: object = None   # a mesh's σ at nodes: (U 3N×n, nodes) → (nodes, 6, n) (fe_mesh.nodal_stress); else None
 
     @property
     def n_nodes(self):

@@ -15,6 +15,9 @@ scikit-fem's edge order. DOFs are node-major, x y z per node; scikit-fem numbers
 `_node_major` maps them explicitly. Node sets: the file's point sets, and the points of its named cell sets
 (Abaqus *ELSET, gmsh physical groups), mapped to these nodes; a file's midside point maps to its edge's node.
 
+Stresses: the FEModel carries `stress` (nodal_stress on this mesh and material), from which cms.py takes each
+mode's stress at the nodes a scene's `stress:` names.
+
 Bounded: the file is read whole (at most limits.FE_MESH_BYTES), meshio parses a private copy of it in a child
 process under limits.FE_PARSE_BYTES and FE_PARSE_SECONDS, the assembled size is checked against limits.FE_DOFS
 before any assembly, which goes CHUNK_CELLS elements at a time, and nothing outside the one file is read
@@ -202,8 +205,11 @@ def _assemble(mesh, E, nu, rho, element, source):
     basis, M, K = _matrices(grid, elem, E, nu, rho)
     order, nodes = _node_major(basis, element)
     point_node = _point_nodes(vertex, basis, cells, edges)
+
+    def stress(U, at):
+        return nodal_stress(basis, order, E, nu, U, at)
     return FEModel(nodes=nodes, M=M[order][:, order].tocsr(), K=K[order][:, order].tocsr(),
-                   node_sets=_node_sets(mesh, point_node), source=source)
+                   node_sets=_node_sets(mesh, point_node), source=source, stress=stress)
 
 
 def _solid_cells(mesh):
@@ -334,6 +340,40 @@ def _matrices(mesh, elem, E, nu, rho):
                       disable_doflocs=True)
         M, K = M + asm(mass, chunk).tocsr(), K + asm(stiffness, chunk).tocsr()
     return basis, M, K
+
+
+VOIGT = ((0, 0), (1, 1), (2, 2), (0, 1), (1, 2), (2, 0))   # σ components in this order: xx yy zz xy yz zx
+
+
+def nodal_stress(basis, order, E, nu, U, at):
+    """σ (len(at), 6, n) at the nodes `at` of the displacement fields U (3N × n, node-major), Voigt order VOIGT:
+    the unweighted mean over the elements around each node of that element's stress σ = λ tr(ε) E + 2μ ε,
+    ε = sym(∇u), evaluated at the node itself (its reference coordinates in the element: scikit-fem's doflocs).
+    Only the elements around the requested nodes are visited, grouped by the node's local position (≤ 10)."""
+    from skfem import Basis
+    from skfem.models.elasticity import lame_parameters
+    lam, mu = lame_parameters(E, nu)
+    at, back = np.unique(np.asarray(at, dtype=np.int64), return_inverse=True)   # a node asked twice: once
+    n = U.shape[1]
+    u = np.empty_like(U)
+    u[order] = U                                          # node-major → scikit-fem's DOF order
+    element_dofs = basis.dofs.element_dofs                # (local DOFs, elements) of the whole mesh
+    row = np.full(basis.N, -1)
+    row[order[3 * at]] = np.arange(len(at))               # the x DOF of each requested node → its row
+    local, elements = np.nonzero(row[element_dofs] >= 0)
+    grad = np.zeros((len(at), 3, 3, n))
+    count = np.bincount(row[element_dofs[local, elements]], minlength=len(at))
+    for l in np.unique(local):
+        els = elements[local == l]
+        X = basis.elem.doflocs[l][:, None]                # the node's reference coordinates in these elements
+        at_node = Basis(basis.mesh, basis.elem, elements=els, quadrature=(X, np.ones(1)))
+        g = sum(f[0].grad[:, :, :, 0, None] * u[element_dofs[i, els]][None, None]
+                for i, f in enumerate(at_node.basis))      # ∇u (3, 3, elements, n): [component, derivative]
+        np.add.at(grad, row[element_dofs[l, els]], np.moveaxis(g, 2, 0))
+    grad /= count[:, None, None, None]
+    eps = 0.5 * (grad + np.swapaxes(grad, 1, 2))
+    sigma = 2 * mu * eps + lam * np.einsum("pkkn->pn", eps)[:, None, None, :] * np.eye(3)[None, :, :, None]
+    return np.stack([sigma[:, a, b] for a, b in VOIGT], axis=1)[back]
 
 
 def _node_major(basis, element):

@@ -200,3 +200,11 @@ class Instance:
         out = np.empty(6)
         self._check(self.lib.mbs_output_point(self.ptr, o, x.ctypes.data, t, out.ctypes.data))
         return out
+
+    def von_mises(self, k, x):
+        """Von Mises stress (Pa) of stress node k at state x."""
+        import numpy as np
+        x = np.ascontiguousarray(x, dtype=float)
+        out = ctypes.c_double()
+        self._check(self.lib.mbs_von_mises(self.ptr, k, x.ctypes.data, ctypes.byref(out)))
+        return out.value

@@ -39,6 +39,7 @@ SIGNATURES = {
     "mbs_equations": (c_int, [c_void_p, c_double, c_void_p, c_void_p, c_void_p, c_void_p]),
     "mbs_rhs": (c_int, [c_void_p, c_double, c_void_p, c_void_p]),
     "mbs_output_point": (c_int, [c_void_p, c_int, c_void_p, c_double, c_void_p]),
+    "mbs_von_mises": (c_int, [c_void_p, c_int, c_void_p, P_double]),
 }
 
 

@@ -14,7 +14,7 @@ from ..equations.model import Model
 from ..expr import CONSTANTS, parse
 from ..scene import domains, limits
 from . import layout as L
-from .elastic_tables import elastic_sections
+from .elastic_tables import elastic_sections, stress_sections
 
 # every section id, field, type code and size comes from mbs_layout.h (layout.py); these are views of it
 FORCE_TYPES, FN1, FN2 = L.names("MBS_FORCES"), L.names("MBS_FN1"), L.names("MBS_FN2")
@@ -318,11 +318,13 @@ def compile_scene(spec, variables, guid="", model=None):
     masses = any(t[0] == "body" and t[1] % L.DB in (L.DB_M, L.DB_I, L.DB_I + 4, L.DB_I + 8) for t in bound)
     rules, rule_names = R.section(bound, offsets, carries=masses)  # what a body carries changes with a mass or moment only
     features = L.F_EXPR * bool(P.rows) | L.F_ELASTIC * m.has_elastic
-    elastic_i, elastic_d = np.zeros(0, np.int32), np.zeros(0)
+    elastic_i, elastic_d, stress = np.zeros(0, np.int32), np.zeros(0), []
     if m.has_elastic:
         elastic_i, elastic_d, elastic_index = elastic_sections(m, spec)
         for i, e in elastic_index.items():
             ib[i, L.IB_ELASTIC] = e
+        if any(v.kind == L.MBS_V_VM for v in variables):   # only then: other scenes compile as before
+            stress = list(zip((L.S_STRESS_I, L.S_STRESS_D), stress_sections(m, spec, elastic_index)))
     header = dict(NB=nb, NPOS=npos, NVEL=f, NFORCE=len(m.bound_forces), NQUAT=len(quat), NPLAIN=len(m.plain_pos),
                   NDRV=len(drives), NVEC=len(inputs) + len(timed), NINPUT=len(inputs), NPARAM=len(params),
                   NVARS=len(vars_), NOUT=len(m.outputs), NPROG=len(prog), NCODE=len(P.code),
@@ -338,7 +340,7 @@ def compile_scene(spec, variables, guid="", model=None):
                 (L.S_CODE, np.array(P.code, dtype=np.int32)), (L.S_ELASTIC_I, elastic_i), (L.S_D, D),
                 (L.S_ELASTIC_D, elastic_d), (L.S_NAMES, np.frombuffer(names, np.uint8)),
                 (L.S_VDOM, vdom), (L.S_RULES, rules), (L.S_RULE_NAMES, rule_names),
-                (L.S_LIMITS, _limits(spec))]
+                (L.S_LIMITS, _limits(spec))] + stress
     return _pack(sections, guid)
 
 

@@ -417,7 +417,26 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
         int el = mbs_body_i(m, b)->elastic;
         if (el < 0 || node >= row(m, el)->nodes) FAIL("corrupt output table (node of output %d)", o);
     }
+    int64_t at = 0;  /* stress nodes: their modes one after another, 6 × n of their body's n */
+    for (int k = 0; k < m->nstress; k++) {
+        const int el = m->stress_i[2 * k];
+        if (!in_range(el, 0, ne) || m->stress_i[2 * k + 1] != at) FAIL("corrupt stress section (row %d)", k);
+        at += 6 * (int64_t)row(m, el)->n;
+    }
+    if (at != m->n_stress_d) FAIL("corrupt stress section (data length)");
     return 0;
+}
+
+/* σ_c = Σ_k σ_ck q_k (Voigt xx yy zz xy yz zx), then σ_vm = √(½((σxx−σyy)² + (σyy−σzz)² + (σzz−σxx)²)
+ * + 3(σxy² + σyz² + σzx²)) */
+double mbs_elastic_von_mises(const MbsModel *m, int k, const double *x)
+{
+    const ElasticRow *r = row(m, m->stress_i[2 * k]);
+    const double *modes = m->stress_d + m->stress_i[2 * k + 1], *q = x + r->q;
+    double s[6];
+    for (int c = 0; c < 6; c++) s[c] = dot(modes + (size_t)c * r->n, q, r->n);
+    const double a = s[0] - s[1], b = s[1] - s[2], c = s[2] - s[0];
+    return sqrt(0.5 * (a * a + b * b + c * c) + 3.0 * (s[3] * s[3] + s[4] * s[4] + s[5] * s[5]));
 }
 
 /* Structural parameters (they fed the beam generator): the bound value must be the one the data were

@@ -10,6 +10,11 @@ S_ELASTIC_D (double): per elastic body, at its EI_D offset, in this order (row-m
                       after the bodies the NFIX parameter values the data were computed with.
 The inner index of G and B is the one contracted with q, so that G·q and B·q run along memory.
 
+S_STRESS_I (int32):   per stress node (an FE body's `stress:`), its elastic data index (the EI row) and the
+                      offset of its stress modes in S_STRESS_D; both sections only in scenes with stress nodes.
+S_STRESS_D (double):  per stress node its 6 × n stress modes σ_ck (row-major, Voigt xx yy zz xy yz zx): the
+                      engine's σ_c = Σ_k σ_ck q_k and von Mises value (elastic.c, mbs_elastic_von_mises).
+
 The finite-element data depend on the parameters that feed the beam generator (and a damping_ratio): those
 are structural. The engine cannot recompute them, so it refuses a different value (elastic.c); the FMU
 declares them fixed (`structural_parameters`).
@@ -17,6 +22,7 @@ declares them fixed (`structural_parameters`).
 
 import numpy as np
 
+from ..errors import ModelError
 from ..expr import parse
 from . import layout as L
 
@@ -71,3 +77,30 @@ def elastic_sections(model, spec):
     I = np.concatenate([head, np.ravel(rows), [params.index(p) for p in fixed]])
     D = np.concatenate(blocks + [[float(model.parameters[p]) for p in fixed]])
     return I.astype(np.int32), D.astype(float), index
+
+
+def stress_points(spec):
+    """[(body name, node name)] of the scene's stress nodes: the order of the von Mises variables and of the
+    S_STRESS_I rows."""
+    return [(b["name"], name) for b in spec["bodies"] if (b.get("elastic") or {}).get("fe")
+            for name in b["elastic"]["fe"].get("stress_names", ())]
+
+
+def stress_sections(model, spec, elastic_index):
+    """(S_STRESS_I, S_STRESS_D) of a compiled Model ({body index: elastic index} from elastic_sections), rows in
+    stress_points' order."""
+    from ..bodies.cms import stress_table
+    rows, blocks, off = [], [], 0
+    for b in spec["bodies"]:
+        fe = (b.get("elastic") or {}).get("fe") or {}
+        if "stress_names" not in fe:
+            continue
+        S = stress_table(fe, key=f"bodies.{b['name']}.elastic.fe")
+        if len(S) != len(fe["stress_names"]):
+            raise ModelError(f"{len(fe['stress_names'])} stress node names for {len(S)} stress nodes",
+                             key=f"bodies.{b['name']}.elastic.fe.stress_names")
+        for sigma in S:
+            rows.append((elastic_index[model.index[b["name"]]], off))
+            blocks.append(sigma.ravel())
+            off += sigma.size
+    return np.array(rows, np.int32).reshape(-1, 2), np.concatenate(blocks)

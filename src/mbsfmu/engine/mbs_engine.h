@@ -112,6 +112,8 @@ MBS_API int mbs_equations(MbsInstance *s, double t, const double *x, double *M, 
 MBS_API int mbs_rhs(MbsInstance *s, double t, const double *x, double *xdot);
 /* world position (3) and velocity (3) of output point o */
 MBS_API int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double out[6]);
+/* von Mises stress (Pa) of stress node k (an FE body's `stress:`) at state x */
+MBS_API int mbs_von_mises(MbsInstance *s, int k, const double *x, double *out);
 
 #ifdef __cplusplus
 }

@@ -56,7 +56,9 @@
     X(S_VDOM, 1)        /* 6 × 3: domain of each settable kind MBS_V_PARAM .. MBS_V_STEP: lo, hi, flags (VD_*) */ \
     X(S_RULES, 0)       /* nrules × 3: rule (R_*), D offset of its first number (R_CARRIES: body), path */ \
     X(S_RULE_NAMES, 2)  /* the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */ \
-    X(S_LIMITS, 1)      /* LIM_N: the limits the rules use (below) */
+    X(S_LIMITS, 1)      /* LIM_N: the limits the rules use (below) */ \
+    X(S_STRESS_I, 0)    /* nstress × 2: elastic data index, offset in S_STRESS_D (only with stress outputs) */ \
+    X(S_STRESS_D, 1)    /* per stress node its 6 × n stress modes, Voigt xx yy zz xy yz zx (elastic_tables.py) */
 enum { MBS_SECTIONS(MBS_CODE) S_NSECTIONS };
 
 /* header scalars (S_HEADER); H_D_*: offsets into D */
@@ -127,12 +129,12 @@ enum { MBS_METHODS(MBS_CODE) MBS_NMETHODS };
 
 /* kinds of variables (S_VARS; value reference = row index); the second arg: the variable's name for the
  * settable integrator settings. MBS_V_DER: the time derivative of state entry `index` of [y; ẏ] (the FMUs
- * with model exchange declare them) */
+ * with model exchange declare them); MBS_V_VM: the von Mises stress of stress node `index` (S_STRESS_I) */
 #define MBS_VAR_KINDS(X) \
     X(MBS_V_PARAM, "") X(MBS_V_METHOD, "integrator.method") X(MBS_V_RTOL, "integrator.rtol") \
     X(MBS_V_ATOL, "integrator.atol") X(MBS_V_MAX_STEP, "integrator.max_step") X(MBS_V_STEP, "integrator.step") \
     X(MBS_V_QIN, "") X(MBS_V_FIN, "") X(MBS_V_Y, "") X(MBS_V_YD, "") X(MBS_V_OUT, "") \
-    X(MBS_V_DER, "")
+    X(MBS_V_DER, "") X(MBS_V_VM, "")
 enum { MBS_VAR_KINDS(MBS_CODE) MBS_V_N };
 
 /* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, sim.c to a host's):

@@ -20,9 +20,9 @@ int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen);  /* sim.c: 
 struct MbsModel {
     char guid[64];
     int32_t hdr[H_SIZE];
-    const int32_t *ib, *iforce, *quat, *plain, *vars, *out, *prog, *code, *elastic_i;
-    const double *D, *elastic_d;      /* defaults: the instance copies D */
-    int n_elastic_i, n_elastic_d;
+    const int32_t *ib, *iforce, *quat, *plain, *vars, *out, *prog, *code, *elastic_i, *stress_i;
+    const double *D, *elastic_d, *stress_d;  /* defaults: the instance copies D */
+    int n_elastic_i, n_elastic_d, nstress, n_stress_d;  /* nstress: rows of S_STRESS_I */
     const char **coord_name, **body_name, **var_name;  /* into the blob */
     const int32_t *read;               /* vr → offset into the instance's [y; ẏ; output points] block, -1 else */
     const double *vdom;                /* S_VDOM */
@@ -189,6 +189,8 @@ void mbs_elastic_equations(const MbsEval *e);               /* adds to M, k, q *
 int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen);
 /* at bind: structural parameters (they fed the beam generator) must keep their compiled values */
 int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen);
+/* von Mises stress of stress node k (S_STRESS_I) at state x */
+double mbs_elastic_von_mises(const MbsModel *m, int k, const double *x);
 #endif
 
 #endif

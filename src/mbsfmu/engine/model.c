@@ -180,10 +180,11 @@ static int check_tables(const MbsModel *m, char *err, size_t errlen)
         if (!in(m->plain[k], 0, np) || !in(m->plain[H[H_NPLAIN] + k], 0, nv)) BAD("corrupt coordinate table (entry %d)", k);
     for (int k = 0; k < H[H_NVARS]; k++) {
         const int kind = m->vars[2 * k], idx = m->vars[2 * k + 1];
-        static const int hi_of[MBS_V_N] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0};
+        static const int hi_of[MBS_V_N] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0};
         const int64_t hi = kind == MBS_V_PARAM ? H[H_NPARAM] : kind == MBS_V_QIN || kind == MBS_V_YD ? nv :
                            kind == MBS_V_Y ? np : kind == MBS_V_FIN ? 3 * (int64_t)H[H_NINPUT] :
                            kind == MBS_V_OUT ? 6 * (int64_t)H[H_NOUT] : kind == MBS_V_DER ? (int64_t)np + nv :
+                           kind == MBS_V_VM ? m->nstress :
                            in(kind, 0, MBS_V_N) ? hi_of[kind] : 0;
         if (!in(idx, 0, hi)) BAD("corrupt variable table (row %d: kind %d, index %d)", k, kind, idx);
     }
@@ -243,6 +244,12 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     m->elastic_d = section(b, len, tab, nsec, S_ELASTIC_D, 1, -1, &ne_d);
     m->n_elastic_i = m->elastic_i ? ne_i : 0;
     m->n_elastic_d = m->elastic_d ? ne_d : 0;
+    m->stress_i = section(b, len, tab, nsec, S_STRESS_I, 0, -1, &m->nstress);  /* absent: no stress nodes */
+    m->stress_d = section(b, len, tab, nsec, S_STRESS_D, 1, -1, &m->n_stress_d);
+    if (!m->stress_i || !m->stress_d) m->nstress = m->n_stress_d = 0;  /* (a broken one: its variables fail) */
+    if (m->nstress % 2) FAIL("corrupt stress section");
+    m->nstress /= 2;
+    if (m->nstress && !(H[H_FEATURES] & F_ELASTIC)) FAIL("corrupt stress section (stress nodes in a scene without elastic bodies)");
     SEC(m->vdom, S_VDOM, 1, 3 * (MBS_V_STEP + 1));
     m->rules = section(b, len, tab, nsec, S_RULES, 0, -1, &m->nrules);
     m->rule_names = section(b, len, tab, nsec, S_RULE_NAMES, 2, -1, &m->n_rule_names);

@@ -645,10 +645,19 @@ int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double ou
     return MBS_OK;
 }
 
+int mbs_von_mises(MbsInstance *s, int k, const double *x, double *out)
+{
+    if (k < 0 || k >= s->m->nstress) return report(s, MBS_ERROR, "no stress node %d", k);
+#ifdef MBS_WITH_ELASTIC  /* (stress nodes exist only with elastic bodies) */
+    *out = mbs_elastic_von_mises(s->m, k, x);
+#endif
+    return MBS_OK;
+}
+
 MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart from mbs_get_reals' fast loop */
 {
     int idx = 0, kind = var(s, vr, &idx), rc;
-    if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT || kind == MBS_V_DER) && !s->initialized &&
+    if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT || kind == MBS_V_DER || kind == MBS_V_VM) && !s->initialized &&
         !s->initial_valid && (rc = initial_state(s)))
         return rc;
     switch (kind) {
@@ -673,6 +682,9 @@ MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart f
         if ((rc = derivatives(s))) return rc;
         *value = s->der[idx];
         return MBS_OK;
+#ifdef MBS_WITH_ELASTIC
+    case MBS_V_VM: *value = mbs_elastic_von_mises(s->m, idx, s->x); return MBS_OK;  /* only with elastic bodies */
+#endif
     case -1: return report(s, MBS_ERROR, "unknown value reference %d", vr);
     default: return report(s, MBS_ERROR, "value reference %d is a String", vr);
     }

@@ -35,6 +35,14 @@ class Evaluator:
             syms = [s for q, s in (("position", "r"), ("velocity", "v")) if q in o["quantities"]]
             r_b = None if o.get("node") is not None else np.array([parse(x)(m.env) for x in o["point"]], dtype=float)
             self._out_points.append((o, m.index[o["body"]], r_b, syms))
+        self._stress = []   # (variable name, the body's elastic coordinates, the node's stress modes 6 × n)
+        for b in m.spec["bodies"]:
+            fe = (b.get("elastic") or {}).get("fe") or {}
+            if "stress_names" in fe:
+                from ..bodies.cms import stress_table   # here: bodies imports scene, which imports this package
+                q_idx = m.bodies[m.index[b["name"]]].q_idx
+                self._stress += [(f"vm.{b['name']}.{name}", q_idx, S)
+                                 for name, S in zip(fe["stress_names"], stress_table(fe))]
 
     # -- parameters and initial state ---------------------------------------------------------------
     @property
@@ -145,11 +153,10 @@ class Evaluator:
         return r, v
 
     def output_values(self, y, yd, t):
-        """{FMU output name: value} of the scene's `outputs:` points (world position r, velocity v)."""
-        if not self._out_points:
-            return {}
-        d = kinematics(self.model, np.asarray(y, float), np.asarray(yd, float), t)
+        """{FMU output name: value} of the scene's `outputs:` points (world position r, velocity v) and von Mises
+        stresses (σ = Σ_k σ_k q_k at an FE body's stress node)."""
         out = {}
+        d = kinematics(self.model, np.asarray(y, float), np.asarray(yd, float), t) if self._out_points else None
         for o, i, r_b, syms in self._out_points:
             if r_b is None:
                 r, v, _ = _node_pt(self.model, d, i, o["node"])
@@ -159,6 +166,10 @@ class Evaluator:
                 vec = r if sym == "r" else v
                 for k, ax in enumerate("xyz"):
                     out[f"{o['name']}.{sym}.{ax}"] = float(vec[k])
+        for name, q_idx, S in self._stress:
+            sxx, syy, szz, sxy, syz, szx = S @ np.asarray(y, float)[q_idx]
+            out[name] = math.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2)
+                                  + 3.0 * (sxy ** 2 + syz ** 2 + szx ** 2))
         return out
 
     def singularity_message(self, y, y_before=None):

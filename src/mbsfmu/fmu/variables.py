@@ -14,7 +14,7 @@ tolerance is rtol × nominal, so each is the size the state physically has in th
 import numpy as np
 
 from ..engine import layout as L
-from ..engine.elastic_tables import structural_parameters
+from ..engine.elastic_tables import stress_points, structural_parameters
 from ..equations.model import Model
 
 INTEGRATOR_DESCRIPTIONS = {
@@ -112,6 +112,9 @@ def _outputs(spec, model):
                                  description=f"world-frame {qty} of a point on {o['body']}, {ax} component",
                                  kind=L.MBS_V_OUT, index=6 * i + 3 * s + k)
                         for k, ax in enumerate("xyz")]
+    out += [Variable(f"vm.{body}.{node}", "output", "continuous", unit="Pa",
+                     description=f"von Mises stress at FE node {node} of {body}", kind=L.MBS_V_VM, index=k)
+            for k, (body, node) in enumerate(stress_points(spec))]
     return out
 
 

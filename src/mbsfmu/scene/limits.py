@@ -28,6 +28,8 @@ FE_BYTES = 256 * 2**20          # one file of an FE model (matrix, nodes, .inp):
 FE_DOFS = 300_000               # degrees of freedom of an FE model (3 per node)
 FE_ENTRIES = 16_000_000         # stored entries of one FE matrix (header and lines counted before they are read)
 FE_MODES = 100                  # modes a reduction keeps (elastic coordinates of one body)
+FE_STRESS_NODES = 256           # nodes of one FE body with von Mises outputs: 6 numbers per node and mode, in the
+                                # compiled scene and (as JSON) in the drawing description
 FE_AVERAGED_NODES = 1000        # nodes of an interface that keeps its deformation (RBE3): a dense (3n)² block
 FE_MESH_BYTES = 64 * 2**20      # a solid mesh (elastic: fe: mesh:) read into memory whole before it is parsed
 FE_PARSE_BYTES = 2 * 2**30      # address space of the child process that parses a solid mesh (meshio, numpy)

@@ -684,6 +684,8 @@ class _Checker:
             sets[name] = self.fe_nodes(node["node_sets"], name, f"{path}.node_sets.{name}")
         params = {"method": method, "modes": None,
                   **{k: self.fe_points(node, k, f"{path}.{k}") if k in node else [] for k in ("keep", "load_points")}, "cutoff_hz": None, "interface": None, "reference": None}
+        if "stress" in node:
+            params["stress"] = self.fe_stress(node, path + ".stress")
         if "cutoff_hz" in node:
             params["cutoff_hz"] = self.plain_number(node, "cutoff_hz", path + ".cutoff_hz", positive=True)
         else:
@@ -722,7 +724,35 @@ class _Checker:
         first = 1 if params["reference"] else 0
         names.update({k: first + i for i, k in enumerate(params["keep"]) if isinstance(k, str)})
         self.node_names[body] = names
-        return dict(_plain(reduced), check_tolerance=tolerance)
+        out = dict(_plain(reduced), check_tolerance=tolerance)
+        if "stress" in params:
+            out["stress_names"] = self.stress_names(node, path + ".stress", params["stress"], reduced)
+        return out
+
+    def fe_stress(self, node, path):
+        """`stress:` FE node indices and node set names (scene names: they name FMU variables), of a mesh only."""
+        if "mesh" not in node:
+            self.fail(node, "stress", path, "stress outputs need a solid mesh (mesh: and material:): mass and "
+                      "stiffness matrices carry no elements to take stresses from", "give the part as a mesh, or leave stress out")
+        entries = self.fe_points(node, "stress", path)
+        if len(entries) > limits.FE_STRESS_NODES:
+            self.fail(node, "stress", path, f"{len(entries)} stress nodes, at most {limits.FE_STRESS_NODES}", "name fewer nodes")
+        for i, x in enumerate(entries):
+            if isinstance(x, str):
+                self.name(node["stress"], i, f"{path}[{i}]", what="a stress node set name (it names FMU outputs)")
+        return entries
+
+    def stress_names(self, node, path, entries, reduced):
+        """The name of each stress node (a row of the reduced body's stress modes): its index, a one-node set's
+        name, else set.index; each name once."""
+        names, rows = [], iter(np.asarray(reduced["stress_nodes"]).tolist())
+        for entry, count in zip(entries, np.asarray(reduced["stress_counts"]).tolist()):
+            nodes = [next(rows) for _ in range(count)]
+            names += [str(entry)] if isinstance(entry, int) or count == 1 else [f"{entry}.{k}" for k in nodes]
+        twice = next((n for i, n in enumerate(names) if n in names[:i]), None)
+        if twice is not None:
+            self.fail(node, "stress", path, f"stress node '{twice}' is named twice", "name each node once")
+        return names
 
     def fe_matrices(self, node, path):
         """(source, files) of an FE model given as mass and stiffness matrices (fe.read)."""
@@ -1031,7 +1061,7 @@ class _Checker:
 
 
 _FE_MESH_KEYS = ("mesh", "material", "element")
-_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep", "load_points", "check_tolerance") + _FE_MESH_KEYS
+_FE_KEYS = ("mass", "stiffness", "nodes", "format", "dof_map", "node_sets", "interface", "method", "modes", "cutoff_hz", "keep", "load_points", "check_tolerance", "stress") + _FE_MESH_KEYS
 _FE_FORMATS = ("matrix-market", "abaqus")
 
 

@@ -3,6 +3,7 @@ at load, naming both. The variables themselves (names, order, kinds) are fmu/var
 traces each one back to the key it comes from, through the engine's variable kind and index."""
 
 from ..engine import layout as L
+from ..engine.elastic_tables import stress_points
 from ..equations.model import Model
 from ..fmu.variables import variables
 
@@ -29,10 +30,16 @@ def fmu_variables(spec):
     def output(i):
         return f"output '{spec['outputs'][i // 6]['name']}'", f"outputs[{i // 6}]"
 
+    points = stress_points(spec)
+
+    def stress(i):
+        body, node = points[i]
+        return f"stress node '{node}' of '{body}'", f"bodies.{body}.elastic.fe.stress"
+
     def setting(i):  # integrator.method, .rtol, ...
         return "the integrator settings", "integrator"
 
-    source = {L.MBS_V_PARAM: parameter, L.MBS_V_FIN: force_input, L.MBS_V_OUT: output,
+    source = {L.MBS_V_PARAM: parameter, L.MBS_V_FIN: force_input, L.MBS_V_OUT: output, L.MBS_V_VM: stress,
               L.MBS_V_Y: lambda i: coordinate[model.coordinates[i]],
               L.MBS_V_QIN: lambda i: coordinate[model.velocity_coordinates[i]],
               L.MBS_V_YD: lambda i: coordinate[model.velocity_coordinates[i]]}
