@@ -137,19 +137,12 @@ def test_declared_derivative_dependencies_hold(built, m):
 def test_cvode_equals_the_engine(built, m):
     """fmpy's CVode at rtol 1e-10 through model exchange = mbsfmu.simulate to 1e-6 of each signal's range
     (ranges below 1e-3 of the signal's size, or below 1e-3, count as that: CVode's tolerance is rtol × (|x| +
-<<<<<<< HEAD
     nominal) per step, and a nearly constant signal has next to no range), elastic scenes too now that each state
     carries its nominal (variables.state_nominals; with nominals 1 their modal coordinates were off by up to 5e-6).
     spinup_beam to 1e-5: measured 4e-6 on its third mode's rate, which CVode's BDF carries less well than the
     others at this rtol (the same to 1e-7 at rtol 1e-12; its nominals are within 6x of its ranges over the whole
     experiment)."""
-    stop, step = (0.02, 1e-4) if m in ("fe_link", "fe_plate") else (STOP, None)  # FE parts: stiff, ≤ 500 CVode steps per point
-=======
-    nominal) per step, and a nearly constant signal has next to no range). Elastic scenes to
-    1e-5: CVode's BDF damps their lightly damped modes (measured 3e-6 to 5e-6; the derivatives themselves equal
-    the engine's right-hand side bit for bit, test_hostile_model_exchange_calls)."""
-    stop, step = (0.02, 1e-4) if m in ("fe_link", "fe_stress") else (STOP, None)  # stiff: ≤ 500 CVode steps per point
->>>>>>> fe-stress
+    stop, step = (0.02, 1e-4) if m in ("fe_link", "fe_plate", "fe_stress") else (STOP, None)  # FE parts: stiff, ≤ 500 CVode steps per point
     t, ref = _reference(m, stop=stop, step=step)
     r = simulate_fmu(str(built[m]), fmi_type="ModelExchange", solver="CVode", relative_tolerance=1e-10,
                      stop_time=stop, output_interval=t[1] - t[0])
