@@ -262,7 +262,9 @@ def test_workspace_limit_of_compile_py_holds_at_load(name):
     H, h = arrays[c.S_HEADER], {e[0][2:]: c.CONSTANTS[e[0]] for e in c.LISTS["MBS_HEADER"]}
     np_, nv, extra = H[h["NPOS"]], H[h["NVEL"]], 20000
     D, x0 = arrays[c.S_D], H[h["D_X0"]]
-    arrays[c.S_D] = D[:x0 + np_] + [0.0] * extra + D[x0 + np_:x0 + np_ + nv] + [0.0] * extra + D[x0 + np_ + nv:]
+    nom = x0 + np_ + nv   # the states' nominals follow x0 (H_D_NOMINAL)
+    arrays[c.S_D] = (D[:x0 + np_] + [0.0] * extra + D[x0 + np_:nom] + [0.0] * extra
+                     + D[nom:nom + np_] + [1.0] * extra + D[nom + np_:nom + np_ + nv] + [1.0] * extra + D[nom + np_ + nv:])
     plain = arrays[c.S_PLAIN]
     k = H[h["NPLAIN"]]
     arrays[c.S_PLAIN] = plain[:k] + list(range(np_, np_ + extra)) + plain[k:] + list(range(nv, nv + extra))
@@ -271,8 +273,9 @@ def test_workspace_limit_of_compile_py_holds_at_load(name):
     arrays[c.S_NAMES] = list(b"".join(n + b"\0" for n in names))
     for key in ("NPOS", "NVEL", "NPLAIN"):
         H[h[key]] += extra
+    H[h["D_NOMINAL"]] += 2 * extra
     for key in ("D_OUT", "D_INTEG", "ND"):
-        H[h[key]] += 2 * extra
+        H[h[key]] += 4 * extra
     from mbsfmu.engine.compile import _pack
     parts = [(sid, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
              for sid, (_, kind, _, _) in sorted(sec.items())]
