@@ -125,6 +125,12 @@ int mbs_derivatives(MbsInstance *s, double *xdot, size_t n) {
     return MBS_OK;
 }
 int mbs_initialized(const MbsInstance *s) { return s->initialized; }
+const double *mbs_nominals(const MbsInstance *s) {  /* every state's nominal is 1 (at most NMAX states) */
+    static double one[NMAX];
+    (void)s;
+    for (int j = 0; j < NMAX; j++) one[j] = 1.0;
+    return one;
+}
 const char *mbs_message(const MbsInstance *s) { (void)s; return ""; }
 
 /* state: the numbers that determine the future */
