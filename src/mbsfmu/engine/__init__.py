@@ -201,6 +201,44 @@ class Instance:
         self._check(self.lib.mbs_output_point(self.ptr, o, x.ctypes.data, t, out.ctypes.data))
         return out
 
+    # -- model exchange: the host's time and states, ẋ and its directional derivatives there
+    def set_time(self, t):
+        self._check(self.lib.mbs_set_time(self.ptr, t))
+
+    def set_state(self, x):
+        import numpy as np
+        x = np.ascontiguousarray(x, dtype=float)
+        self._check(self.lib.mbs_set_state(self.ptr, x.ctypes.data, len(x)))
+
+    def derivatives(self):
+        import numpy as np
+        out = np.empty(self.n)
+        self._check(self.lib.mbs_derivatives(self.ptr, out.ctypes.data, self.n))
+        return out
+
+    def directional_derivative(self, unknowns, knowns, seed):
+        """J·seed, J = ∂(unknowns)/∂(knowns) by value reference (knowns: states and inputs; unknowns: derivatives,
+        outputs, states), at the time and state set, exact to rounding (complex step in the engine)."""
+        import numpy as np
+        u, k = np.ascontiguousarray(unknowns, dtype=np.uintc), np.ascontiguousarray(knowns, dtype=np.uintc)
+        seed, out = np.ascontiguousarray(seed, dtype=float), np.empty(len(u))
+        if len(seed) != len(k):
+            raise ValueError(f"{len(k)} knowns but {len(seed)} seeds")
+        self._check(self.lib.mbs_directional_derivative(self.ptr, u.ctypes.data, len(u), k.ctypes.data, len(k),
+                                                        seed.ctypes.data, out.ctypes.data))
+        return out
+
+    def adjoint_derivative(self, unknowns, knowns, seed):
+        """seedᵀ·J (seed per unknown), as directional_derivative's J."""
+        import numpy as np
+        u, k = np.ascontiguousarray(unknowns, dtype=np.uintc), np.ascontiguousarray(knowns, dtype=np.uintc)
+        seed, out = np.ascontiguousarray(seed, dtype=float), np.empty(len(k))
+        if len(seed) != len(u):
+            raise ValueError(f"{len(u)} unknowns but {len(seed)} seeds")
+        self._check(self.lib.mbs_adjoint_derivative(self.ptr, u.ctypes.data, len(u), k.ctypes.data, len(k),
+                                                    seed.ctypes.data, out.ctypes.data))
+        return out
+
     def von_mises(self, k, x):
         """Von Mises stress (Pa) of stress node k at state x."""
         import numpy as np

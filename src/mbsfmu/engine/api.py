@@ -40,6 +40,11 @@ SIGNATURES = {
     "mbs_rhs": (c_int, [c_void_p, c_double, c_void_p, c_void_p]),
     "mbs_output_point": (c_int, [c_void_p, c_int, c_void_p, c_double, c_void_p]),
     "mbs_von_mises": (c_int, [c_void_p, c_int, c_void_p, P_double]),
+    "mbs_set_time": (c_int, [c_void_p, c_double]),
+    "mbs_set_state": (c_int, [c_void_p, c_void_p, c_size_t]),
+    "mbs_derivatives": (c_int, [c_void_p, c_void_p, c_size_t]),
+    "mbs_directional_derivative": (c_int, [c_void_p, c_void_p, c_size_t, c_void_p, c_size_t, c_void_p, c_void_p]),
+    "mbs_adjoint_derivative": (c_int, [c_void_p, c_void_p, c_size_t, c_void_p, c_size_t, c_void_p, c_void_p]),
 }
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 from ..errors import EngineUnavailable
 
 HERE = Path(__file__).parent
-CORE = ("model.c", "tree.c", "dynamics.c", "sim.c", "linalg.c", "fmu_files.c", "fmi2_guard.c", "fmi_common.c", "fmi_core.c") + tuple(sorted(p.name for p in HERE.glob("integ_*.c")))
+CORE = ("model.c", "tree.c", "dynamics.c", "deriv.c", "sim.c", "linalg.c", "fmu_files.c", "fmi2_guard.c", "fmi_common.c", "fmi_core.c") + tuple(sorted(p.name for p in HERE.glob("integ_*.c")))
 HEADERS = ("mbs_engine.h", "fmu_files.h", "fmi2_guard.h", "fmi_common.h", "fmi_core.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
            "integ_internal.h", "linalg.h")
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}

@@ -29,19 +29,19 @@
 #include "mbs_model.h"
 #include "mbs_vec3.h"
 
-static void mat6v(const double *restrict A, const double *restrict x, double *restrict y)  /* y = A x, A 6 × 6 row-major */
+static void mat6v(const real *restrict A, const real *restrict x, real *restrict y)  /* y = A x, A 6 × 6 row-major */
 {
     for (int r = 0; r < 6; r++)
         y[r] = A[6 * r] * x[0] + A[6 * r + 1] * x[1] + A[6 * r + 2] * x[2] + A[6 * r + 3] * x[3] +
                A[6 * r + 4] * x[4] + A[6 * r + 5] * x[5];
 }
-static double dot6(const double *a, const double *b)
+static real dot6(const real *a, const real *b)
 {
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5];
 }
-static void crossf(const double *v, const double *h, double *f)  /* f = v ×* h = (ω × n + v_O × F, ω × F) */
+static void crossf(const real *v, const real *h, real *f)  /* f = v ×* h = (ω × n + v_O × F, ω × F) */
 {
-    double a[3], b[3];
+    real a[3], b[3];
     cross(v, h, a);
     cross(v + 3, h + 3, b);
     cross(v, h + 3, f + 3);
@@ -49,9 +49,9 @@ static void crossf(const double *v, const double *h, double *f)  /* f = v ×* h 
 }
 
 /* f = I v for a rigid body's I = [Ī_O h̃; h̃ᵀ m E] (cheaper than mat6v) */
-static void inertia_times(const double *restrict I, const double *restrict h, const double *restrict v, double *restrict f)
+static void inertia_times(const real *restrict I, const real *restrict h, const real *restrict v, real *restrict f)
 {
-    double a[3], b[3];
+    real a[3], b[3];
     cross(h, v + 3, a);
     cross(h, v, b);
     for (int r = 0; r < 3; r++) {
@@ -62,19 +62,19 @@ static void inertia_times(const double *restrict I, const double *restrict h, co
 
 /* A carrier's spatial inertia (with the bodies welded to it: mbs_composites) about its origin in world
  * axes (6 × 6) and its first moment h = m c. */
-static void spatial_inertia(const double *wk, double *I, double *h)
+static void spatial_inertia(const real *wk, real *I, real *h)
 {
-    const double *S = wk + W_S, m = wk[AB_MC];
-    double c[3], SI[9];
+    const real *S = wk + W_S, m = wk[AB_MC];
+    real c[3], SI[9];
     mv(S, wk + AB_CC, c);
     for (int r = 0; r < 3; r++) h[r] = m * c[r];
     mm(S, wk + AB_IC, SI);
-    const double cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+    const real cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
     for (int r = 0; r < 3; r++)
         for (int k = 0; k < 3; k++)  /* Ī_o = S Ī Sᵀ + m (c·c E − c cᵀ) */
             I[6 * r + k] = SI[3 * r] * S[3 * k] + SI[3 * r + 1] * S[3 * k + 1] + SI[3 * r + 2] * S[3 * k + 2] +
                            m * ((r == k) * cc - c[r] * c[k]);
-    const double ht[9] = {0, -h[2], h[1], h[2], 0, -h[0], -h[1], h[0], 0};
+    const real ht[9] = {0, -h[2], h[1], h[2], 0, -h[0], -h[1], h[0], 0};
     for (int r = 0; r < 3; r++)
         for (int k = 0; k < 3; k++) {
             I[6 * r + 3 + k] = ht[3 * r + k];
@@ -92,9 +92,9 @@ static int carrier_parent(const MbsModel *m, const MbsBodyI *bi)
 }
 
 /* I += m (d·d E − d dᵀ): the inertia of mass m at offset d from the reference point (parallel axes) */
-static void add_parallel_axes(double m, const double *d, double *I)
+static void add_parallel_axes(real m, const real *d, real *I)
 {
-    const double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    const real dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++) I[3 * r + c] += m * ((r == c) * dd - d[r] * d[c]);
 }
@@ -102,15 +102,15 @@ static void add_parallel_axes(double m, const double *d, double *I)
 /* Body k (composite wk), welded to its parent at its joint frame (at, R0), joins the parent's composite (wp):
  * m' = m + m_k, c' = (m c + m_k c_k) / m', Ī' = Ī + m (c − c')~ + R0 Ī_k R0ᵀ + m_k (c_k − c')~ with c_k = at + R0 c_k
  * in the parent's frame (~: the parallel-axis term). */
-static void weld(const MbsBodyD *bk, const double *wk, double *wp)
+static void weld(const MbsBodyD *bk, const real *wk, real *wp)
 {
-    double ck[3], RI[9], dc[3], dk[3];
+    real ck[3], RI[9], dc[3], dk[3];
     mv(bk->R0, wk + AB_CC, ck);
     for (int r = 0; r < 3; r++) ck[r] += bk->at[r];
-    const double m = wp[AB_MC], mk = wk[AB_MC], mt = m + mk;
-    double *c = wp + AB_CC, *I = wp + AB_IC;
+    const real m = wp[AB_MC], mk = wk[AB_MC], mt = m + mk;
+    real *c = wp + AB_CC, *I = wp + AB_IC;
     for (int r = 0; r < 3; r++) {
-        const double c_ = mt > 0.0 ? (m * c[r] + mk * ck[r]) / mt : c[r];
+        const real c_ = RE(mt) > 0.0 ? (m * c[r] + mk * ck[r]) / mt : c[r];
         dc[r] = c[r] - c_;
         dk[r] = ck[r] - c_;
         c[r] = c_;
@@ -127,14 +127,14 @@ static void weld(const MbsBodyD *bk, const double *wk, double *wp)
 /* At bind time (after mbs_derive): each body's composite, leaves first: its own mass, centre of mass and inertia
  * joined by the composites of the bodies welded to it, so a carrier's is that of all it carries. The numbers may
  * depend on parameters, so they are derived here, not compiled. */
-void mbs_composites(const MbsModel *m, const double *D, double *work)
+void mbs_composites(const MbsModel *m, const real *D, real *work)
 {
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyD *bd = mbs_body_row(m, D, i);
-        double *wk = work + (size_t)i * m->stride;
+        real *wk = work + (size_t)i * m->stride;
         wk[AB_MC] = bd->m;
-        memcpy(wk + AB_CC, bd->c, 3 * sizeof(double));
-        memcpy(wk + AB_IC, bd->I, 9 * sizeof(double));
+        memcpy(wk + AB_CC, bd->c, 3 * sizeof(real));
+        memcpy(wk + AB_IC, bd->I, 9 * sizeof(real));
     }
     for (int i = NB(m) - 1; i >= 0; i--) {
         const MbsBodyI *bi = mbs_body_i(m, i);
@@ -147,13 +147,13 @@ void mbs_composites(const MbsModel *m, const double *D, double *work)
 static void bias_forces(const MbsEval *e)
 {
     const MbsModel *m = e->m;
-    const double *g = e->D + m->hdr[H_D_G];
+    const real *g = e->D + m->hdr[H_D_G];
     const int gravity = m->hdr[H_HAS_GRAVITY];
     for (int i = 0; i < NB(m); i++) {
         if (!carries_itself(m, i)) continue;
-        double *wk = mbs_body_work(e, i), *I = wk + AB_IA, *P = wk + AB_P, *F = wk + AB_F;
-        const double *w = wk + W_W, *al = wk + W_AL;
-        double h[3], v[6], a[6], Iv[6];
+        real *wk = mbs_body_work(e, i), *I = wk + AB_IA, *P = wk + AB_P, *F = wk + AB_F;
+        const real *w = wk + W_W, *al = wk + W_AL;
+        real h[3], v[6], a[6], Iv[6];
         spatial_inertia(wk, I, h);
         cross(w, wk + W_V, a + 3);
         for (int r = 0; r < 3; r++) {
@@ -170,15 +170,15 @@ static void bias_forces(const MbsEval *e)
             cross(h, g, F);
             for (int r = 0; r < 3; r++) F[3 + r] = I[6 * (3 + r) + 3 + r] * g[r];
         } else
-            memset(F, 0, 6 * sizeof(double));
+            memset(F, 0, 6 * sizeof(real));
     }
 }
 
-void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign)
+void mbs_body_force(const MbsEval *e, int i, const real *x, const real *F, double sign)
 {
     i = mbs_body_i(e->m, i)->carrier;  /* a welded body's force acts on its carrier; the world's takes none */
     if (i < 0) return;
-    double *wk = mbs_body_work(e, i), *f = wk + AB_F, n[3], r_[3];
+    real *wk = mbs_body_work(e, i), *f = wk + AB_F, n[3], r_[3];
     if (!x) {
         for (int r = 0; r < 3; r++) f[r] += sign * F[r];
         return;
@@ -189,25 +189,25 @@ void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, d
 }
 
 /* d = o_i − o_parent */
-static void offset(const MbsEval *e, const double *wk, int parent, double *d)
+static void offset(const MbsEval *e, const real *wk, int parent, real *d)
 {
-    const double *op = mbs_body_work(e, parent) + W_O;
+    const real *op = mbs_body_work(e, parent) + W_O;
     for (int r = 0; r < 3; r++) d[r] = wk[W_O + r] - op[r];
 }
 
 /* out += f moved from point o + d to o: (n + d × F, F) */
-static void add_force_at(const double *d, const double *f, double *out)
+static void add_force_at(const real *d, const real *f, real *out)
 {
-    double dxF[3];
+    real dxF[3];
     cross(d, f + 3, dxF);
     for (int r = 0; r < 3; r++) { out[r] += f[r] + dxF[r]; out[3 + r] += f[3 + r]; }
 }
 
 /* out += Tᵀ I T: the inertia I = [A B; Bᵀ C] about o + d moved to o, [A − B d̃ − (B d̃)ᵀ − d̃ C d̃, B + d̃ C; ., C] */
-static void add_inertia_at(const double *d, const double *I, double *out)
+static void add_inertia_at(const real *d, const real *I, real *out)
 {
-    const double dt[9] = {0, -d[2], d[1], d[2], 0, -d[0], -d[1], d[0], 0};
-    double A[9], B[9], C[9], Bd[9], dC[9], dCd[9];
+    const real dt[9] = {0, -d[2], d[1], d[2], 0, -d[0], -d[1], d[0], 0};
+    real A[9], B[9], C[9], Bd[9], dC[9], dCd[9];
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++) {
             A[3 * r + c] = I[6 * r + c];
@@ -219,7 +219,7 @@ static void add_inertia_at(const double *d, const double *I, double *out)
     mm(dC, dt, dCd);
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++) {
-            const double b = B[3 * r + c] + dC[3 * r + c];
+            const real b = B[3 * r + c] + dC[3 * r + c];
             out[6 * r + c] += A[3 * r + c] - Bd[3 * r + c] - Bd[3 * c + r] - dCd[3 * r + c];
             out[6 * r + 3 + c] += b;
             out[6 * (3 + c) + r] += b;
@@ -231,7 +231,7 @@ static void add_inertia_at(const double *d, const double *I, double *out)
 static void forces(const MbsEval *e)
 {
     bias_forces(e);
-    memset(e->q, 0, (size_t)NVEL(e->m) * sizeof(double));
+    memset(e->q, 0, (size_t)NVEL(e->m) * sizeof(real));
     mbs_applied_forces(e);
 }
 
@@ -244,24 +244,24 @@ static int articulated_inertias(const MbsEval *e)
         if (!carries_itself(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
         const int parent = carrier_parent(m, bi);
-        double *wk = mbs_body_work(e, i), *IA = wk + AB_IA, *W = wk + AB_W, *L = wk + AB_L, *z = wk + AB_Z;
-        const double *S = wk + AB_S;
+        real *wk = mbs_body_work(e, i), *IA = wk + AB_IA, *W = wk + AB_W, *L = wk + AB_L, *z = wk + AB_Z;
+        const real *S = wk + AB_S;
         const int nv = (int)wk[AB_NV];
-        double p[6];
+        real p[6];
         for (int r = 0; r < 6; r++) p[r] = wk[AB_P + r] - wk[AB_F + r];
         if (nv == 1) {  /* most joints: D a number, no factorization loop */
             int c = 0;
             while (bi->vel[c] < 0) c++;
             mat6v(IA, S, W);
-            const double D = dot6(S, W);
-            if (D <= 0.0) return 1;  /* NaN passes on as NaN, as mbs_cholesky */
-            const double l = sqrt(D), il = 1.0 / l;
+            const real D = dot6(S, W);
+            if (RE(D) <= 0.0) return 1;  /* NaN passes on as NaN, as mbs_cholesky */
+            const real l = r_sqrt(D), il = 1.0 / l;
             L[0] = l;
             z[0] = (e->q[bi->vel[c]] - dot6(S, p)) * il;
             for (int r = 0; r < 6; r++) W[r] *= il;
         } else for (int k = 0, c = 0; k < nv; k++, c++) {
             while (bi->vel[c] < 0) c++;  /* the k-th free coordinate */
-            double *Wk = W + 6 * k;
+            real *Wk = W + 6 * k;
             mat6v(IA, S + 6 * k, Wk);  /* U_k */
             for (int j = 0; j <= k; j++) L[nv * k + j] = dot6(S + 6 * j, Wk);
             z[k] = e->q[bi->vel[c]] - dot6(S + 6 * k, p);
@@ -269,7 +269,7 @@ static int articulated_inertias(const MbsEval *e)
         if (nv > 1) {
             if (mbs_cholesky(nv, L)) return 1;
             for (int k = 0; k < nv; k++) {
-                double *Wk = W + 6 * k;
+                real *Wk = W + 6 * k;
                 for (int j = 0; j < k; j++) {
                     for (int r = 0; r < 6; r++) Wk[r] -= L[nv * k + j] * W[6 * j + r];
                     z[k] -= L[nv * k + j] * z[j];
@@ -283,11 +283,11 @@ static int articulated_inertias(const MbsEval *e)
             for (int r = 0; r < 6; r++) p[r] += W[6 * k + r] * z[k];
         for (int r = 0; r < 6; r++)  /* I_A − W Wᵀ is symmetric: one triangle computed */
             for (int c = r; c < 6; c++) {
-                double x = IA[6 * r + c];
+                real x = IA[6 * r + c];
                 for (int k = 0; k < nv; k++) x -= W[6 * k + r] * W[6 * k + c];
                 IA[6 * r + c] = IA[6 * c + r] = x;
             }
-        double d[3], *pw = mbs_body_work(e, parent);
+        real d[3], *pw = mbs_body_work(e, parent);
         offset(e, wk, parent, d);
         add_inertia_at(d, IA, pw + AB_IA);
         add_force_at(d, p, pw + AB_P);
@@ -299,20 +299,20 @@ static int articulated_inertias(const MbsEval *e)
 static void accelerations(const MbsEval *e)
 {
     const MbsModel *m = e->m;
-    double *ydd = e->xdot + NPOS(m);
-    static const double Z[6] = {0, 0, 0, 0, 0, 0};
+    real *ydd = e->xdot + NPOS(m);
+    static const real Z[6] = {0, 0, 0, 0, 0, 0};
     for (int i = 0; i < NB(m); i++) {
         if (!carries_itself(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
         const int parent = carrier_parent(m, bi);
-        double *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, x[6];
-        const double *L = wk + AB_L, *S = wk + AB_S, *ap = acc;
+        real *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, x[6];
+        const real *L = wk + AB_L, *S = wk + AB_S, *ap = acc;
         const int nv = (int)wk[AB_NV];
         if (parent < 0)
             memcpy(acc, Z, sizeof Z);
         else {  /* (α, a − d × α) */
-            const double *pa = mbs_body_work(e, parent) + AB_ACC;
-            double d[3], dxa[3];
+            const real *pa = mbs_body_work(e, parent) + AB_ACC;
+            real d[3], dxa[3];
             offset(e, wk, parent, d);
             cross(d, pa, dxa);
             for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
@@ -345,23 +345,23 @@ void mbs_crba_rnea(const MbsEval *e)
     const MbsModel *m = e->m;
     const int f = NVEL(m);
     forces(e);
-    memset(e->M, 0, (size_t)f * f * sizeof(double));
-    memset(e->k, 0, (size_t)f * sizeof(double));
+    memset(e->M, 0, (size_t)f * f * sizeof(real));
+    memset(e->k, 0, (size_t)f * sizeof(real));
     for (int i = NB(m) - 1; i >= 0; i--) {
         if (!carries_itself(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
         const int parent = carrier_parent(m, bi);
-        double *wk = mbs_body_work(e, i);
+        real *wk = mbs_body_work(e, i);
         for (int k = 0, c = 0; k < (int)wk[AB_NV]; k++, c++) {
             while (bi->vel[c] < 0) c++;
-            const double *s = wk + AB_S + 6 * k;
-            double Fa[6];
+            const real *s = wk + AB_S + 6 * k;
+            real Fa[6];
             e->k[bi->vel[c]] = dot6(s, wk + AB_P);
             e->q[bi->vel[c]] += dot6(s, wk + AB_F);
             mat6v(wk + AB_IA, s, Fa);
             for (int j = i;;) {  /* Fa moved to each ancestor's origin on the way up */
                 const MbsBodyI *bj = mbs_body_i(m, j);
-                const double *wj = mbs_body_work(e, j);
+                const real *wj = mbs_body_work(e, j);
                 for (int l = 0, d = 0; l < (int)wj[AB_NV]; l++, d++) {
                     while (bj->vel[d] < 0) d++;
                     e->M[(size_t)bj->vel[d] * f + bi->vel[c]] = e->M[(size_t)bi->vel[c] * f + bj->vel[d]] =
@@ -369,7 +369,7 @@ void mbs_crba_rnea(const MbsEval *e)
                 }
                 const int pj = carrier_parent(m, bj);
                 if (pj < 0) break;
-                double d[3], Fj[6] = {0, 0, 0, 0, 0, 0};
+                real d[3], Fj[6] = {0, 0, 0, 0, 0, 0};
                 offset(e, wj, pj, d);
                 add_force_at(d, Fa, Fj);
                 memcpy(Fa, Fj, sizeof Fj);
@@ -377,7 +377,7 @@ void mbs_crba_rnea(const MbsEval *e)
             }
         }
         if (parent < 0) continue;
-        double d[3], *pw = mbs_body_work(e, parent);
+        real d[3], *pw = mbs_body_work(e, parent);
         offset(e, wk, parent, d);
         add_inertia_at(d, wk + AB_IA, pw + AB_IA);
         add_force_at(d, wk + AB_P, pw + AB_P);

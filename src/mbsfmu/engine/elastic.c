@@ -24,12 +24,6 @@ typedef struct {
     const double *m, *S0, *S_RR, *J_sum, *C_t, *A, *C_r0, *JPsi, *G, *B, *M_ee, *K, *D, *K_a, *K_w, *node;
 } Inv;
 
-static int64_t block_size(int64_t n, int64_t N, int stiff)
-{
-    return 1 + 3 + 9 + 9 + 3 * n + 9 * n + 3 * n + 3 * n + 3 * n * n + 9 * n * n + 3 * n * n
-           + (stiff ? 2 * n * n : 0) + N * (3 + 6 * n);
-}
-
 /* an elastic body's int row by name, checked against MBS_ELASTIC_I (one number per field) */
 typedef struct { int32_t body, n, nodes, q, qd, stiff, d; } ElasticRow;
 #define ELASTIC_FIELD(member, FIELD) MBS_VIEW_CHECK(elastic_##member, offsetof(ElasticRow, member) == sizeof(int32_t) * FIELD)
@@ -78,27 +72,31 @@ static int max_modes(const MbsModel *m)
 size_t mbs_elastic_work_size(const MbsModel *m)
 {
     const size_t n = (size_t)max_modes(m), f = (size_t)NVEL(m);
-    return (2 * (size_t)m->elastic_i[EH_NE] + 6 * f + 9 * n * n + 24 * n + 64) * sizeof(double);
+    return (2 * (size_t)m->elastic_i[EH_NE] + 6 * f + 9 * n * n + 24 * n + 64) * sizeof(real);
 }
 
 /* ---- small helpers (row-major 3×3, 3-vectors) ---- */
-static double dot(const double *a, const double *b, int n)
+static real dot(const real *a, const real *b, int n)
 {
-    double s = 0.0;
+    real s = 0.0;
+    for (int k = 0; k < n; k++) s += a[k] * b[k];
+    return s;
+}
+static real dotd(const double *a, const real *b, int n)  /* the body's data · the state */
+{
+    real s = 0.0;
     for (int k = 0; k < n; k++) s += a[k] * b[k];
     return s;
 }
 /* y = A x for A (3×n) */
-static void mv3n(const double *A, const double *x, int n, double *y)
+static void mv3n(const double *A, const real *x, int n, real *y)
 {
-    for (int r = 0; r < 3; r++) y[r] = dot(A + r * n, x, n);
+    for (int r = 0; r < 3; r++) y[r] = dotd(A + r * n, x, n);
 }
-static void matvec(const double *A, const double *x, int n, double *y)  /* n×n */
+static void matvec(const double *A, const real *x, int n, real *y)  /* n×n */
 {
-    for (int r = 0; r < n; r++) y[r] = dot(A + (size_t)r * n, x, n);
+    for (int r = 0; r < n; r++) y[r] = dotd(A + (size_t)r * n, x, n);
 }
-
-static double *body_work(const MbsEval *e, int i) { return mbs_body_work(e, i); }
 
 /* ---- kinematics ---- */
 void mbs_elastic_kinematics(const MbsEval *e, int body)
@@ -106,23 +104,24 @@ void mbs_elastic_kinematics(const MbsEval *e, int body)
     const MbsModel *m = e->m;
     const int el = mbs_body_i(m, body)->elastic;
     const ElasticRow *r = row(m, el);
-    double *wk = body_work(e, body), *cols = (double *)e->elastic_work + 2 * el;
+    real *wk = mbs_body_work(e, body), *cols = (real *)e->elastic_work + 2 * el;
     cols[0] = wk[W_LO];  /* the reference frame's own columns, for J_z */
     cols[1] = wk[W_HI];
-    if (r->qd < wk[W_LO]) wk[W_LO] = r->qd;
-    if (r->qd + r->n > wk[W_HI]) wk[W_HI] = r->qd + r->n;
+    if (r->qd < RE(wk[W_LO])) wk[W_LO] = r->qd;
+    if (r->qd + r->n > RE(wk[W_HI])) wk[W_HI] = r->qd + r->n;
 }
 
 /* Node P of elastic body i: ρ = S (R_RP + Φ_P q) (world), its elastic velocity u = S Φ_P q̇, and the node's
  * position, velocity, bias acceleration (a may be NULL) and J_T (3 × f over the body's columns; may be NULL). */
-static void node_motion(const MbsEval *e, int i, int P, double *rho, double *r, double *v, double *a, double *J_T)
+static void node_motion(const MbsEval *e, int i, int P, real *rho, real *r, real *v, real *a, real *J_T)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
     const Inv in = inv_of(m, mbs_body_i(m, i)->elastic);
-    const double *wk = body_work(e, i), *S = wk + W_S, *w = wk + W_W;
-    const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0, *Phi = node_Phi(&in, P), *R = node_R(&in, P);
-    double rR[3], uR[3], u[3], wxr[3];
+    const real *wk = mbs_body_work(e, i), *S = wk + W_S, *w = wk + W_W;
+    const real *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0;
+    const double *Phi = node_Phi(&in, P), *R = node_R(&in, P);
+    real rR[3], uR[3], u[3], wxr[3];
     mv3n(Phi, q, in.n, rR);
     mv3n(Phi, qd, in.n, uR);
     for (int k = 0; k < 3; k++) rR[k] += R[k];
@@ -131,75 +130,77 @@ static void node_motion(const MbsEval *e, int i, int P, double *rho, double *r, 
     cross(w, rho, wxr);
     for (int k = 0; k < 3; k++) { r[k] = wk[W_O + k] + rho[k]; v[k] = wk[W_V + k] + wxr[k] + u[k]; }
     if (a) {
-        double axr[3], wwxr[3], wxu[3];
+        real axr[3], wwxr[3], wxu[3];
         cross(wk + W_AL, rho, axr);
         cross(w, wxr, wwxr);
         cross(w, u, wxu);
         for (int k = 0; k < 3; k++) a[k] = wk[W_A + k] + axr[k] + wwxr[k] + 2.0 * wxu[k];
     }
     if (!J_T) return;
-    const double *JR = wk + W_J, *JT = JR + 3 * f;
+    const real *JR = wk + W_J, *JT = JR + 3 * f;
     for (int c = (int)wk[W_LO]; c < (int)wk[W_HI]; c++) {  /* J_T − ρ̃ J_R */
-        double jr[3] = {JR[c], JR[f + c], JR[2 * f + c]}, x[3];
+        real jr[3] = {JR[c], JR[f + c], JR[2 * f + c]}, x[3];
         cross(rho, jr, x);
         for (int k = 0; k < 3; k++) J_T[k * f + c] = JT[k * f + c] - x[k];
     }
     for (int c = 0; c < in.n; c++) {                         /* + S Φ_P on the elastic columns */
-        double ph[3] = {Phi[c], Phi[in.n + c], Phi[2 * in.n + c]}, s[3];
+        real ph[3] = {Phi[c], Phi[in.n + c], Phi[2 * in.n + c]}, s[3];
         mv(S, ph, s);
         for (int k = 0; k < 3; k++) J_T[k * f + in.qd0 + c] += s[k];
     }
 }
 
-void mbs_elastic_node_point(const MbsEval *e, int body, int node, double *r, double *v, double *J_T)
+void mbs_elastic_node_point(const MbsEval *e, int body, int node, real *r, real *v, real *J_T)
 {
-    double rho[3];
+    real rho[3];
     node_motion(e, body, node, rho, r, v, NULL, J_T);
 }
 
 /* J_R + S Ψ_P on the elastic columns (3 × f over the body's columns) */
-void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, double *J_R)
+void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, real *J_R)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
     const Inv in = inv_of(m, mbs_body_i(m, body)->elastic);
-    const double *wk = body_work(e, body), *S = wk + W_S, *Psi = node_Psi(&in, node);
+    const real *wk = mbs_body_work(e, body), *S = wk + W_S;
+    const double *Psi = node_Psi(&in, node);
     for (int k = 0; k < 3; k++)
         for (int c = (int)wk[W_LO]; c < (int)wk[W_HI]; c++) J_R[k * f + c] = wk[W_J + k * f + c];
     for (int c = 0; c < in.n; c++) {
-        double ps[3] = {Psi[c], Psi[in.n + c], Psi[2 * in.n + c]}, s[3];
+        real ps[3] = {Psi[c], Psi[in.n + c], Psi[2 * in.n + c]}, s[3];
         mv(S, ps, s);
         for (int k = 0; k < 3; k++) J_R[k * f + in.qd0 + c] += s[k];
     }
 }
 
 /* The frame a child joint sits on at node P of its elastic parent (tree.py: node_frame). J_R, J_T: full 3 × f. */
-void mbs_elastic_node_frame(const MbsEval *e, int child, double *S_P, double *r, double *w, double *v, double *a,
-                            double *al, double *J_R, double *J_T)
+void mbs_elastic_node_frame(const MbsEval *e, int child, real *S_P, real *r, real *w, real *v, real *a,
+                            real *al, real *J_R, real *J_T)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m), i = mbs_body_i(m, child)->parent, P = mbs_body_i(m, child)->node;
     const Inv in = inv_of(m, mbs_body_i(m, i)->elastic);
-    const double *wk = body_work(e, i), *S = wk + W_S, *wp = wk + W_W, *Psi = node_Psi(&in, P);
-    const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0;
-    double rho[3], th[3], thd[3], w_rel[3], E_th[9];
-    memcpy(J_T, wk + W_J + 3 * f, 3 * (size_t)f * sizeof(double));
+    const real *wk = mbs_body_work(e, i), *S = wk + W_S, *wp = wk + W_W;
+    const double *Psi = node_Psi(&in, P);
+    const real *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0;
+    real rho[3], th[3], thd[3], w_rel[3], E_th[9];
+    memcpy(J_T, wk + W_J + 3 * f, 3 * (size_t)f * sizeof(real));
     node_motion(e, i, P, rho, r, v, a, J_T);
     mv3n(Psi, q, in.n, th);
     mv3n(Psi, qd, in.n, thd);
     /* S_P = S (E + θ̃) */
-    const double Et[9] = {1, -th[2], th[1], th[2], 1, -th[0], -th[1], th[0], 1};
+    const real Et[9] = {1, -th[2], th[1], th[2], 1, -th[0], -th[1], th[0], 1};
     memcpy(E_th, Et, sizeof Et);
     for (int r_ = 0; r_ < 3; r_++)
         for (int c = 0; c < 3; c++)
             S_P[3 * r_ + c] = S[3 * r_] * E_th[c] + S[3 * r_ + 1] * E_th[3 + c] + S[3 * r_ + 2] * E_th[6 + c];
     mv(S, thd, w_rel);
-    double wxw[3];
+    real wxw[3];
     cross(wp, w_rel, wxw);
     for (int k = 0; k < 3; k++) { w[k] = wp[k] + w_rel[k]; al[k] = wk[W_AL + k] + wxw[k]; }
-    memcpy(J_R, wk + W_J, 3 * (size_t)f * sizeof(double));
+    memcpy(J_R, wk + W_J, 3 * (size_t)f * sizeof(real));
     for (int c = 0; c < in.n; c++) {
-        double ps[3] = {Psi[c], Psi[in.n + c], Psi[2 * in.n + c]}, s[3];
+        real ps[3] = {Psi[c], Psi[in.n + c], Psi[2 * in.n + c]}, s[3];
         mv(S, ps, s);
         for (int k = 0; k < 3; k++) J_R[k * f + in.qd0 + c] += s[k];
     }
@@ -213,13 +214,13 @@ static void body_equations(const MbsEval *e, int el)
     const int f = NVEL(m), body = row(m, el)->body;
     const Inv in = inv_of(m, el);
     const int n = in.n;
-    const double *wk = body_work(e, body), *S = wk + W_S, *JR = wk + W_J, *JT = JR + 3 * f;
-    const double *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0, *cols = (double *)e->elastic_work + 2 * el;
+    const real *wk = mbs_body_work(e, body), *S = wk + W_S, *JR = wk + W_J, *JT = JR + 3 * f;
+    const real *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0, *cols = (real *)e->elastic_work + 2 * el;
     const int lo = (int)cols[0], hi = (int)cols[1];
-    double *Jf = (double *)e->elastic_work + 2 * m->elastic_i[EH_NE];  /* 6 × f: [Sᵀ J_T; Sᵀ J_R] */
-    double *Bq = Jf + 6 * f, *Cr = Bq + 9 * (size_t)n * n, *Gqd = Cr + 3 * n, *ke = Gqd + 3 * n, *qe = ke + n;
-    double *Kaq = qe + n, *Kq = Kaq + n, *tmp = Kq + n;
-    double w[3], aR[3], alR[3], mc[3], Ctqd[3], Aq[9], Aqd[9], Ssym[9], W[9], I[9];
+    real *Jf = (real *)e->elastic_work + 2 * m->elastic_i[EH_NE];  /* 6 × f: [Sᵀ J_T; Sᵀ J_R] */
+    real *Bq = Jf + 6 * f, *Cr = Bq + 9 * (size_t)n * n, *Gqd = Cr + 3 * n, *ke = Gqd + 3 * n, *qe = ke + n;
+    real *Kaq = qe + n, *Kq = Kaq + n, *tmp = Kq + n;
+    real w[3], aR[3], alR[3], mc[3], Ctqd[3], Aq[9], Aqd[9], Ssym[9], W[9], I[9];
     const double mass = in.m[0];
     mtv(S, wk + W_W, w);
     mtv(S, wk + W_A, aR);
@@ -230,41 +231,41 @@ static void body_equations(const MbsEval *e, int el)
     mv3n(in.C_t, qd, n, Ctqd);
     for (int k = 0; k < 3; k++) mc[k] += in.S0[k];
     if (in.stiff) { matvec(in.K_a, q, n, Kaq); mc[0] -= 0.5 * dot(q, Kaq, n); }
-    else memset(Kaq, 0, (size_t)n * sizeof(double));
+    else memset(Kaq, 0, (size_t)n * sizeof(real));
 
     /* Σ m u uᵀ = S_RR + Aq + Aqᵀ + B:qq and W = Σ m u (Φq̇)ᵀ = A q̇ + B:q q̇ (Bq_ijl = Σ_k B_ijkl q_k) */
     for (int ij = 0; ij < 9; ij++) {
         const double *Aij = in.A + ij * n, *Bij = in.B + (size_t)ij * n * n;
-        double *bq = Bq + ij * n;
-        Aq[ij] = dot(Aij, q, n);
-        Aqd[ij] = dot(Aij, qd, n);
-        for (int l = 0; l < n; l++) bq[l] = dot(Bij + (size_t)l * n, q, n);
+        real *bq = Bq + ij * n;
+        Aq[ij] = dotd(Aij, q, n);
+        Aqd[ij] = dotd(Aij, qd, n);
+        for (int l = 0; l < n; l++) bq[l] = dotd(Bij + (size_t)l * n, q, n);
         Ssym[ij] = dot(bq, q, n);
         W[ij] = Aqd[ij] + dot(bq, qd, n);
     }
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++) Ssym[3 * i + j] += in.S_RR[3 * i + j] + Aq[3 * i + j] + Aq[3 * j + i];
-    const double trS = Ssym[0] + Ssym[4] + Ssym[8], trW = W[0] + W[4] + W[8];
+    const real trS = Ssym[0] + Ssym[4] + Ssym[8], trW = W[0] + W[4] + W[8];
     for (int k = 0; k < 9; k++) I[k] = (k % 4 == 0 ? trS : 0.0) - Ssym[k] + in.J_sum[k];
 
     /* C_r = C_r0 + G q (3 × n) and Gqd_mk = Σ_l G_mkl q̇_l, in one pass over G */
-    memset(Gqd, 0, 3 * (size_t)n * sizeof(double));
+    memset(Gqd, 0, 3 * (size_t)n * sizeof(real));
     for (int i = 0; i < 3; i++)
         for (int l = 0; l < n; l++) {
             const double *g = in.G + ((size_t)i * n + l) * n;
-            double *acc = Gqd + i * n;
-            Cr[i * n + l] = in.C_r0[i * n + l] + dot(g, q, n);
+            real *acc = Gqd + i * n;
+            Cr[i * n + l] = in.C_r0[i * n + l] + dotd(g, q, n);
             for (int k = 0; k < n; k++) acc[k] += qd[l] * g[k];
         }
 
     /* frame rows: kr = M_rr z̄_r + h_r; gravity gr */
-    double kr[6], gr[6], t1[3], t2[3], t3[3];
+    real kr[6], gr[6], t1[3], t2[3], t3[3];
     cross(w, mc, t1);
     cross(w, t1, t2);                 /* ω̃ω̃ m·c */
     cross(w, Ctqd, t3);
     cross(mc, alR, t1);
     for (int k = 0; k < 3; k++) kr[k] = mass * aR[k] - t1[k] + t2[k] + 2.0 * t3[k];
-    double Iw[3], Ial[3], Jq[3], mca[3];
+    real Iw[3], Ial[3], Jq[3], mca[3];
     mv(I, w, Iw);
     mv(I, alR, Ial);
     mv3n(in.JPsi, qd, n, Jq);
@@ -275,12 +276,12 @@ static void body_equations(const MbsEval *e, int el)
         kr[3 + k] = mca[k] + Ial[k] + t1[k] + 2.0 * (w[k] * trW - (W[k] * w[0] + W[3 + k] * w[1] + W[6 + k] * w[2]));
 
     /* elastic rows: ke = M_er z̄_r + h_e */
-    const double ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+    const real ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
     for (int k = 0; k < n; k++) {
         /* Σ_ij (ω̃ω̃)_ij (A_ijk + Bq_ijk) = ωᵀ X ω − |ω|² tr X */
-        double X[9];
+        real X[9];
         for (int ij = 0; ij < 9; ij++) X[ij] = in.A[ij * n + k] + Bq[ij * n + k];
-        double Xw[3];
+        real Xw[3];
         mv(X, w, Xw);
         ke[k] = dot(w, Xw, 3) - ww * (X[0] + X[4] + X[8])
               - 2.0 * (w[0] * Gqd[k] + w[1] * Gqd[n + k] + w[2] * Gqd[2 * n + k])
@@ -291,7 +292,7 @@ static void body_equations(const MbsEval *e, int el)
     /* applied: gravity (frame and q rows) and elastic forces −K q − D q̇ */
     matvec(in.K, q, n, Kq);
     matvec(in.D, qd, n, tmp);
-    double gR[3] = {0, 0, 0};
+    real gR[3] = {0, 0, 0};
     if (m->hdr[H_HAS_GRAVITY]) mtv(S, e->D + m->hdr[H_D_G], gR);
     cross(mc, gR, t1);
     for (int k = 0; k < 3; k++) { gr[k] = mass * gR[k]; gr[3 + k] = t1[k]; }
@@ -299,14 +300,14 @@ static void body_equations(const MbsEval *e, int el)
         qe[k] = in.C_t[k] * gR[0] + in.C_t[n + k] * gR[1] + in.C_t[2 * n + k] * gR[2] - Kq[k] - tmp[k];
 
     if (in.stiff) {  /* dynamic stiffening (ffrf.py): a_x / g_x and centrifugal parts */
-        double *Kaqd = tmp;
+        real *Kaqd = tmp;
         matvec(in.K_a, qd, n, Kaqd);
-        double wx_ex[3] = {0, w[2], -w[1]};             /* ω × e_x */
-        const double c = 2.0 * dot(q, Kaqd, n);
+        real wx_ex[3] = {0, w[2], -w[1]};             /* ω × e_x */
+        const real c = 2.0 * dot(q, Kaqd, n);
         for (int k = 0; k < 3; k++) kr[k] -= c * wx_ex[k];
         kr[0] -= dot(qd, Kaqd, n);
         matvec(in.K_w, q, n, Kaqd);
-        const double wyz = w[1] * w[1] + w[2] * w[2];
+        const real wyz = w[1] * w[1] + w[2] * w[2];
         for (int k = 0; k < n; k++) {
             ke[k] += wyz * Kaqd[k] - Kaq[k] * aR[0];
             qe[k] -= gR[0] * Kaq[k];
@@ -314,33 +315,33 @@ static void body_equations(const MbsEval *e, int el)
     }
 
     /* projection: M += J_zᵀ M_zz J_z, k += J_zᵀ [kr; ke], q += J_zᵀ [gr; qe] */
-    double *M = e->M, *kk = e->k, *qq = e->q;
+    real *M = e->M, *kk = e->k, *qq = e->q;
     const int e0 = in.qd0;
     for (int c = lo; c < hi; c++) {
-        double jt[3] = {JT[c], JT[f + c], JT[2 * f + c]}, jr[3] = {JR[c], JR[f + c], JR[2 * f + c]};
+        real jt[3] = {JT[c], JT[f + c], JT[2 * f + c]}, jr[3] = {JR[c], JR[f + c], JR[2 * f + c]};
         mtv(S, jt, Jf + 6 * c);
         mtv(S, jr, Jf + 6 * c + 3);
     }
-    double Mrr[36];
+    real Mrr[36];
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++) {
             Mrr[6 * r + c] = r == c ? mass : 0.0;
             Mrr[6 * (3 + r) + 3 + c] = I[3 * r + c];
         }
     /* −m·c~ (upper right), m·c~ (lower left) */
-    const double mx[9] = {0, -mc[2], mc[1], mc[2], 0, -mc[0], -mc[1], mc[0], 0};
+    const real mx[9] = {0, -mc[2], mc[1], mc[2], 0, -mc[0], -mc[1], mc[0], 0};
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++) { Mrr[6 * r + 3 + c] = -mx[3 * r + c]; Mrr[6 * (3 + r) + c] = mx[3 * r + c]; }
     for (int c = lo; c < hi; c++) {
-        const double *jc = Jf + 6 * c;
-        double MJ[6];
+        const real *jc = Jf + 6 * c;
+        real MJ[6];
         for (int r = 0; r < 6; r++) MJ[r] = dot(Mrr + 6 * r, jc, 6);
         for (int c2 = lo; c2 < hi; c2++) M[(size_t)c2 * f + c] += dot(Jf + 6 * c2, MJ, 6);
         kk[c] += dot(jc, kr, 6);
         qq[c] += dot(jc, gr, 6);
         for (int k = 0; k < n; k++) {
             /* M_re column k: [C_t e_k − (K_a q)_k e_x; C_r e_k] */
-            double s = jc[0] * (in.C_t[k] - Kaq[k]) + jc[1] * in.C_t[n + k] + jc[2] * in.C_t[2 * n + k]
+            real s = jc[0] * (in.C_t[k] - Kaq[k]) + jc[1] * in.C_t[n + k] + jc[2] * in.C_t[2 * n + k]
                      + jc[3] * Cr[k] + jc[4] * Cr[n + k] + jc[5] * Cr[2 * n + k];
             M[(size_t)c * f + e0 + k] += s;
             M[(size_t)(e0 + k) * f + c] += s;
@@ -356,6 +357,13 @@ static void body_equations(const MbsEval *e, int el)
 void mbs_elastic_equations(const MbsEval *e)
 {
     for (int el = 0; el < e->m->elastic_i[EH_NE]; el++) body_equations(e, el);
+}
+
+#ifndef MBS_CX  /* load and bind time: the double build only */
+static int64_t block_size(int64_t n, int64_t N, int stiff)
+{
+    return 1 + 3 + 9 + 9 + 3 * n + 9 * n + 3 * n + 3 * n + 3 * n * n + 9 * n * n + 3 * n * n
+           + (stiff ? 2 * n * n : 0) + N * (3 + 6 * n);
 }
 
 /* ---- load-time checks: every count, offset and index, so that a corrupt file cannot reach memory it
@@ -427,18 +435,22 @@ int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen)
     return 0;
 }
 
+#endif
+
 /* σ_c = Σ_k σ_ck q_k (Voigt xx yy zz xy yz zx), then σ_vm = √(½((σxx−σyy)² + (σyy−σzz)² + (σzz−σxx)²)
  * + 3(σxy² + σyz² + σzx²)) */
-double mbs_elastic_von_mises(const MbsModel *m, int k, const double *x)
+real mbs_elastic_von_mises(const MbsModel *m, int k, const real *x)
 {
     const ElasticRow *r = row(m, m->stress_i[2 * k]);
-    const double *modes = m->stress_d + m->stress_i[2 * k + 1], *q = x + r->q;
-    double s[6];
-    for (int c = 0; c < 6; c++) s[c] = dot(modes + (size_t)c * r->n, q, r->n);
-    const double a = s[0] - s[1], b = s[1] - s[2], c = s[2] - s[0];
-    return sqrt(0.5 * (a * a + b * b + c * c) + 3.0 * (s[3] * s[3] + s[4] * s[4] + s[5] * s[5]));
+    const double *modes = m->stress_d + m->stress_i[2 * k + 1];
+    const real *q = x + r->q;
+    real s[6];
+    for (int c = 0; c < 6; c++) s[c] = dotd(modes + (size_t)c * r->n, q, r->n);
+    const real a = s[0] - s[1], b = s[1] - s[2], c = s[2] - s[0];
+    return r_sqrt(0.5 * (a * a + b * b + c * c) + 3.0 * (s[3] * s[3] + s[4] * s[4] + s[5] * s[5]));
 }
 
+#ifndef MBS_CX
 /* Structural parameters (they fed the beam generator): the bound value must be the one the data were
  * computed with. */
 int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen)
@@ -456,3 +468,4 @@ int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errle
     }
     return 0;
 }
+#endif

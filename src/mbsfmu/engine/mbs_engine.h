@@ -100,6 +100,17 @@ MBS_API int mbs_set_time(MbsInstance *s, double t);
 MBS_API int mbs_set_state(MbsInstance *s, const double *x, size_t n);
 MBS_API int mbs_derivatives(MbsInstance *s, double *xdot, size_t n);
 
+/* ---- directional derivatives: J = ∂(unknowns)/∂(knowns) at (time, x) with the inputs and parameters set ----
+ * Knowns: continuous states (y.*, yd.*) and inputs; unknowns: derivatives (MBS_V_DER), outputs (output points,
+ * stresses) and states. Exact to rounding (complex step through the evaluation itself, deriv.c), one evaluation
+ * per column. mbs_directional_derivative: sensitivity = J seed (seed per known, sensitivity per unknown);
+ * mbs_adjoint_derivative: sensitivityᵀ = seedᵀ J (seed per unknown, sensitivity per known), one column per known. A value reference of another kind, a non-finite seed: MBS_ERROR;
+ * a singular mass matrix: MBS_DISCARD. */
+MBS_API int mbs_directional_derivative(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known,
+                                       size_t nknown, const double *seed, double *sensitivity);
+MBS_API int mbs_adjoint_derivative(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known,
+                                   size_t nknown, const double *seed, double *sensitivity);
+
 /* ---- state: in-memory snapshot and serialized bytes are the same fixed layout ----
  * header: magic "MBSS", state format version, model GUID, payload length, checksum; then the payload.
  * mbs_state_load validates everything and leaves the instance unchanged on any error. */

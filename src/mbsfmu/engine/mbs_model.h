@@ -13,6 +13,43 @@
 #include "mbs_engine.h"
 #include "mbs_layout.h"
 
+/* The scalar of the evaluation (tree.c, dynamics.c, elastic.c): double, or, where deriv.c compiles the same files
+ * again with MBS_CX, a complex number that carries a directional derivative through them (complex step:
+ * f(x + i h v) = f(x) + i h f'(x) v + O(h²), no subtraction, so exact to rounding for tiny h). Code written over
+ * `real` only compares real parts (RE) and calls the math of mbs_vec3.h (r_sqrt, r_sin, r_cos). */
+#ifdef MBS_CX
+#include <complex.h>
+#undef I  /* complex.h's imaginary unit; I is an inertia here (C99 7.3.1 allows the #undef) */
+typedef double _Complex real;
+#define RE(x) creal(x)
+/* the complex twins of the evaluation functions (deriv.c) */
+#define mbs_body_d mbs_cx_body_d
+#define mbs_kinematics mbs_cx_kinematics
+#define mbs_position_rates mbs_cx_position_rates
+#define mbs_cholesky mbs_cx_cholesky
+#define mbs_cholesky_apply mbs_cx_cholesky_apply
+#define mbs_cholesky_solve mbs_cx_cholesky_solve
+#define mbs_mass_matrix_and_bias mbs_cx_mass_matrix_and_bias
+#define mbs_applied_forces mbs_cx_applied_forces
+#define mbs_eval_rhs mbs_cx_eval_rhs
+#define mbs_composites mbs_cx_composites
+#define mbs_aba mbs_cx_aba
+#define mbs_crba_rnea mbs_cx_crba_rnea
+#define mbs_body_force mbs_cx_body_force
+#define mbs_point mbs_cx_point
+#define mbs_add_JtF mbs_cx_add_JtF
+#define mbs_elastic_work_size mbs_cx_elastic_work_size
+#define mbs_elastic_kinematics mbs_cx_elastic_kinematics
+#define mbs_elastic_node_frame mbs_cx_elastic_node_frame
+#define mbs_elastic_node_point mbs_cx_elastic_node_point
+#define mbs_elastic_node_J_R mbs_cx_elastic_node_J_R
+#define mbs_elastic_equations mbs_cx_elastic_equations
+#define mbs_elastic_von_mises mbs_cx_elastic_von_mises
+#else
+typedef double real;
+#define RE(x) (x)
+#endif
+
 /* ---- the compiled scene: two flat arrays reached through a table of sections, laid out as mbs_layout.h
  * declares (compile.py writes it from the same declaration) ---- */
 int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen);  /* sim.c: at load, every row in range */
@@ -68,28 +105,28 @@ static inline const MbsForceI *mbs_force_i(const MbsModel *m, int k) { return (c
 /* A body's and a force element's double rows of D by name, checked the same way against MBS_BODY_D and
  * MBS_FORCE_D (the bind programs write them as numbers of D; the engine reads fields) */
 typedef struct {
-    double a1[3], a2[3], at[3], R0[9], m, c[3], I[9];     /* derived: used per step */
-    double a1_raw[3], a2_raw[3], rot_raw[9], irot_raw[9];  /* raw: written by the bind programs */
+    real a1[3], a2[3], at[3], R0[9], m, c[3], I[9];     /* derived: used per step */
+    real a1_raw[3], a2_raw[3], rot_raw[9], irot_raw[9];  /* raw: written by the bind programs */
 } MbsBodyD;
 #define MBS_DOUBLE_FIELD(T, member, FIELD) \
-    MBS_VIEW_CHECK(T##_##member, offsetof(T, member) == sizeof(double) * FIELD && \
-                   sizeof(((T *)0)->member) == sizeof(double) * (FIELD##_END_ + 1 - FIELD))
+    MBS_VIEW_CHECK(T##_##member, offsetof(T, member) == sizeof(real) * FIELD && \
+                   sizeof(((T *)0)->member) == sizeof(real) * (FIELD##_END_ + 1 - FIELD))
 MBS_DOUBLE_FIELD(MbsBodyD, a1, DB_A1); MBS_DOUBLE_FIELD(MbsBodyD, a2, DB_A2); MBS_DOUBLE_FIELD(MbsBodyD, at, DB_AT);
 MBS_DOUBLE_FIELD(MbsBodyD, R0, DB_R0); MBS_DOUBLE_FIELD(MbsBodyD, m, DB_M); MBS_DOUBLE_FIELD(MbsBodyD, c, DB_C);
 MBS_DOUBLE_FIELD(MbsBodyD, I, DB_I);
 MBS_DOUBLE_FIELD(MbsBodyD, a1_raw, DB_A1_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, a2_raw, DB_A2_RAW); MBS_DOUBLE_FIELD(MbsBodyD, rot_raw, DB_ROT_RAW);
 MBS_DOUBLE_FIELD(MbsBodyD, irot_raw, DB_IROT_RAW);
-MBS_VIEW_CHECK(bodyd_size, sizeof(MbsBodyD) == sizeof(double) * DB);
+MBS_VIEW_CHECK(bodyd_size, sizeof(MbsBodyD) == sizeof(real) * DB);
 typedef struct {
-    double k, d, l, at_a[3], at_b[3], vec[3];  /* see MBS_FORCE_D */
+    real k, d, l, at_a[3], at_b[3], vec[3];  /* see MBS_FORCE_D */
 } MbsForceD;
 MBS_DOUBLE_FIELD(MbsForceD, k, DF_K); MBS_DOUBLE_FIELD(MbsForceD, d, DF_D); MBS_DOUBLE_FIELD(MbsForceD, l, DF_L);
 MBS_DOUBLE_FIELD(MbsForceD, at_a, DF_AT_A); MBS_DOUBLE_FIELD(MbsForceD, at_b, DF_AT_B);
 MBS_DOUBLE_FIELD(MbsForceD, vec, DF_VEC);
-MBS_VIEW_CHECK(forced_size, sizeof(MbsForceD) == sizeof(double) * DF);
-static inline const MbsBodyD *mbs_body_row(const MbsModel *m, const double *D, int i) { return (const MbsBodyD *)(D + m->hdr[H_D_BODY] + (size_t)i * DB); }
-static inline const MbsForceD *mbs_force_row(const MbsModel *m, const double *D, int k) { return (const MbsForceD *)(D + m->hdr[H_D_FORCE] + (size_t)k * DF); }
+MBS_VIEW_CHECK(forced_size, sizeof(MbsForceD) == sizeof(real) * DF);
+static inline const MbsBodyD *mbs_body_row(const MbsModel *m, const real *D, int i) { return (const MbsBodyD *)(D + m->hdr[H_D_BODY] + (size_t)i * DB); }
+static inline const MbsForceD *mbs_force_row(const MbsModel *m, const real *D, int k) { return (const MbsForceD *)(D + m->hdr[H_D_FORCE] + (size_t)k * DF); }
 
 #define NB(m) ((m)->hdr[H_NB])
 #define NPOS(m) ((m)->hdr[H_NPOS])
@@ -99,12 +136,12 @@ static inline const MbsForceD *mbs_force_row(const MbsModel *m, const double *D,
  * workspace. */
 typedef struct {
     const MbsModel *m;
-    const double *D;      /* bound numbers of the instance */
-    const double *td;     /* time-dependent numbers: p, v, a per drive, then 3 per vector force slot */
-    const double *x;      /* [y; ẏ] */
-    const double *q_in;   /* generalized-force inputs (nvel) or NULL */
-    double *work;         /* per body m->stride doubles, then 6 nvel scratch (dense path) */
-    double *M, *k, *q, *xdot;
+    const real *D;        /* bound numbers of the instance */
+    const real *td;       /* time-dependent numbers: p, v, a per drive, then 3 per vector force slot */
+    const real *x;        /* [y; ẏ] */
+    const real *q_in;     /* generalized-force inputs (nvel) or NULL */
+    real *work;           /* per body m->stride numbers, then 6 nvel scratch (dense path) */
+    real *M, *k, *q, *xdot;
     void *elastic_work;   /* elastic.c's workspace (NULL for rigid scenes) */
 } MbsEval;
 
@@ -149,7 +186,20 @@ static inline double mbs_work_doubles(const int32_t *hdr)
     const double nb = hdr[H_NB], f = hdr[H_NVEL];
     return mbs_dense_path(hdr) ? nb * W_SIZE(f) + 6 * f + f * f : nb * AB_SIZE;
 }
-static inline double *mbs_body_work(const MbsEval *e, int i) { return e->work + (size_t)i * e->m->stride; }
+static inline real *mbs_body_work(const MbsEval *e, int i) { return e->work + (size_t)i * e->m->stride; }
+/* the dense path's M: the last f × f of the workspace (after the bodies and the 6 f scratch) */
+static inline size_t mbs_work_M_offset(const int32_t *hdr) { return (size_t)hdr[H_NB] * W_SIZE(hdr[H_NVEL]) + 6 * (size_t)hdr[H_NVEL]; }
+
+/* deriv.c: directional derivatives by complex step. At the state x (time numbers td, which hold the force inputs)
+ * with the generalized-force inputs q_in (NULL: none), along the seeds dx, dq_in and dfin (the force inputs', 3 per
+ * input; NULL: zero): the derivatives of ẋ, of the output points (6 each) and of the stresses into whichever of
+ * dxdot, dout, dvm is not NULL. work: mbs_tangent_work_size bytes. Returns 0 or MBS_F_SINGULAR. */
+typedef struct {
+    const double *D, *td, *x, *q_in, *dx, *dq_in, *dfin;
+    double *dxdot, *dout, *dvm;
+} MbsTangent;
+size_t mbs_tangent_work_size(const MbsModel *m);
+int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work);
 
 /* model.c */
 const MbsBodyD *mbs_body_d(const MbsEval *e, int i);
@@ -161,19 +211,19 @@ void mbs_run_programs(const MbsModel *m, int stage, double *D, double *td, doubl
 /* tree.c */
 void mbs_kinematics(const MbsEval *e);
 void mbs_position_rates(const MbsEval *e);            /* ẏ_pos = Z(y) ẏ into e->xdot */
-int mbs_cholesky(int n, double *M);                   /* M = L Lᵀ in place (lower); 0, or 1 if not positive definite */
-void mbs_cholesky_apply(int n, const double *L, double *r); /* r ← (L Lᵀ)⁻¹ r */
+int mbs_cholesky(int n, real *M);                   /* M = L Lᵀ in place (lower); 0, or 1 if not positive definite */
+void mbs_cholesky_apply(int n, const real *L, real *r); /* r ← (L Lᵀ)⁻¹ r */
 void mbs_mass_matrix_and_bias(const MbsEval *e);
 void mbs_applied_forces(const MbsEval *e);
 int mbs_eval_rhs(const MbsEval *e);                   /* 0, or MBS_F_SINGULAR */
-int mbs_cholesky_solve(int n, double *M, double *r);
+int mbs_cholesky_solve(int n, real *M, real *r);
 /* dynamics.c: the recursive path (rigid scenes, !m->dense) */
-void mbs_composites(const MbsModel *m, const double *D, double *work);  /* at bind: the carriers' inertias */
+void mbs_composites(const MbsModel *m, const real *D, real *work);  /* at bind: the carriers' inertias */
 int mbs_aba(const MbsEval *e);                        /* ÿ into e->xdot: 0, or MBS_F_SINGULAR */
 void mbs_crba_rnea(const MbsEval *e);                 /* M, k, q (inspection: mbs_equations) */
-void mbs_body_force(const MbsEval *e, int i, const double *x, const double *F, double sign); /* F at x (x NULL: a torque) */
-void mbs_point(const MbsEval *e, int i, const double *r_b, double *x, double *v, double *J);
-void mbs_add_JtF(const MbsEval *e, int i, const double *J, const double *F, double sign, double *q);
+void mbs_body_force(const MbsEval *e, int i, const real *x, const real *F, double sign); /* F at x (x NULL: a torque) */
+void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real *J);
+void mbs_add_JtF(const MbsEval *e, int i, const real *J, const real *F, double sign, real *q);
 void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations from the raw numbers */
 void mbs_initial_state(const MbsModel *m, const double *D, double *x0);
 /* elastic.c (only for scenes with elastic bodies; F_ELASTIC) */
@@ -181,16 +231,16 @@ void mbs_initial_state(const MbsModel *m, const double *D, double *x0);
 size_t mbs_elastic_work_size(const MbsModel *m);
 void mbs_elastic_kinematics(const MbsEval *e, int body);     /* after the body's own frame is known */
 /* attachment frame of child body c at node P of its elastic parent: S_P, r, ω, v, a, ᾱ, J_R, J_T (3 × f each) */
-void mbs_elastic_node_frame(const MbsEval *e, int child, double *S_P, double *r, double *w, double *v,
-                            double *a, double *al, double *J_R, double *J_T);
-void mbs_elastic_node_point(const MbsEval *e, int body, int node, double *r, double *v, double *J_T);
-void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, double *J_R);
+void mbs_elastic_node_frame(const MbsEval *e, int child, real *S_P, real *r, real *w, real *v,
+                            real *a, real *al, real *J_R, real *J_T);
+void mbs_elastic_node_point(const MbsEval *e, int body, int node, real *r, real *v, real *J_T);
+void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, real *J_R);
 void mbs_elastic_equations(const MbsEval *e);               /* adds to M, k, q */
 int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen);
 /* at bind: structural parameters (they fed the beam generator) must keep their compiled values */
 int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen);
 /* von Mises stress of stress node k (S_STRESS_I) at state x */
-double mbs_elastic_von_mises(const MbsModel *m, int k, const double *x);
+real mbs_elastic_von_mises(const MbsModel *m, int k, const real *x);
 #endif
 
 #endif

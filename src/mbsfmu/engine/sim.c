@@ -29,6 +29,7 @@ struct MbsInstance {
     double *work, *M, *k, *q, *xdot, *out;
     double *der;          /* ẋ at (time, x) with the inputs and parameters set, when der_valid (model exchange) */
     void *elastic_work;
+    void *tangent;        /* directional derivatives' workspace (deriv.c), made at the first one asked for */
     int method;
     double rtol, atol, max_step, step;
     int initialized, params_dirty, inputs_dirty, initial_valid, q_in_active;
@@ -409,7 +410,7 @@ MbsInstance *mbs_instance_new(const MbsModel *m, mbs_logger log, void *log_env)
     s->saved = buf;            buf += m->hdr[H_NPARAM];
     s->carries = buf;          buf += NB(m);
     s->work = buf;             buf += nwork;
-    s->M = m->dense ? s->work + (size_t)NB(m) * W_SIZE(f) + 6 * (size_t)f : NULL;  /* the last f × f of work */
+    s->M = m->dense ? s->work + mbs_work_M_offset(m->hdr) : NULL;
     s->k = buf;                buf += f;
     s->q = buf;                buf += f;
     s->xdot = buf;             buf += s->n;
@@ -430,6 +431,7 @@ void mbs_instance_free(MbsInstance *s)
     if (!s) return;
     mbs_integ_free(s->integ);
     free(s->elastic_work);
+    free(s->tangent);
     free(s->D);
     free(s);
 }
@@ -947,6 +949,109 @@ int mbs_derivatives(MbsInstance *s, double *xdot, size_t n)
         return report(s, MBS_ERROR, "room for %zu derivatives, the model has %d", xdot ? n : 0, s->n);
     int rc = derivatives(s);
     if (!rc) memcpy(xdot, s->der, n * sizeof *xdot);
+    return rc;
+}
+
+/* ------------------------------------------------------------------------------------------ directional derivatives
+ * J = ∂(unknowns)/∂(knowns) at (time, x) with the inputs and parameters set (mbs_engine.h), one column J·seed per
+ * complex-step evaluation (deriv.c). */
+
+/* why value reference vr cannot be a known (a state or an input) or an unknown (ẋ, an output, a state); NULL if it can */
+static const char *not_a(const MbsModel *m, unsigned vr, int known)
+{
+    const int kind = vr < (unsigned)m->hdr[H_NVARS] ? m->vars[2 * vr] : -1;
+    if (kind == MBS_V_Y || kind == MBS_V_YD) return NULL;
+    if (known) return kind == MBS_V_QIN || kind == MBS_V_FIN ? NULL : "a continuous state or an input";
+    return kind == MBS_V_DER || kind == MBS_V_OUT || kind == MBS_V_VM ? NULL : "a derivative, an output or a state";
+}
+
+static int check_refs(MbsInstance *s, const char *what, const unsigned *vr, size_t n, int known)
+{
+    for (size_t i = 0; i < n; i++) {
+        const char *want = not_a(s->m, vr[i], known);
+        if (want)
+            return report(s, MBS_ERROR, "%s value reference %u (%s) is not %s", what, vr[i],
+                          vr[i] < (unsigned)s->m->hdr[H_NVARS] ? s->m->var_name[vr[i]] : "unknown", want);
+    }
+    return MBS_OK;
+}
+
+/* The tangent workspace: [complex numbers (deriv.c) | dx (n), du (nu), dẋ (n), d out (6 nout), d σ (nstress)] */
+static double *tangent_numbers(const MbsInstance *s) { return (double *)((char *)s->tangent + mbs_tangent_work_size(s->m)); }
+
+/* J seed into the tangent workspace (the knowns and unknowns checked; the instance prepared as for ẋ, before
+ * initialization at the initial state); only what the unknowns need is evaluated. */
+static int tangent(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known, size_t nknown,
+                   const double *seed)
+{
+    const MbsModel *m = s->m;
+    const int f = NVEL(m), nout = m->hdr[H_NOUT];
+    if (!s->tangent) {
+        s->tangent = calloc(1, mbs_tangent_work_size(m) + sizeof(double) * (2 * (size_t)s->n + s->nu + 6 * (size_t)nout + m->nstress));
+        if (!s->tangent) return report(s, MBS_ERROR, "no memory for the directional derivatives' workspace");
+    }
+    double *dx = tangent_numbers(s), *du = dx + s->n, *dxdot = du + s->nu, *dout = dxdot + s->n, *dvm = dout + 6 * (size_t)nout;
+    int want[MBS_V_N] = {0};
+    int rc = !s->initialized && !s->initial_valid ? initial_state(s) : MBS_OK;
+    if (!rc) rc = pending(s, MBS_ERROR, "no directional derivatives");
+    if (rc) return rc;
+    memset(dx, 0, sizeof(double) * ((size_t)s->n + s->nu));
+    for (size_t j = 0; j < nknown; j++) {
+        const int kind = m->vars[2 * known[j]], idx = m->vars[2 * known[j] + 1];
+        if (!isfinite(seed[j]))
+            return report(s, MBS_ERROR, "the seed of %s is not finite (%g)", m->var_name[known[j]], seed[j]);
+        *(kind == MBS_V_Y ? dx + idx : kind == MBS_V_YD ? dx + NPOS(m) + idx : kind == MBS_V_QIN ? du + idx : du + f + idx) += seed[j];
+    }
+    for (size_t i = 0; i < nunknown; i++) want[m->vars[2 * unknown[i]]] = 1;
+    const MbsTangent t = {s->D, s->td, s->x, s->q_in_active ? s->u_applied : NULL, dx, du, du + f,
+                          want[MBS_V_DER] ? dxdot : NULL, want[MBS_V_OUT] ? dout : NULL, want[MBS_V_VM] ? dvm : NULL};
+    time_numbers(s, s->time);
+    if (mbs_tangent(m, &t, s->tangent))
+        return report(s, MBS_DISCARD, "t = %.9g: no directional derivatives: the mass matrix is singular here", s->time);
+    return MBS_OK;
+}
+
+/* the derivative of unknown vr that tangent() left */
+static double tangent_of(const MbsInstance *s, unsigned vr)
+{
+    const MbsModel *m = s->m;
+    const int kind = m->vars[2 * vr], idx = m->vars[2 * vr + 1];
+    const double *dx = tangent_numbers(s), *dxdot = dx + s->n + s->nu, *dout = dxdot + s->n;
+    return kind == MBS_V_DER ? dxdot[idx] : kind == MBS_V_OUT ? dout[idx] : kind == MBS_V_VM ? dout[6 * m->hdr[H_NOUT] + idx] :
+           kind == MBS_V_Y ? dx[idx] : dx[NPOS(m) + idx];
+}
+
+static int check_all(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known, size_t nknown,
+                     const double *seed, size_t nseed, const double *sensitivity, size_t nsens, const char *what)
+{
+    if ((nunknown && !unknown) || (nknown && !known) || (nseed && !seed) || (nsens && !sensitivity))
+        return report(s, MBS_ERROR, "%s derivative: NULL arrays for %zu unknowns and %zu knowns", what, nunknown, nknown);
+    int rc = check_refs(s, "unknown", unknown, nunknown, 0);
+    return rc ? rc : check_refs(s, "known", known, nknown, 1);
+}
+
+int mbs_directional_derivative(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known,
+                               size_t nknown, const double *seed, double *sensitivity)
+{
+    int rc = check_all(s, unknown, nunknown, known, nknown, seed, nknown, sensitivity, nunknown, "directional");
+    if (!rc) rc = tangent(s, unknown, nunknown, known, nknown, seed);
+    for (size_t i = 0; !rc && i < nunknown; i++) sensitivity[i] = tangent_of(s, unknown[i]);
+    return rc;
+}
+
+/* sensitivityᵀ = seedᵀ J: one column of J per known (complex step is forward mode) */
+int mbs_adjoint_derivative(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known,
+                           size_t nknown, const double *seed, double *sensitivity)
+{
+    int rc = check_all(s, unknown, nunknown, known, nknown, seed, nunknown, sensitivity, nknown, "adjoint");
+    for (size_t i = 0; !rc && i < nunknown; i++)
+        if (!isfinite(seed[i])) rc = report(s, MBS_ERROR, "the seed of %s is not finite (%g)", s->m->var_name[unknown[i]], seed[i]);
+    const double one = 1.0;
+    for (size_t j = 0; !rc && j < nknown; j++) {
+        if ((rc = tangent(s, unknown, nunknown, known + j, 1, &one))) break;
+        sensitivity[j] = 0.0;
+        for (size_t i = 0; i < nunknown; i++) sensitivity[j] += seed[i] * tangent_of(s, unknown[i]);
+    }
     return rc;
 }
 

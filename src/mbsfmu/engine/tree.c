@@ -13,16 +13,16 @@
 #include "mbs_model.h"
 #include "mbs_vec3.h"
 
-static void axis_angle(const double *a, double ang, double *R)
+static void axis_angle(const real *a, real ang, real *R)
 {
-    double x = a[0], y = a[1], z = a[2], c = cos(ang), s = sin(ang), C = 1.0 - c;
+    real x = a[0], y = a[1], z = a[2], c = r_cos(ang), s = r_sin(ang), C = 1.0 - c;
     R[0] = c + x * x * C;     R[1] = x * y * C - z * s; R[2] = x * z * C + y * s;
     R[3] = y * x * C + z * s; R[4] = c + y * y * C;     R[5] = y * z * C - x * s;
     R[6] = z * x * C - y * s; R[7] = z * y * C + x * s; R[8] = c + z * z * C;
 }
-static void quat_to_matrix(const double *p, double *S)
+static void quat_to_matrix(const real *p, real *S)
 {
-    double p0 = p[0], p1 = p[1], p2 = p[2], p3 = p[3];
+    real p0 = p[0], p1 = p[1], p2 = p[2], p3 = p[3];
     S[0] = 1 - 2 * (p2 * p2 + p3 * p3); S[1] = 2 * (p1 * p2 - p0 * p3);     S[2] = 2 * (p1 * p3 + p0 * p2);
     S[3] = 2 * (p1 * p2 + p0 * p3);     S[4] = 1 - 2 * (p1 * p1 + p3 * p3); S[5] = 2 * (p2 * p3 - p0 * p1);
     S[6] = 2 * (p1 * p3 - p0 * p2);     S[7] = 2 * (p2 * p3 + p0 * p1);     S[8] = 1 - 2 * (p1 * p1 + p2 * p2);
@@ -30,15 +30,15 @@ static void quat_to_matrix(const double *p, double *S)
 
 /* Joint motion in the joint frame (joints.py): R_rel, d_rel, H_R, H_T (3 × nv, column-major per joint
  * velocity: H[3*j + r]), b_R, b_T. Zero parts are written as zeros. */
-static void cardan(const double *p, const double *v, double *R, double *H, double *b_R)
+static void cardan(const real *p, const real *v, real *R, real *H, real *b_R)
 {
-    double ca = cos(p[0]), sa = sin(p[0]), cb = cos(p[1]), sb = sin(p[1]), cc = cos(p[2]), sc = sin(p[2]);
-    double Sx[9] = {1, 0, 0, 0, ca, -sa, 0, sa, ca}, Sy[9] = {cb, 0, sb, 0, 1, 0, -sb, 0, cb};
-    double Sz[9] = {cc, -sc, 0, sc, cc, 0, 0, 0, 1}, Sxy[9];
+    real ca = r_cos(p[0]), sa = r_sin(p[0]), cb = r_cos(p[1]), sb = r_sin(p[1]), cc = r_cos(p[2]), sc = r_sin(p[2]);
+    real Sx[9] = {1, 0, 0, 0, ca, -sa, 0, sa, ca}, Sy[9] = {cb, 0, sb, 0, 1, 0, -sb, 0, cb};
+    real Sz[9] = {cc, -sc, 0, sc, cc, 0, 0, 0, 1}, Sxy[9];
     mm(Sx, Sy, Sxy);
     mm(Sxy, Sz, R);
-    double h1[3] = {1, 0, 0}, h2[3] = {Sx[1], Sx[4], Sx[7]}, h3[3] = {Sxy[2], Sxy[5], Sxy[8]};
-    double w1[3], w2[3], c1[3], c2[3];
+    real h1[3] = {1, 0, 0}, h2[3] = {Sx[1], Sx[4], Sx[7]}, h3[3] = {Sxy[2], Sxy[5], Sxy[8]};
+    real w1[3], w2[3], c1[3], c2[3];
     for (int r = 0; r < 3; r++) {
         w1[r] = h1[r] * v[0];
         w2[r] = w1[r] + h2[r] * v[1];
@@ -49,13 +49,13 @@ static void cardan(const double *p, const double *v, double *R, double *H, doubl
     for (int r = 0; r < 3; r++) b_R[r] = c1[r] * v[1] + c2[r] * v[2];
 }
 
-static void zero3(double *a) { a[0] = a[1] = a[2] = 0.0; }
+static void zero3(real *a) { a[0] = a[1] = a[2] = 0.0; }
 
-static void joint_motion(int type, int nv, const MbsBodyD *bd, const double *p, const double *v,
-                         double *R, double *d, double *H_R, double *H_T, double *b_R, double *b_T)
+static void joint_motion(int type, int nv, const MbsBodyD *bd, const real *p, const real *v,
+                         real *R, real *d, real *H_R, real *H_T, real *b_R, real *b_T)
 {
-    const double *a = bd->a1, *a2 = bd->a2;
-    static const double E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    const real *a = bd->a1, *a2 = bd->a2;
+    static const real E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(R, E, sizeof E);
     /* three at a time, only the joint's columns: a memset of these small arrays compiles to `rep stos`,
      * whose start-up cost was a third of the kinematics */
@@ -64,18 +64,18 @@ static void joint_motion(int type, int nv, const MbsBodyD *bd, const double *p, 
     switch (type) {
     case J_REVOLUTE:
         axis_angle(a, p[0], R);
-        memcpy(H_R, a, 3 * sizeof(double));
+        memcpy(H_R, a, 3 * sizeof(real));
         break;
     case J_PRISMATIC:
         for (int r = 0; r < 3; r++) d[r] = a[r] * p[0];
-        memcpy(H_T, a, 3 * sizeof(double));
+        memcpy(H_T, a, 3 * sizeof(real));
         break;
     case J_CYLINDRICAL:
         axis_angle(a, p[1], R);
         for (int r = 0; r < 3; r++) { d[r] = a[r] * p[0]; H_T[r] = a[r]; H_R[3 + r] = a[r]; }
         break;
     case J_UNIVERSAL: {
-        double S1[9], S2[9], h2[3], c[3];
+        real S1[9], S2[9], h2[3], c[3];
         axis_angle(a, p[0], S1);
         axis_angle(a2, p[1], S2);
         mm(S1, S2, R);
@@ -85,7 +85,7 @@ static void joint_motion(int type, int nv, const MbsBodyD *bd, const double *p, 
         break;
     }
     case J_PLANAR: {
-        double n[3];
+        real n[3];
         cross(a, a2, n);
         axis_angle(n, p[2], R);
         for (int r = 0; r < 3; r++) {
@@ -123,43 +123,43 @@ static void joint_motion(int type, int nv, const MbsBodyD *bd, const double *p, 
 }
 
 
-static double *body_work(const MbsEval *e, int i) { return mbs_body_work(e, i); }
-static int col_lo(const double *wk) { return (int)wk[W_LO]; }
-static int col_hi(const double *wk) { return (int)wk[W_HI]; }
+static real *body_work(const MbsEval *e, int i) { return mbs_body_work(e, i); }
+static int col_lo(const real *wk) { return (int)wk[W_LO]; }
+static int col_hi(const real *wk) { return (int)wk[W_HI]; }
 
 const MbsBodyD *mbs_body_d(const MbsEval *e, int i) { return mbs_body_row(e->m, e->D, i); }
 
 /* Joint frame of body i's parent side: S_p, o_p, ω_p, v_p, ā_p, ᾱ_p, J_Rp, J_Tp, the offset ρ and S_J
  * (tree.py: attachment). On the dense path J_R, J_T of the body start as the parent's; [lo, hi) their nonzero
  * columns. */
-static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const double **o_p,
-                       const double **w_p, const double **v_p, const double **a_p, const double **al_p, double *J_R,
-                       int *lo, int *hi, double *node_buf)
+static void attachment(const MbsEval *e, int i, real *S_J, real *rho, const real **o_p,
+                       const real **w_p, const real **v_p, const real **a_p, const real **al_p, real *J_R,
+                       int *lo, int *hi, real *node_buf)
 {
-    static const double Z[3] = {0, 0, 0};
+    static const real Z[3] = {0, 0, 0};
     const MbsModel *m = e->m;
     const MbsBodyI *bi = mbs_body_i(m, i);
     const int f = NVEL(m), par = bi->parent;
     const MbsBodyD *bd = mbs_body_d(e, i);
     if (par < 0) {
         *o_p = *w_p = *v_p = *a_p = *al_p = Z;
-        if (m->dense) memset(J_R, 0, 6 * (size_t)f * sizeof(double));
-        memcpy(S_J, bd->R0, 9 * sizeof(double));
-        memcpy(rho, bd->at, 3 * sizeof(double));
+        if (m->dense) memset(J_R, 0, 6 * (size_t)f * sizeof(real));
+        memcpy(S_J, bd->R0, 9 * sizeof(real));
+        memcpy(rho, bd->at, 3 * sizeof(real));
         *lo = f;
         *hi = 0;
         return;
     }
-    const double *pw = body_work(e, par);
+    const real *pw = body_work(e, par);
     *lo = col_lo(pw);
     *hi = col_hi(pw);
 #ifdef MBS_WITH_ELASTIC
     if (bi->node >= 0) {  /* at a node of an elastic parent: it moves with r_IP, S_IP (seed 004) */
-        double S_P[9], *nb_ = node_buf;
+        real S_P[9], *nb_ = node_buf;
         mbs_elastic_node_frame(e, i, S_P, nb_, nb_ + 3, nb_ + 6, nb_ + 9, nb_ + 12, J_R, J_R + 3 * f);
         *o_p = nb_; *w_p = nb_ + 3; *v_p = nb_ + 6; *a_p = nb_ + 9; *al_p = nb_ + 12;
         mm(S_P, bd->R0, S_J);
-        memset(rho, 0, 3 * sizeof(double));
+        memset(rho, 0, 3 * sizeof(real));
         *lo = (int)pw[W_LO];   /* the parent's columns, widened to its elastic coordinates */
         *hi = (int)pw[W_HI];
         return;
@@ -167,20 +167,20 @@ static void attachment(const MbsEval *e, int i, double *S_J, double *rho, const 
 #else
     (void)node_buf;
 #endif
-    const double *S_p = pw + W_S;
+    const real *S_p = pw + W_S;
     *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
-    if (m->dense) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(double));
+    if (m->dense) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(real));
     mm(S_p, bd->R0, S_J);
     mv(S_p, bd->at, rho);
 }
 
 /* The free columns of body i's joint as spatial motions at its origin (dynamics.c): (h_R, h_T), world axes. */
-static void motion_subspace(const MbsBodyI *bi, const double *S_J, const double *H_R, const double *H_T, double *wk)
+static void motion_subspace(const MbsBodyI *bi, const real *S_J, const real *H_R, const real *H_T, real *wk)
 {
     int n = 0;
     for (int k = 0; k < bi->nvel; k++) {
         if (bi->vel[k] < 0) continue;
-        double *s = wk + AB_S + 6 * n++;
+        real *s = wk + AB_S + 6 * n++;
         mv(S_J, H_R + 3 * k, s);
         mv(S_J, H_T + 3 * k, s + 3);
     }
@@ -193,18 +193,18 @@ void mbs_kinematics(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
-    const double *y = e->x, *yd = e->x + NPOS(m);
+    const real *y = e->x, *yd = e->x + NPOS(m);
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
         const MbsBodyD *bd = mbs_body_d(e, i);
-        double *wk = body_work(e, i);
-        double *J_R = wk + W_J, *J_T = J_R + 3 * f;
+        real *wk = body_work(e, i);
+        real *J_R = wk + W_J, *J_T = J_R + 3 * f;
         const int nv = bi->nvel, np = bi->npos;
-        const double *o_p, *w_p, *v_p, *a_p, *al_p;
-        double S_J[9], rho[3], node_buf[15];
+        const real *o_p, *w_p, *v_p, *a_p, *al_p;
+        real S_J[9], rho[3], node_buf[15];
         int lo, hi;
         attachment(e, i, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
-        double p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
+        real p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
         for (int k = 0; k < np; k++) {
             int pi = bi->pos[k], s = bi->drv[k];
             p[k] = pi >= 0 ? y[pi] : e->td[3 * s];
@@ -215,7 +215,7 @@ void mbs_kinematics(const MbsEval *e)
             else { v[k] = e->td[3 * s + 1]; acc[k] = e->td[3 * s + 2]; }
         }
         joint_motion(bi->jtype, nv, bd, p, v, R, d, H_R, H_T, b_R, b_T);
-        double w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0}, dd[3], w_rel[3], v_rel[3], wxr[3];
+        real w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0}, dd[3], w_rel[3], v_rel[3], wxr[3];
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 3; r++) {
                 w_rel_j[r] += H_R[3 * k + r] * v[k];
@@ -225,7 +225,7 @@ void mbs_kinematics(const MbsEval *e)
         mv(S_J, w_rel_j, w_rel);
         mv(S_J, v_rel_j, v_rel);
         for (int r = 0; r < 3; r++) rho[r] += dd[r];
-        double *w = wk + W_W, *al = wk + W_AL, *o = wk + W_O, *vv = wk + W_V, *a = wk + W_A;
+        real *w = wk + W_W, *al = wk + W_AL, *o = wk + W_O, *vv = wk + W_V, *a = wk + W_A;
         /* ω = ω_p + ω_rel;  v = v_p + ω_p × ρ + v_rel */
         cross(w_p, rho, wxr);
         for (int r = 0; r < 3; r++) {
@@ -240,7 +240,7 @@ void mbs_kinematics(const MbsEval *e)
                 b_R[r] += H_R[3 * k + r] * acc[k];
                 b_T[r] += H_T[3 * k + r] * acc[k];
             }
-        double SbR[3], SbT[3], t1[3], t2[3], axr[3], wwxr[3];
+        real SbR[3], SbT[3], t1[3], t2[3], axr[3], wwxr[3];
         mv(S_J, b_R, SbR);
         mv(S_J, b_T, SbT);
         /* ᾱ = ᾱ_p + ω_p × ω_rel + S_J b_R;  ā = ā_p + ᾱ_p × ρ + ω_p × (ω_p × ρ) + 2 ω_p × v_rel + S_J b_T */
@@ -258,7 +258,7 @@ void mbs_kinematics(const MbsEval *e)
         }
         /* J_T = J_Tp − ρ̃ J_Rp, then the joint's own columns */
         for (int c = lo; c < hi; c++) {
-            double jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, x[3];
+            real jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, x[3];
             cross(rho, jr, x);
             for (int r = 0; r < 3; r++) J_T[r * f + c] -= x[r];
         }
@@ -267,7 +267,7 @@ void mbs_kinematics(const MbsEval *e)
             if (col < 0) continue;
             if (col < lo) lo = col;
             if (col + 1 > hi) hi = col + 1;
-            double hr[3], ht[3];
+            real hr[3], ht[3];
             mv(S_J, H_R + 3 * k, hr);
             mv(S_J, H_T + 3 * k, ht);
             for (int r = 0; r < 3; r++) { J_R[r * f + col] += hr[r]; J_T[r * f + col] += ht[r]; }
@@ -282,32 +282,32 @@ void mbs_kinematics(const MbsEval *e)
 
 /* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only; dense path) of a point fixed on
  * body i (r_b in the body frame); i < 0: a point of the world. */
-void mbs_point(const MbsEval *e, int i, const double *r_b, double *x, double *v, double *J)
+void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real *J)
 {
     const int f = NVEL(e->m);
     if (i < 0) {
-        memcpy(x, r_b, 3 * sizeof(double));
-        memset(v, 0, 3 * sizeof(double));
+        memcpy(x, r_b, 3 * sizeof(real));
+        memset(v, 0, 3 * sizeof(real));
         return;
     }
-    const double *wk = body_work(e, i), *J_R = wk + W_J, *J_T = J_R + 3 * f;
-    double r[3], wxr[3];
+    const real *wk = body_work(e, i), *J_R = wk + W_J, *J_T = J_R + 3 * f;
+    real r[3], wxr[3];
     mv(wk + W_S, r_b, r);
     cross(wk + W_W, r, wxr);
     for (int k = 0; k < 3; k++) { x[k] = wk[W_O + k] + r[k]; v[k] = wk[W_V + k] + wxr[k]; }
     if (!J) return;
     for (int c = col_lo(wk); c < col_hi(wk); c++) {
-        double jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, s[3];
+        real jr[3] = {J_R[c], J_R[f + c], J_R[2 * f + c]}, s[3];
         cross(r, jr, s);
         for (int k = 0; k < 3; k++) J[k * f + c] = J_T[k * f + c] - s[k];
     }
 }
 
 /* q += sign Jᵀ F for a 3 × f Jacobian of body i (its columns [lo, hi)) */
-void mbs_add_JtF(const MbsEval *e, int i, const double *J, const double *F, double sign, double *q)
+void mbs_add_JtF(const MbsEval *e, int i, const real *J, const real *F, double sign, real *q)
 {
     const int f = NVEL(e->m);
-    const double *wk = body_work(e, i);
+    const real *wk = body_work(e, i);
     for (int c = col_lo(wk); c < col_hi(wk); c++) q[c] += sign * (J[c] * F[0] + J[f + c] * F[1] + J[2 * f + c] * F[2]);
 }
 
@@ -316,18 +316,18 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
-    const double *g = e->D + m->hdr[H_D_G];
-    double *M = e->M, *k = e->k, *q = e->q, *J = e->work + (size_t)NB(m) * W_SIZE(f);
-    memset(M, 0, (size_t)f * f * sizeof(double));
-    memset(k, 0, f * sizeof(double));
-    memset(q, 0, f * sizeof(double));
+    const real *g = e->D + m->hdr[H_D_G];
+    real *M = e->M, *k = e->k, *q = e->q, *J = e->work + (size_t)NB(m) * W_SIZE(f);
+    memset(M, 0, (size_t)f * f * sizeof(real));
+    memset(k, 0, f * sizeof(real));
+    memset(q, 0, f * sizeof(real));
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
         if (!bi->massive) continue;
         const MbsBodyD *bd = mbs_body_d(e, i);
-        const double *wk = body_work(e, i), *J_R = wk + W_J, *S = wk + W_S;
-        const double *w = wk + W_W, *al = wk + W_AL, mass = bd->m;
-        double xc[3], vc[3], c[3], wxc[3], axc[3], wwxc[3], a_c[3];
+        const real *wk = body_work(e, i), *J_R = wk + W_J, *S = wk + W_S;
+        const real *w = wk + W_W, *al = wk + W_AL, mass = bd->m;
+        real xc[3], vc[3], c[3], wxc[3], axc[3], wwxc[3], a_c[3];
         mbs_point(e, i, bd->c, xc, vc, J);  /* J_T of the centre of mass */
         mv(S, bd->c, c);
         cross(w, c, wxc);
@@ -335,7 +335,7 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
         cross(w, wxc, wwxc);
         for (int r = 0; r < 3; r++) a_c[r] = wk[W_A + r] + axc[r] + wwxc[r];
         /* I_w = S I Sᵀ: world-frame inertia about the centre of mass */
-        double SI[9], I_w[9], Iw_w[3], Iw_al[3], gyr[3];
+        real SI[9], I_w[9], Iw_w[3], Iw_al[3], gyr[3];
         mm(S, bd->I, SI);
         for (int r = 0; r < 3; r++)
             for (int cc = 0; cc < 3; cc++) I_w[3 * r + cc] = SI[3 * r] * S[3 * cc] + SI[3 * r + 1] * S[3 * cc + 1] + SI[3 * r + 2] * S[3 * cc + 2];
@@ -345,7 +345,7 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
         if (m->hdr[H_FEATURES] & F_ELASTIC) {
             /* S (ω_b × I ω_b), ω_b = Sᵀω, as tree.py: at a node S = S_R (E + θ̃) is orthogonal only to first
              * order (seed 004), and then this differs from ω × I_w ω */
-            double wb[3], Iwb[3], g_b[3];
+            real wb[3], Iwb[3], g_b[3];
             for (int r = 0; r < 3; r++) wb[r] = S[r] * w[0] + S[3 + r] * w[1] + S[6 + r] * w[2];
             mv(bd->I, wb, Iwb);
             cross(wb, Iwb, g_b);
@@ -353,7 +353,7 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
         } else
 #endif
         cross(w, Iw_w, gyr);
-        double mg[3] = {0, 0, 0}, mac[3], rot[3];
+        real mg[3] = {0, 0, 0}, mac[3], rot[3];
         if (m->hdr[H_HAS_GRAVITY]) for (int r = 0; r < 3; r++) mg[r] = mass * g[r];
         for (int r = 0; r < 3; r++) { mac[r] = mass * a_c[r]; rot[r] = Iw_al[r] + gyr[r]; }
         mbs_add_JtF(e, i, J, mac, 1.0, k);
@@ -362,10 +362,10 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
         const int lo = col_lo(wk), hi = col_hi(wk);
         for (int cj = lo; cj < hi; cj++) {
             /* columns of I_w J_R and m J_T */
-            double IJ[3], jr[3] = {J_R[cj], J_R[f + cj], J_R[2 * f + cj]};
+            real IJ[3], jr[3] = {J_R[cj], J_R[f + cj], J_R[2 * f + cj]};
             mv(I_w, jr, IJ);
             for (int ci = lo; ci <= cj; ci++) {
-                double s = mass * (J[ci] * J[cj] + J[f + ci] * J[f + cj] + J[2 * f + ci] * J[2 * f + cj])
+                real s = mass * (J[ci] * J[cj] + J[f + ci] * J[f + cj] + J[2 * f + ci] * J[2 * f + cj])
                          + J_R[ci] * IJ[0] + J_R[f + ci] * IJ[1] + J_R[2 * f + ci] * IJ[2];
                 M[ci * f + cj] += s;
             }
@@ -379,7 +379,7 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
 }
 
 /* World position, velocity and J_T of an attachment: a point on body i, or node P of an elastic body. */
-static void force_point(const MbsEval *e, int i, int node, const double *at, double *x, double *v, double *J)
+static void force_point(const MbsEval *e, int i, int node, const real *at, real *x, real *v, real *J)
 {
 #ifdef MBS_WITH_ELASTIC
     if (node >= 0 && i >= 0) { mbs_elastic_node_point(e, i, node, x, v, J); return; }
@@ -391,7 +391,7 @@ static void force_point(const MbsEval *e, int i, int node, const double *at, dou
 
 /* A force F (sign ±1) at a point with Jacobian J on body i: q += sign JᵀF (dense path), or onto the body's
  * spatial force at x (recursive path; x NULL: F is a torque). */
-static void apply(const MbsEval *e, int i, const double *J, const double *x, const double *F, double sign)
+static void apply(const MbsEval *e, int i, const real *J, const real *x, const real *F, double sign)
 {
     if (e->m->dense) mbs_add_JtF(e, i, J, F, sign, e->q);
     else mbs_body_force(e, i, x, F, sign);
@@ -403,8 +403,8 @@ void mbs_applied_forces(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
-    const double *y = e->x, *yd = e->x + NPOS(m);
-    double *q = e->q, *Ja = NULL, *Jb = NULL;
+    const real *y = e->x, *yd = e->x + NPOS(m);
+    real *q = e->q, *Ja = NULL, *Jb = NULL;
     if (m->dense) { Ja = e->work + (size_t)NB(m) * W_SIZE(f); Jb = Ja + 3 * f; }
     if (e->q_in) for (int c = 0; c < f; c++) q[c] += e->q_in[c];
     for (int n = 0; n < m->hdr[H_NFORCE]; n++) {
@@ -417,15 +417,15 @@ void mbs_applied_forces(const MbsEval *e)
             break;
         }
         case FE_SPRING: {
-            double xa[3], va[3], xb[3], vb[3], dx[3], dv[3];
+            real xa[3], va[3], xb[3], vb[3], dx[3], dv[3];
             force_point(e, fi->a, fi->node_a, fd->at_a, xa, va, Ja);
             force_point(e, fi->b, fi->node_b, fd->at_b, xb, vb, Jb);
             for (int r = 0; r < 3; r++) { dx[r] = xb[r] - xa[r]; dv[r] = vb[r] - va[r]; }
-            double l = sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
-            if (l < 1e-12) break; /* direction undefined at zero length: no force rather than NaN */
-            double e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
-            double mag = fd->k * (l - fd->l) + fd->d * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
-            double F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
+            real l = r_sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
+            if (RE(l) < 1e-12) break; /* direction undefined at zero length: no force rather than NaN */
+            real e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
+            real mag = fd->k * (l - fd->l) + fd->d * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
+            real F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
             if (fi->a >= 0) apply(e, fi->a, Ja, xa, F, 1.0);
             if (fi->b >= 0) apply(e, fi->b, Jb, xb, F, -1.0);
             break;
@@ -433,8 +433,8 @@ void mbs_applied_forces(const MbsEval *e)
         case FE_FORCE:
         case FE_TORQUE: {
             int i = fi->a;
-            const double *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd->vec;
-            double vec[3], xp[3], vp[3];
+            const real *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd->vec;
+            real vec[3], xp[3], vp[3];
             if (src[0] == 0.0 && src[1] == 0.0 && src[2] == 0.0) break;
             if (fi->frame) mv(wk + W_S, src, vec);
             else memcpy(vec, src, sizeof vec);
@@ -454,16 +454,16 @@ void mbs_applied_forces(const MbsEval *e)
 }
 
 /* M = L Lᵀ in place (row-major, L in the lower triangle). 0 on success, 1 if M is not positive definite. */
-int mbs_cholesky(int n, double *M)
+int mbs_cholesky(int n, real *M)
 {
     for (int j = 0; j < n; j++) {
-        double s = M[j * n + j];
+        real s = M[j * n + j];
         for (int k = 0; k < j; k++) s -= M[j * n + k] * M[j * n + k];
-        if (s <= 0.0) return 1; /* NaN passes on as NaN: the integrator shrinks h */
-        double d = sqrt(s);
+        if (RE(s) <= 0.0) return 1; /* NaN passes on as NaN: the integrator shrinks h */
+        real d = r_sqrt(s);
         M[j * n + j] = d;
         for (int i = j + 1; i < n; i++) {
-            double t = M[i * n + j];
+            real t = M[i * n + j];
             for (int k = 0; k < j; k++) t -= M[i * n + k] * M[j * n + k];
             M[i * n + j] = t / d;
         }
@@ -472,22 +472,22 @@ int mbs_cholesky(int n, double *M)
 }
 
 /* r ← (L Lᵀ)⁻¹ r with the factor of mbs_cholesky */
-void mbs_cholesky_apply(int n, const double *L, double *r)
+void mbs_cholesky_apply(int n, const real *L, real *r)
 {
     for (int i = 0; i < n; i++) {
-        double s = r[i];
+        real s = r[i];
         for (int k = 0; k < i; k++) s -= L[i * n + k] * r[k];
         r[i] = s / L[i * n + i];
     }
     for (int i = n - 1; i >= 0; i--) {
-        double s = r[i];
+        real s = r[i];
         for (int k = i + 1; k < n; k++) s -= L[k * n + i] * r[k];
         r[i] = s / L[i * n + i];
     }
 }
 
 /* Solve M a = r in place (M overwritten by its Cholesky factor). 0 on success, 1 if M is not positive definite. */
-int mbs_cholesky_solve(int n, double *M, double *r)
+int mbs_cholesky_solve(int n, real *M, real *r)
 {
     if (mbs_cholesky(n, M)) return 1;
     mbs_cholesky_apply(n, M, r);
@@ -501,7 +501,7 @@ int mbs_eval_rhs(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m), np = NPOS(m);
-    double *xd = e->xdot;
+    real *xd = e->xdot;
     if (!m->dense) {
         if (mbs_aba(e)) return MBS_F_SINGULAR;
     } else {
@@ -518,14 +518,14 @@ int mbs_eval_rhs(const MbsEval *e)
 void mbs_position_rates(const MbsEval *e)
 {
     const MbsModel *m = e->m;
-    const double *y = e->x, *yd = e->x + NPOS(m);
-    double *xd = e->xdot;
+    const real *y = e->x, *yd = e->x + NPOS(m);
+    real *xd = e->xdot;
     const int nplain = m->hdr[H_NPLAIN];
     for (int i = 0; i < nplain; i++) xd[m->plain[i]] = yd[m->plain[nplain + i]];
     for (int j = 0; j < m->hdr[H_NQUAT]; j++) {
         const int *qi = m->quat + 7 * j;
-        double p0 = y[qi[0]], p1 = y[qi[1]], p2 = y[qi[2]], p3 = y[qi[3]];
-        double w0 = yd[qi[4]], w1 = yd[qi[5]], w2 = yd[qi[6]];
+        real p0 = y[qi[0]], p1 = y[qi[1]], p2 = y[qi[2]], p3 = y[qi[3]];
+        real w0 = yd[qi[4]], w1 = yd[qi[5]], w2 = yd[qi[6]];
         /* ṗ = ½ p ⊗ (0, ω), body-frame ω */
         xd[qi[0]] = 0.5 * (-p1 * w0 - p2 * w1 - p3 * w2);
         xd[qi[1]] = 0.5 * (p0 * w0 - p3 * w1 + p2 * w2);
@@ -534,6 +534,7 @@ void mbs_position_rates(const MbsEval *e)
     }
 }
 
+#ifndef MBS_CX  /* (deriv.c's complex twin evaluates; binding stays here) */
 /* ---- bind time: derived numbers from the raw ones (after the bind programs ran) ---- */
 static void unit(const double *a, double *u)
 {
@@ -609,3 +610,4 @@ void mbs_initial_state(const MbsModel *m, const double *D, double *x0)
         }
     }
 }
+#endif
