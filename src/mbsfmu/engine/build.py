@@ -23,7 +23,10 @@ HEADERS = ("mbs_engine.h", "fmu_files.h", "fmi2_guard.h", "fmi_common.h", "fmi_c
            "integ_internal.h", "linalg.h")
 OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
-LTO = ("-flto=auto",)  # the engine's small accessors inline across files into the per-step path (issue 10)
+# Tried first, dropped where the compiler lacks them: link-time optimization (the engine's small accessors inline
+# across files into the per-step path, issue 10) and plain complex arithmetic for deriv.c's complex step (no
+# overflow-guarded division or NaN recovery calls: its numbers are the evaluation's, never near the limits)
+LTO = ("-flto=auto", "-fcx-limited-range")
 
 
 def features(blob):
@@ -104,8 +107,8 @@ def compiler():
 
 
 def run_cc(cmd):
-    """Run a compile command [cc, args...] with link-time optimization, or without it where the compiler
-    lacks it; the CompletedProcess of the last try."""
+    """Run a compile command [cc, args...] with the LTO flags, or without them where the compiler lacks them; the
+    CompletedProcess of the last try."""
     import subprocess
     res = subprocess.run([cmd[0], *LTO, *cmd[1:]], capture_output=True, text=True)
     return subprocess.run(cmd, capture_output=True, text=True) if res.returncode else res

@@ -59,14 +59,16 @@ int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work)
     const double h = big > 0.0 ? H_TINY / big : 0.0;
     real *D = work, *td = D + hd[H_ND], *x = td + ntd, *q_in = x + n, *w = q_in + f;
     real *k = w + (size_t)mbs_work_doubles(hd), *q = k + f, *xdot = q + f;
-    lift(D, t->D, NULL, 0.0, hd[H_ND]);
     lift(td, t->td, NULL, 0.0, ntd);
     for (size_t j = 0; t->dfin && j < nin; j++) td[3 * (size_t)hd[H_NDRV] + j] += CMPLX(0.0, h * t->dfin[j]);
     lift(x, t->x, t->dx, h, n);
     lift(q_in, t->q_in, t->dq_in, h, f);
     MbsEval e = {m, D, td, x, (t->q_in || t->dq_in) ? q_in : NULL, w, m->dense ? w + mbs_work_M_offset(hd) : NULL,
                  k, q, xdot, (char *)work + align(numbers(m) * sizeof(real))};
-    if (!m->dense) mbs_composites(m, D, w);
+    if (t->rebind) {  /* the bound numbers, and on the recursive path the carriers' inertias from them */
+        lift(D, t->D, NULL, 0.0, hd[H_ND]);
+        if (!m->dense) mbs_composites(m, D, w);
+    }
     mbs_kinematics(&e);
     if (t->dout)
         for (int o = 0; o < nout; o++) {

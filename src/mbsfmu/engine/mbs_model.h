@@ -193,10 +193,12 @@ static inline size_t mbs_work_M_offset(const int32_t *hdr) { return (size_t)hdr[
 /* deriv.c: directional derivatives by complex step. At the state x (time numbers td, which hold the force inputs)
  * with the generalized-force inputs q_in (NULL: none), along the seeds dx, dq_in and dfin (the force inputs', 3 per
  * input; NULL: zero): the derivatives of ẋ, of the output points (6 each) and of the stresses into whichever of
- * dxdot, dout, dvm is not NULL. work: mbs_tangent_work_size bytes. Returns 0 or MBS_F_SINGULAR. */
+ * dxdot, dout, dvm is not NULL. work: mbs_tangent_work_size bytes, which keep the bound numbers D between calls
+ * (rebind: D changed since the last call). Returns 0 or MBS_F_SINGULAR. */
 typedef struct {
     const double *D, *td, *x, *q_in, *dx, *dq_in, *dfin;
     double *dxdot, *dout, *dvm;
+    int rebind;
 } MbsTangent;
 size_t mbs_tangent_work_size(const MbsModel *m);
 int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work);

@@ -30,6 +30,7 @@ struct MbsInstance {
     double *der;          /* ẋ at (time, x) with the inputs and parameters set, when der_valid (model exchange) */
     void *elastic_work;
     void *tangent;        /* directional derivatives' workspace (deriv.c), made at the first one asked for */
+    int tangent_bound;    /* it holds the bound numbers of D (binding clears it) */
     int method;
     double rtol, atol, max_step, step;
     int initialized, params_dirty, inputs_dirty, initial_valid, q_in_active;
@@ -451,7 +452,7 @@ int mbs_reset(MbsInstance *s)
     s->max_step = di[DI_MAX_STEP];
     s->step = di[DI_STEP];
     s->initialized = s->params_dirty = s->inputs_dirty = s->initial_valid = s->q_in_active = s->out_valid = s->der_valid = 0;
-    s->kin_valid = 0;
+    s->kin_valid = s->tangent_bound = 0;
     s->time = 0.0;
     s->msg[0] = 0;
     mbs_integ_free(s->integ);
@@ -465,7 +466,7 @@ int mbs_reset(MbsInstance *s)
 static int bind(MbsInstance *s)
 {
     const MbsModel *m = s->m;
-    s->kin_valid = s->rule_broken = 0;
+    s->kin_valid = s->tangent_bound = s->rule_broken = 0;
     for (int p = 0; p < m->hdr[H_NPARAM]; p++)
         if (!isfinite(s->D[p])) {
             return say(s, "parameter %s is not finite (%g)", mbs_var_name_of(m, MBS_V_PARAM, p), s->D[p]);
@@ -1004,8 +1005,10 @@ static int tangent(MbsInstance *s, const unsigned *unknown, size_t nunknown, con
     }
     for (size_t i = 0; i < nunknown; i++) want[m->vars[2 * unknown[i]]] = 1;
     const MbsTangent t = {s->D, s->td, s->x, s->q_in_active ? s->u_applied : NULL, dx, du, du + f,
-                          want[MBS_V_DER] ? dxdot : NULL, want[MBS_V_OUT] ? dout : NULL, want[MBS_V_VM] ? dvm : NULL};
+                          want[MBS_V_DER] ? dxdot : NULL, want[MBS_V_OUT] ? dout : NULL, want[MBS_V_VM] ? dvm : NULL,
+                          !s->tangent_bound};
     time_numbers(s, s->time);
+    s->tangent_bound = 1;
     if (mbs_tangent(m, &t, s->tangent))
         return report(s, MBS_DISCARD, "t = %.9g: no directional derivatives: the mass matrix is singular here", s->time);
     return MBS_OK;
