@@ -133,3 +133,14 @@ def test_wrong_references_and_seeds_are_refused_with_a_message():
         inst.adjoint_derivative([case.ders[0]], [case.states[0]], [np.inf])
     # nothing changed: the next call answers
     assert np.isfinite(inst.directional_derivative(case.ders, case.states, np.ones(len(case.states)))).all()
+
+
+def test_the_cost_benchmark_writes_its_report(tmp_path):
+    """bench/directional_cost.py (reports/directional.md): both calls timed in the C loop, the report written."""
+    from mbsfmu.bench import directional_cost
+    from mbsfmu.fmu.native import compiler
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    directional_cost.main(["--out", str(tmp_path), "--models", "pendulum", "--chains", "10", "--seconds", "0.02"])
+    text = (tmp_path / "directional.md").read_text()
+    assert "| pendulum | 2 |" in text and "| chain10 | 20 |" in text and (tmp_path / "directional.png").stat().st_size

@@ -361,9 +361,10 @@ def chains(sizes, rounds=7, seconds=0.5, progress=True):
 _C_LOOP = {}
 
 
-def c_loop(pair, python_us, seconds=0.3, batch=2e-3):
+def c_loop(pair, python_us, seconds=0.3, batch=2e-3, column=False):
     """µs per mbs_rhs of the pair's scene called in a C loop (rhs_loop.c) on its states in turn: the best of batches
-    of about `batch` seconds (at least one call) over `seconds`; None without a C compiler."""
+    of about `batch` seconds (at least one call) over `seconds`; None without a C compiler. column: (µs per rhs,
+    µs per directional derivative column), batches alternating (bench/directional_cost.py)."""
     from ..engine.build import library_path
     from ..fmu.native import compiler
     if "exe" not in _C_LOOP:
@@ -383,10 +384,12 @@ def c_loop(pair, python_us, seconds=0.3, batch=2e-3):
         (Path(d) / "scene.bin").write_bytes(pair.sim.blob)
         pair.X.astype("<f8").tofile(Path(d) / "x.bin")
         r = subprocess.run([str(_C_LOOP["exe"]), str(library_path()), str(Path(d) / "scene.bin"), str(Path(d) / "x.bin"),
-                            str(calls), str(batches)], capture_output=True, text=True, timeout=3600)
+                            str(calls), str(batches), *(["column"] if column else [])], capture_output=True, text=True,
+                           timeout=3600)
     if r.returncode != 0:
         raise RuntimeError(f"rhs_loop: exit {r.returncode}: {r.stdout[-500:]} {r.stderr[-500:]}")
-    return float(r.stdout.split()[-1])
+    words = r.stdout.split()
+    return (float(words[1]), float(words[3])) if column else float(words[-1])
 
 
 # ------------------------------------------------------------------------------------------------ report
