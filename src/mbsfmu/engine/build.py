@@ -21,7 +21,9 @@ HERE = Path(__file__).parent
 CORE = ("model.c", "tree.c", "dynamics.c", "deriv.c", "sim.c", "linalg.c", "fmu_files.c", "fmi2_guard.c", "fmi_common.c", "fmi_core.c") + tuple(sorted(p.name for p in HERE.glob("integ_*.c")))
 HEADERS = ("mbs_engine.h", "fmu_files.h", "fmi2_guard.h", "fmi_common.h", "fmi_core.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
            "integ_internal.h", "linalg.h")
-OPTIONAL = {"expr": ("expr.c", "-DMBS_WITH_EXPR"), "elastic": ("elastic.c", "-DMBS_WITH_ELASTIC")}
+# optional parts: their files (elastic bodies: the equations and their complex twin for directional derivatives) and
+# the switch that turns them on
+OPTIONAL = {"expr": (("expr.c",), "-DMBS_WITH_EXPR"), "elastic": (("elastic.c", "deriv_elastic.c"), "-DMBS_WITH_ELASTIC")}
 CFLAGS = ("-O2", "-std=c99", "-fPIC")
 # Tried first, dropped where the compiler lacks them: link-time optimization (the engine's small accessors inline
 # across files into the per-step path, issue 10) and plain complex arithmetic for deriv.c's complex step (no
@@ -44,8 +46,8 @@ def features(blob):
 
 def sources(feats=("expr", "elastic")):
     """(C sources, headers, -D flags) of an engine with the given optional parts."""
-    feats = [f for f in OPTIONAL if f in feats and (HERE / OPTIONAL[f][0]).exists()]
-    srcs = [HERE / s for s in CORE if (HERE / s).exists()] + [HERE / OPTIONAL[f][0] for f in feats]
+    feats = [f for f in OPTIONAL if f in feats and (HERE / OPTIONAL[f][0][0]).exists()]
+    srcs = [HERE / s for s in CORE if (HERE / s).exists()] + [HERE / c for f in feats for c in OPTIONAL[f][0]]
     return srcs, [HERE / h for h in HEADERS if (HERE / h).exists()], [OPTIONAL[f][1] for f in feats]
 
 
@@ -61,7 +63,7 @@ def linked_sources(roots, defs, cc=None):
     import shutil
     import subprocess
     import tempfile
-    cands = [HERE / s for s in CORE + tuple(f for f, _ in OPTIONAL.values())]
+    cands = [HERE / s for s in CORE + tuple(c for files, _ in OPTIONAL.values() for c in files)]
     files = [*roots, *(c for c in cands if c not in roots)]
     key = hashlib.sha256(" ".join(defs).encode())
     for p in sorted(files) + sorted(HERE.glob("*.h")):

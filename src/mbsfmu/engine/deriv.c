@@ -1,7 +1,7 @@
 /* Directional derivatives of ẋ, the output points and the stresses along seeds of the state and the inputs
  * (issue 27: FMI's directional and adjoint derivatives), by complex step through the evaluation itself: tree.c,
- * dynamics.c and elastic.c compiled again here over a complex `real` (mbs_model.h, MBS_CX renames their functions
- * to mbs_cx_*). With x + i h dx, f(x + i h dx) = f(x) + i h f'(x) dx + O(h²): the imaginary part over h is the
+ * dynamics.c (and in deriv_elastic.c elastic.c) compiled again over a complex `real` (mbs_model.h, MBS_CX renames
+ * their functions to mbs_cx_*). With x + i h dx, f(x + i h dx) = f(x) + i h f'(x) dx + O(h²): the imaginary part over h is the
  * derivative, with no difference taken, so exact to rounding (h so small that h² vanishes beside 1). Both
  * evaluation paths and every joint, force element and elastic body are differentiated by the code that
  * evaluates them; nothing is written twice.
@@ -9,9 +9,7 @@
 #define MBS_CX 1
 #include "tree.c"
 #include "dynamics.c"
-#ifdef MBS_WITH_ELASTIC
-#include "elastic.c"
-#endif
+/* elastic.c's twin: deriv_elastic.c (a rigid scene's FMU carries no elastic code) */
 
 #include <stdint.h>
 
