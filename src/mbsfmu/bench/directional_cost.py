@@ -102,8 +102,7 @@ def main(argv=None):
     output.write_csv(rows, out / "directional.csv", COLUMNS, 4)
     plot(rows, out / "directional.png")
     from .. import files
-    with files.replacing(out / "directional.md") as tmp:
-        Path(tmp).write_text(markdown(rows, "python -m mbsfmu.bench.directional_cost " + " ".join(argv or sys.argv[1:])))
+    files.write_text(out / "directional.md", markdown(rows, "python -m mbsfmu.bench.directional_cost " + " ".join(argv or sys.argv[1:])))
     print(markdown(rows, ""))
 
 

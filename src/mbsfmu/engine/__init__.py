@@ -219,24 +219,20 @@ class Instance:
     def directional_derivative(self, unknowns, knowns, seed):
         """J·seed, J = ∂(unknowns)/∂(knowns) by value reference (knowns: states and inputs; unknowns: derivatives,
         outputs, states), at the time and state set, exact to rounding (complex step in the engine)."""
-        import numpy as np
-        u, k = np.ascontiguousarray(unknowns, dtype=np.uintc), np.ascontiguousarray(knowns, dtype=np.uintc)
-        seed, out = np.ascontiguousarray(seed, dtype=float), np.empty(len(u))
-        if len(seed) != len(k):
-            raise ValueError(f"{len(k)} knowns but {len(seed)} seeds")
-        self._check(self.lib.mbs_directional_derivative(self.ptr, u.ctypes.data, len(u), k.ctypes.data, len(k),
-                                                        seed.ctypes.data, out.ctypes.data))
-        return out
+        return self._derivative(self.lib.mbs_directional_derivative, unknowns, knowns, seed, forward=True)
 
     def adjoint_derivative(self, unknowns, knowns, seed):
         """seedᵀ·J (seed per unknown), as directional_derivative's J."""
+        return self._derivative(self.lib.mbs_adjoint_derivative, unknowns, knowns, seed, forward=False)
+
+    def _derivative(self, fn, unknowns, knowns, seed, forward):
         import numpy as np
         u, k = np.ascontiguousarray(unknowns, dtype=np.uintc), np.ascontiguousarray(knowns, dtype=np.uintc)
-        seed, out = np.ascontiguousarray(seed, dtype=float), np.empty(len(k))
-        if len(seed) != len(u):
-            raise ValueError(f"{len(u)} unknowns but {len(seed)} seeds")
-        self._check(self.lib.mbs_adjoint_derivative(self.ptr, u.ctypes.data, len(u), k.ctypes.data, len(k),
-                                                    seed.ctypes.data, out.ctypes.data))
+        seeded, out = (k, np.empty(len(u))) if forward else (u, np.empty(len(k)))
+        seed = np.ascontiguousarray(seed, dtype=float)
+        if len(seed) != len(seeded):
+            raise ValueError(f"{len(seeded)} {'knowns' if forward else 'unknowns'} but {len(seed)} seeds")
+        self._check(fn(self.ptr, u.ctypes.data, len(u), k.ctypes.data, len(k), seed.ctypes.data, out.ctypes.data))
         return out
 
     def von_mises(self, k, x):
