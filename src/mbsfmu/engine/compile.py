@@ -14,6 +14,7 @@ from ..equations.model import Model
 from ..expr import CONSTANTS, parse
 from ..scene import domains, limits
 from . import layout as L
+from ..fmu.variables import fmi3_variables
 from .elastic_tables import elastic_sections, stress_sections
 
 # every section id, field, type code and size comes from mbs_layout.h (layout.py); these are views of it
@@ -341,6 +342,9 @@ def compile_scene(spec, variables, guid="", model=None):
                 (L.S_ELASTIC_D, elastic_d), (L.S_NAMES, np.frombuffer(names, np.uint8)),
                 (L.S_VDOM, vdom), (L.S_RULES, rules), (L.S_RULE_NAMES, rule_names),
                 (L.S_LIMITS, _limits(spec))] + stress
+    arrays = [(vs[0].vr, len(vs)) for name, vs, _ in fmi3_variables(variables) if name != vs[0].name]
+    if arrays:  # only then: a scene without arrays compiles as before
+        sections.append((L.S_ARRAYS, np.array(arrays, dtype=np.int32)))
     return _pack(sections, guid)
 
 

@@ -8,9 +8,10 @@
  * instances and FMU states (fmi2_guard.c), the logging switches, loading the scene and FMU state bytes
  * (fmi_common.c) and the bodies of the calls (fmi_core.c: this file converts arguments and checks phases).
  *
- * Variables: the engine's variable table by value reference, Float64 and String scalars only, plus the
- * independent variable `time` after the table's last row (value reference = its row count, as the
- * modelDescription writer numbers it). Co-simulation without event mode, intermediate update or early return.
+ * Variables: FMI 3.0's (mbs_model_var3: runs of rows of the engine's variable table as arrays, every other row a
+ * scalar; fmu/variables.py: fmi3_variables numbers them for the modelDescription), Float64 arrays and scalars and
+ * String scalars, plus the independent variable `time` after the last one (value reference = their count).
+ * Values of arrays are flat, row after row. Co-simulation without event mode, intermediate update or early return.
  * Model exchange: the continuous states are the engine's [y; ẏ] (quaternions as the engine keeps them: the host
  * integrates their four components, nothing renormalizes them); no event indicators, no time events.
  *
@@ -38,6 +39,8 @@ typedef struct {
     MbsFmiHead h;
     fmi3InstanceEnvironment env;
     fmi3LogMessageCallback log;
+    size_t nrows;              /* the rows of the engine's variable table: room in rows[] */
+    unsigned rows[];           /* the rows of the variables of one call (expand) */
 } Fmu;
 MBS_FMI_SAME_STATUS(fmi3_status_is_core_status, fmi3OK, fmi3Warning, fmi3Discard, fmi3Error, fmi3Fatal);
 
@@ -62,16 +65,48 @@ static void emit_head(const MbsFmiHead *h, int st, const char *category, const c
     if (!mbs_fmi_allowed(&instances, f, (mask), (fn), "NULL instance"))                                       \
         return fmi3Error
 
-/* Scalars only: as many values as value references. */
-static int bad_count(MbsFmiHead *f, size_t nvr, size_t nvalues, const char *fn) {
-    if (nvr == nvalues)
-        return 0;
-    mbs_fmi_logf(f, fmi3Error, "%s: %lu values for %lu value references (this FMU's variables are scalars)", fn,
-          (unsigned long)nvalues, (unsigned long)nvr);
-    return 1;
+static fmi3ValueReference time_vr(const MbsFmiHead *f) { return (fmi3ValueReference)mbs_model_nvars3(f->model); }
+
+/* The rows of the variables vr[0..n) (the independent variable: none) into ((Fmu *)f)->rows from `at` on, in order;
+ * their number, and *nvalues (if given) the values they hold (time one). -1 with a message: an unknown value
+ * reference, or more rows than there is room for (a variable asked for many times over). */
+static long expand(MbsFmiHead *f, const fmi3ValueReference vr[], size_t n, size_t at, size_t *nvalues, const char *fn) {
+    Fmu *u = (Fmu *)f;
+    size_t i, k = at;
+    int first, rows, r;
+    if (nvalues)
+        *nvalues = 0;
+    for (i = 0; i < n; i++) {
+        if (vr[i] == time_vr(f)) {
+            if (nvalues)
+                ++*nvalues;
+            continue;
+        }
+        if ((first = mbs_model_var3(f->model, vr[i], &rows)) < 0) {
+            mbs_fmi_logf(f, fmi3Error, "%s: unknown value reference %u", fn, vr[i]);
+            return -1;
+        }
+        if (k + (size_t)rows > u->nrows) {
+            mbs_fmi_logf(f, fmi3Error, "%s: %lu value references ask for more values than the FMU has variables",
+                         fn, (unsigned long)n);
+            return -1;
+        }
+        for (r = 0; r < rows; r++)
+            u->rows[k++] = (unsigned)(first + r);
+        if (nvalues)
+            *nvalues += (size_t)rows;
+    }
+    return (long)(k - at);
 }
 
-static fmi3ValueReference time_vr(const MbsFmiHead *f) { return (fmi3ValueReference)mbs_model_nvars(f->model); }
+/* As many values as the variables hold (an array all its elements). */
+static int bad_count(MbsFmiHead *f, size_t nvalues, size_t want, const char *fn) {
+    if (nvalues == want)
+        return 0;
+    mbs_fmi_logf(f, fmi3Error, "%s: %lu values given for variables that hold %lu", fn, (unsigned long)nvalues,
+                 (unsigned long)want);
+    return 1;
+}
 
 /* ---- common functions ---- */
 const char *fmi3GetVersion(void) { return fmi3Version; }
@@ -134,7 +169,7 @@ static fmi3Instance instantiate(const char *fn, int iface, fmi3String instanceNa
         emit(log, env, fmi3Error, msg);
         return NULL;
     }
-    if (!(f = (Fmu *)mbs_fmi_alloc(sizeof *f, instanceName))) {
+    if (!(f = (Fmu *)mbs_fmi_alloc(sizeof *f + 2 * (size_t)mbs_model_nvars(model) * sizeof f->rows[0], instanceName))) {
         snprintf(msg, sizeof msg, "%s: out of memory", fn);
         emit(log, env, fmi3Error, msg);
         mbs_model_free(model);
@@ -142,6 +177,7 @@ static fmi3Instance instantiate(const char *fn, int iface, fmi3String instanceNa
     }
     f->env = env;
     f->log = log;
+    f->nrows = 2 * (size_t)mbs_model_nvars(model);  /* a directional derivative's knowns and unknowns */
     f->h.emit = emit_head;
     if (!mbs_fmi_start(&f->h, &instances, &states, model, iface, loggingOn != fmi3False)) {
         snprintf(msg, sizeof msg, "%s: cannot create the engine instance (out of memory?)", fn);
@@ -222,21 +258,25 @@ fmi3Status fmi3Reset(fmi3Instance instance) {
 }
 
 /* ---- variables ---- */
-/* Runs of engine value references through mbs_get_reals, the independent variable from the instance. */
+/* Each variable's rows through mbs_get_reals, the independent variable from the instance. */
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           fmi3Float64 values[], size_t nValues) {
-    size_t i, j;
+    size_t i, want, at = 0;
+    long n;
     CHECK(P_ANY, "fmi3GetFloat64");
     if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3GetFloat64") ||
-        bad_count(f, nValueReferences, nValues, "fmi3GetFloat64"))
+        expand(f, valueReferences, nValueReferences, 0, &want, "fmi3GetFloat64") < 0 ||
+        bad_count(f, nValues, want, "fmi3GetFloat64"))
         return fmi3Error;
-    for (i = 0; i < nValueReferences; i = j + 1) {
-        for (j = i; j < nValueReferences && valueReferences[j] != time_vr(f); j++)
-            ;
-        if (j > i && mbs_get_reals(f->sim, valueReferences + i, j - i, values + i) != MBS_OK)
+    for (i = 0; i < nValueReferences; i++) {
+        if (valueReferences[i] == time_vr(f)) {
+            values[at++] = mbs_initialized(f->sim) ? mbs_time(f->sim) : f->t_start;
+            continue;
+        }
+        n = expand(f, valueReferences + i, 1, 0, NULL, "fmi3GetFloat64");
+        if (mbs_get_reals(f->sim, ((Fmu *)f)->rows, (size_t)n, values + at) != MBS_OK)
             return engine_status(f, MBS_ERROR, "fmi3GetFloat64");
-        if (j < nValueReferences)
-            values[j] = mbs_initialized(f->sim) ? mbs_time(f->sim) : f->t_start;
+        at += (size_t)n;
     }
     return fmi3OK;
 }
@@ -244,39 +284,56 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
 /* All values at once (parameters that must change together: one call); on a refusal nothing is set. */
 fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                           const fmi3Float64 values[], size_t nValues) {
-    size_t i;
+    size_t i, want;
+    long n;
     CHECK(P_SET, "fmi3SetFloat64");
-    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3SetFloat64") ||
-        bad_count(f, nValueReferences, nValues, "fmi3SetFloat64"))
+    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3SetFloat64"))
         return fmi3Error;
     for (i = 0; i < nValueReferences; i++)
-        if (valueReferences[i] >= time_vr(f)) {
-            mbs_fmi_logf(f, fmi3Error, "fmi3SetFloat64: %s value reference %u", valueReferences[i] == time_vr(f) ?
-                  "the independent variable (time) cannot be set: fmi3SetTime or fmi3DoStep move it;" : "unknown",
-                  valueReferences[i]);
+        if (valueReferences[i] == time_vr(f)) {
+            mbs_fmi_logf(f, fmi3Error, "fmi3SetFloat64: the independent variable (time) cannot be set: fmi3SetTime "
+                         "or fmi3DoStep move it");
             return fmi3Error;
         }
-    CORE(mbs_fmi_set_reals(f, valueReferences, nValueReferences, values, "fmi3SetFloat64"));
+    if ((n = expand(f, valueReferences, nValueReferences, 0, &want, "fmi3SetFloat64")) < 0 ||
+        bad_count(f, nValues, want, "fmi3SetFloat64"))
+        return fmi3Error;
+    CORE(mbs_fmi_set_reals(f, ((Fmu *)f)->rows, (size_t)n, values, "fmi3SetFloat64"));
 }
 
 #define UNKNOWN_VR "%s: value reference %u is not a String"  /* (fn, vr): mbs_fmi_vr */
 
+/* Strings are scalars: a value reference holding more than one value (a Float64 array) is not one. */
+static long string_rows(MbsFmiHead *f, const fmi3ValueReference vr[], size_t nvr, const void *values, size_t nValues,
+                        const char *fn) {
+    size_t want;
+    long n;
+    if (mbs_fmi_bad_array(f, vr, values, nvr, fn) || (n = expand(f, vr, nvr, 0, &want, fn)) < 0 ||
+        bad_count(f, nValues, nvr, fn))
+        return -1;
+    if (want != nvr || (size_t)n != nvr) {
+        mbs_fmi_logf(f, fmi3Error, "%s: a value reference is the time or a Float64 array, not a String", fn);
+        return -1;
+    }
+    return n;
+}
+
 fmi3Status fmi3GetString(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                          fmi3String values[], size_t nValues) {
+    long n;
     CHECK(P_ANY, "fmi3GetString");
-    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3GetString") ||
-        bad_count(f, nValueReferences, nValues, "fmi3GetString"))
+    if ((n = string_rows(f, valueReferences, nValueReferences, values, nValues, "fmi3GetString")) < 0)
         return fmi3Error;
-    CORE(mbs_fmi_get_strings(f, valueReferences, nValueReferences, values, UNKNOWN_VR, "fmi3GetString"));
+    CORE(mbs_fmi_get_strings(f, ((Fmu *)f)->rows, (size_t)n, values, UNKNOWN_VR, "fmi3GetString"));
 }
 
 fmi3Status fmi3SetString(fmi3Instance instance, const fmi3ValueReference valueReferences[], size_t nValueReferences,
                          const fmi3String values[], size_t nValues) {
+    long n;
     CHECK(P_SET, "fmi3SetString");
-    if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3SetString") ||
-        bad_count(f, nValueReferences, nValues, "fmi3SetString"))
+    if ((n = string_rows(f, valueReferences, nValueReferences, values, nValues, "fmi3SetString")) < 0)
         return fmi3Error;
-    CORE(mbs_fmi_set_strings(f, valueReferences, nValueReferences, values, UNKNOWN_VR, "fmi3SetString"));
+    CORE(mbs_fmi_set_strings(f, ((Fmu *)f)->rows, (size_t)n, values, UNKNOWN_VR, "fmi3SetString"));
 }
 
 /* The model has Float64 and String variables only. */

@@ -47,6 +47,10 @@ MBS_API const char *mbs_model_guid(const MbsModel *m);   /* the FMU's GUID, writ
 MBS_API int mbs_model_nvars(const MbsModel *m);          /* rows of the variable table */
 MBS_API int mbs_model_var_kind(const MbsModel *m, int vr); /* MBS_V_*, -1 out of range */
 MBS_API const char *mbs_model_var_name(const MbsModel *m, int vr); /* the FMU variable's name, NULL out of range */
+/* FMI 3.0's variables: runs of rows as arrays (fmu/variables.py: fmi3_variables), every other row a scalar;
+ * mbs_model_var3: the first row of FMI 3.0 variable vr3 and its number of rows, -1 out of range */
+MBS_API int mbs_model_nvars3(const MbsModel *m);
+MBS_API int mbs_model_var3(const MbsModel *m, unsigned vr3, int *rows);
 MBS_API int mbs_model_npos(const MbsModel *m);
 MBS_API int mbs_model_nvel(const MbsModel *m);
 

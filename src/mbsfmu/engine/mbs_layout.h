@@ -21,7 +21,7 @@
 #define MBS_VALUE(...) MBS_VALUE_(__VA_ARGS__, ~)
 #define MBS_VALUE_(name, value, ...) name = (value),
 
-#define MBS_FORMAT_VERSION 3 /* version of the compiled-scene layout this engine reads (2: H_D_NOMINAL; 3: H_NCARRIER, IB_CARRIER) */
+#define MBS_FORMAT_VERSION 4 /* version of the compiled-scene layout this engine reads (2: H_D_NOMINAL; 3: H_NCARRIER, IB_CARRIER; 4: S_ARRAYS) */
 #define MBS_MAXSTACK 64
 /* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py refuses a
  * larger scene first, with its size) */
@@ -58,7 +58,8 @@
     X(S_RULE_NAMES, 2)  /* the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */ \
     X(S_LIMITS, 1)      /* LIM_N: the limits the rules use (below) */ \
     X(S_STRESS_I, 0)    /* nstress × 2: elastic data index, offset in S_STRESS_D (only with stress outputs) */ \
-    X(S_STRESS_D, 1)    /* per stress node its 6 × n stress modes, Voigt xx yy zz xy yz zx (elastic_tables.py) */
+    X(S_STRESS_D, 1)    /* per stress node its 6 × n stress modes, Voigt xx yy zz xy yz zx (elastic_tables.py) */ \
+    X(S_ARRAYS, 0)      /* narrays × 2: first S_VARS row, rows: FMI 3.0's arrays (variables.py: fmi3_variables) */
 enum { MBS_SECTIONS(MBS_CODE) S_NSECTIONS };
 
 /* header scalars (S_HEADER); H_D_*: offsets into D */

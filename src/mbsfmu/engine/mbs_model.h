@@ -67,6 +67,8 @@ struct MbsModel {
     const char *rule_names;            /* S_RULE_NAMES */
     const double *limits;              /* S_LIMITS */
     int nrules, n_rule_names;
+    int32_t *first3;                   /* FMI 3.0 variable k: rows first3[k] .. first3[k + 1] - 1 (S_ARRAYS) */
+    int nvars3;
     int dense;                         /* evaluation path (mbs_dense_path): 1 dense Jacobians (tree.c), 0 recursive (dynamics.c) */
     int stride;                        /* doubles of one body's workspace on that path */
     void *blob;                        /* owned copy of the compiled scene */

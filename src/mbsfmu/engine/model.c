@@ -197,6 +197,30 @@ static int check_tables(const MbsModel *m, char *err, size_t errlen)
     return 0;
 }
 
+/* FMI 3.0's variables (S_ARRAYS: (first row, rows) of each array, in row order; absent: none): first3[k] is
+ * the first row of FMI 3.0 variable k, first3[nvars3] = nvars. Arrays hold Float64 rows only. */
+static int fmi3_variables(MbsModel *m, const int32_t *arrays, int n, char *err, size_t errlen)
+{
+    const int nvars = m->hdr[H_NVARS];
+    if (!arrays) n = 0;
+    if (n % 2) BAD("corrupt array table");
+    if (!(m->first3 = malloc(((size_t)nvars + 1) * sizeof *m->first3))) BAD("out of memory");
+    int row = 0, k = 0;
+    for (int a = 0; a <= n / 2; a++) {
+        const int first = a < n / 2 ? arrays[2 * a] : nvars, rows = a < n / 2 ? arrays[2 * a + 1] : 0;
+        if (!in(first, row, nvars + 1) || !in(rows, a < n / 2, nvars - first + 1))
+            BAD("corrupt array table (array %d: rows %d..%d after row %d, inside the %d variables)", a, first,
+                first + rows - 1, row - 1, nvars);
+        while (row < first) m->first3[k++] = row++;  /* the scalars before it */
+        for (int r = first; r < first + rows; r++)
+            if (m->vars[2 * r] == MBS_V_METHOD) BAD("corrupt array table (array %d holds a String)", a);
+        if (rows) m->first3[k++] = first, row = first + rows;
+    }
+    m->nvars3 = k;
+    m->first3[k] = nvars;
+    return 0;
+}
+
 MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen)
 {
     MbsModel *m = calloc(1, sizeof *m);
@@ -278,6 +302,9 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
         m->coord_name[k] = names + pos;
         pos = (size_t)(end - names) + 1;
     }
+    int narrays = 0;
+    const int32_t *arrays = section(b, len, tab, nsec, S_ARRAYS, 0, -1, &narrays);
+    if (fmi3_variables(m, arrays, narrays, err, errlen)) goto fail;
 #ifdef MBS_WITH_EXPR
     if (mbs_validate_code(m, err, errlen)) goto fail;
 #else
@@ -290,6 +317,7 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     return m;
 fail:
     free((void *)m->read);
+    free(m->first3);
     free(m->coord_name);
     free(b);
     free(m);
@@ -309,6 +337,7 @@ void mbs_model_free(MbsModel *m)
 {
     if (!m) return;
     free((void *)m->read);
+    free(m->first3);
     free(m->coord_name);
     free(m->blob);
     free(m);
@@ -316,6 +345,13 @@ void mbs_model_free(MbsModel *m)
 
 const char *mbs_model_guid(const MbsModel *m) { return m->guid; }
 int mbs_model_nvars(const MbsModel *m) { return m->hdr[H_NVARS]; }
+int mbs_model_nvars3(const MbsModel *m) { return m->nvars3; }
+int mbs_model_var3(const MbsModel *m, unsigned vr3, int *rows)
+{
+    if (vr3 >= (unsigned)m->nvars3) return -1;
+    *rows = m->first3[vr3 + 1] - m->first3[vr3];
+    return m->first3[vr3];
+}
 int mbs_model_var_kind(const MbsModel *m, int vr) { return vr >= 0 && vr < m->hdr[H_NVARS] ? m->vars[2 * vr] : -1; }
 const char *mbs_model_var_name(const MbsModel *m, int vr) { return vr >= 0 && vr < m->hdr[H_NVARS] ? m->var_name[vr] : NULL; }
 

@@ -13,7 +13,7 @@ from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 from ..engine import layout as L
-from .variables import continuous_states
+from .variables import continuous_states, fmi3_variables
 
 DRAWING_FILE = "mbsfmu_drawing.json"  # in resources/: what `mbsfmu animate FMU` draws from (animation/trajectory.py)
 
@@ -273,11 +273,14 @@ FMI3_MODEL_EXCHANGE = {"needsCompletedIntegratorStep": "false", "canGetAndSetFMU
 
 
 def model_description3(spec: dict, name: str, variables, version: str, token: str) -> bytes:
-    """The complete FMI 3.0 modelDescription.xml for the same variables (variables.py; value reference =
-    index), plus the independent variable ``time`` at value reference len(variables) (engine/fmi3.c answers
-    it). ``<ModelExchange>`` when the list carries the derivative variables (``variables(spec,
-    derivatives=True)``)."""
+    """The complete FMI 3.0 modelDescription.xml for the same variables (variables.py), grouped as FMI 3.0 sees
+    them (``fmi3_variables``: arrays where they help, value reference = index), plus the independent variable
+    ``time`` after them (engine/fmi3.c answers it). ``<ModelExchange>`` when the list carries the derivative
+    variables (``variables(spec, derivatives=True)``). An array's attributes are its elements' (a nominal: the
+    smallest of theirs; the host asks fmi3GetNominalsOfContinuousStates for each state's own)."""
     states = continuous_states(variables)
+    groups = fmi3_variables(variables)
+    vr3 = {id(v): k for k, (_, vs, _) in enumerate(groups) for v in vs}  # a scalar's FMI 3.0 variable
     root = _root("3.0", spec, name, version, {"instantiationToken": token})
     if states:
         SubElement(root, "ModelExchange", {"modelIdentifier": name, **FMI3_MODEL_EXCHANGE})
@@ -287,12 +290,13 @@ def model_description3(spec: dict, name: str, variables, version: str, token: st
     _default_experiment(root, spec)
 
     mv = SubElement(root, "ModelVariables")
-    SubElement(mv, "Float64", {"name": "time", "valueReference": str(len(variables)), "causality": "independent",
+    SubElement(mv, "Float64", {"name": "time", "valueReference": str(len(groups)), "causality": "independent",
                                "variability": "continuous", "unit": "s", "description": "simulation time"})
-    for i, v in enumerate(variables):
-        attr = {"name": v.name, "valueReference": str(i)}
-        if getattr(v, "description", None):
-            attr["description"] = str(v.description)
+    for k, (vname, vs, description) in enumerate(groups):
+        v, array = vs[0], vname != vs[0].name
+        attr = {"name": vname, "valueReference": str(k)}
+        if description:
+            attr["description"] = str(description)
         attr.update(causality=v.causality, variability=_variability(v))
         if _initial(v):
             attr["initial"] = _initial(v)
@@ -302,20 +306,32 @@ def model_description3(spec: dict, name: str, variables, version: str, token: st
         if v.unit:
             attr["unit"] = v.unit
         if v.causality in ("parameter", "input"):
-            attr["start"] = _fmt(0.0 if v.start is None else v.start)
+            attr["start"] = " ".join(_fmt(0.0 if e.start is None else e.start) for e in vs)
         if v.nominal is not None:
-            attr["nominal"] = _fmt(v.nominal)
+            attr["nominal"] = _fmt(min(e.nominal for e in vs))
         if v.derivative_of is not None:
-            attr["derivative"] = str(v.derivative_of.vr)
-        SubElement(mv, "Float64", attr)
+            attr["derivative"] = str(vr3[id(v.derivative_of)])
+        node = SubElement(mv, "Float64", attr)
+        if array:
+            SubElement(node, "Dimension", {"start": str(len(vs))})
+
+    def ref(vs):  # the FMI 3.0 variables of these scalars, each once, in order
+        return " ".join(str(k) for k in sorted({vr3[id(v)] for v in vs}))
 
     ms = SubElement(root, "ModelStructure")
-    outputs = [v for v in variables if v.causality == "output"]
-    for v in outputs:
-        deps = _output_dependencies(v, states)
-        SubElement(ms, "Output", {"valueReference": str(v.vr), "dependencies": " ".join(str(d.vr) for d in deps)})
-    for _, der in states:
-        SubElement(ms, "ContinuousStateDerivative", {"valueReference": str(der.vr), **_derivative_dependencies(der, 0)})
-    for v in outputs + [der for _, der in states]:  # no dependencies attribute: on every known
-        SubElement(ms, "InitialUnknown", {"valueReference": str(v.vr)})
+    outputs = [vs for _, vs, _ in groups if vs[0].causality == "output"]
+    for vs in outputs:
+        deps = [d for v in vs for d in _output_dependencies(v, states)]
+        SubElement(ms, "Output", {"valueReference": str(vr3[id(vs[0])]), "dependencies": ref(deps)})
+    ders = [vs for _, vs, _ in groups if vs[0].derivative_of is not None]
+    for vs in ders:
+        attr = {}
+        if all(v.depends_on is not None for v in vs):  # else on every state and input: no attribute
+            on = sorted({vr3[id(d)] for v in vs for d in v.depends_on[1]})
+            kinds = {v.depends_on[0] for v in vs}
+            attr = {"dependencies": " ".join(map(str, on)),
+                    "dependenciesKind": " ".join([kinds.pop() if len(kinds) == 1 else "dependent"] * len(on))}
+        SubElement(ms, "ContinuousStateDerivative", {"valueReference": str(vr3[id(vs[0])]), **attr})
+    for vs in outputs + ders:  # no dependencies attribute: on every known
+        SubElement(ms, "InitialUnknown", {"valueReference": str(vr3[id(vs[0])])})
     return _xml(root)

@@ -9,6 +9,10 @@ Model exchange (the native kind) adds one derivative variable per continuous sta
 (``variables(spec, derivatives=True)``); ``continuous_states`` pairs them up for any FMI version's writer.
 Every y.* and yd.* (the continuous states) carries its ``nominal`` (``state_nominals``): a host's absolute
 tolerance is rtol × nominal, so each is the size the state physically has in this scene.
+
+FMI 3.0 groups runs of these scalars into arrays (``fmi3_variables``): a force input's three components, an
+output point's position and its velocity, an elastic body's modal coordinates (y, ẏ, their generalized forces and
+derivatives). Each Variable names the array it belongs to (``array``), so the grouping is written here once.
 """
 
 import numpy as np
@@ -32,7 +36,7 @@ class Variable:
     the engine's variable-table row (``kind``, ``index``)."""
 
     __slots__ = ("name", "causality", "variability", "type", "unit", "description", "start", "vr", "kind", "index",
-                 "derivative_of", "depends_on", "nominal")
+                 "derivative_of", "depends_on", "nominal", "array")
 
     def __init__(self, name, causality, variability, type="Real", unit=None, description="", start=0.0,
                  kind=None, index=0, derivative_of=None):
@@ -42,6 +46,7 @@ class Variable:
         self.derivative_of = derivative_of  # the state Variable this is the time derivative of (model exchange)
         self.depends_on = None  # a derivative's states (kind "constant": ẏ_pos = ẏ) or None: every state and input
         self.nominal = None  # a continuous state's (y.*, yd.*) nominal value: state_nominals
+        self.array = None  # (name, description) of the FMI 3.0 array it is an element of (fmi3_variables), or None
 
     def __repr__(self):
         return f"Variable({self.name!r}, {self.causality}, {self.unit})"
@@ -80,37 +85,54 @@ def _settings(integrator):
     return out
 
 
+def _modal(model):
+    """{elastic coordinate: its body's array of modal coordinates (``<body>.q``)}"""
+    return {c: f"{b.name}.q" for b in model.bodies if b.elastic for c in b.elastic["coordinates"]}
+
+
+def _in_array(v, name, description=None):
+    v.array = (name, description) if name else None
+    return v
+
+
 def _inputs(spec, model):
     _, units_vel = model.coordinate_units()
-    out = [Variable(f"q.{c}", "input", "continuous", unit=INPUT_UNITS.get(u, "1"),
-                    description=f"generalized force on velocity coordinate {c}", kind=L.MBS_V_QIN, index=i)
+    modal = _modal(model)
+    out = [_in_array(Variable(f"q.{c}", "input", "continuous", unit=INPUT_UNITS.get(u, "1"),
+                              description=f"generalized force on velocity coordinate {c}", kind=L.MBS_V_QIN, index=i),
+                     f"q.{modal[c]}" if c in modal else None, f"generalized forces on the modal coordinates of {c.split('.')[0]}")
            for i, (c, u) in enumerate(zip(model.velocity_coordinates, units_vel))]
     inputs = [f for f in spec["forces"] if "input" in f]  # the engine's force inputs, in scene order
     for i, f in enumerate(inputs):
         unit = "N" if f["type"] == "force" else "N.m"
-        out += [Variable(f"{f['input']}.{ax}", "input", "continuous", unit=unit,
-                         description=f"{f['type']} on {f['body']}, {f['frame']} frame, {ax} component",
-                         kind=L.MBS_V_FIN, index=3 * i + k)
+        out += [_in_array(Variable(f"{f['input']}.{ax}", "input", "continuous", unit=unit,
+                                   description=f"{f['type']} on {f['body']}, {f['frame']} frame, {ax} component",
+                                   kind=L.MBS_V_FIN, index=3 * i + k), f["input"],
+                          f"{f['type']} on {f['body']}, {f['frame']} frame")
                 for k, ax in enumerate("xyz")]
     return out
 
 
 def _outputs(spec, model):
     units_pos, units_vel = model.coordinate_units()
-    out = [Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}",
-                    kind=L.MBS_V_Y, index=i)
+    modal = _modal(model)
+    out = [_in_array(Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}",
+                              kind=L.MBS_V_Y, index=i), f"y.{modal[c]}" if c in modal else None,
+                    f"modal coordinates of {c.split('.')[0]}")
            for i, (c, u) in enumerate(zip(model.coordinates, units_pos))]
-    out += [Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}",
-                     kind=L.MBS_V_YD, index=i)
+    out += [_in_array(Variable(f"yd.{c}", "output", "continuous", unit=u, description=f"velocity coordinate {c}",
+                               kind=L.MBS_V_YD, index=i), f"yd.{modal[c]}" if c in modal else None,
+                     f"modal velocities of {c.split('.')[0]}")
             for i, (c, u) in enumerate(zip(model.velocity_coordinates, units_vel))]
     for v, nominal in zip(out, np.concatenate(state_nominals(model))):
         v.nominal = float(nominal)
     for i, o in enumerate(spec["outputs"]):  # each output point: 6 engine values, r then v
         for s, (qty, sym, unit) in enumerate((("position", "r", "m"), ("velocity", "v", "m/s"))):
             if qty in o["quantities"]:
-                out += [Variable(f"{o['name']}.{sym}.{ax}", "output", "continuous", unit=unit,
-                                 description=f"world-frame {qty} of a point on {o['body']}, {ax} component",
-                                 kind=L.MBS_V_OUT, index=6 * i + 3 * s + k)
+                out += [_in_array(Variable(f"{o['name']}.{sym}.{ax}", "output", "continuous", unit=unit,
+                                           description=f"world-frame {qty} of a point on {o['body']}, {ax} component",
+                                           kind=L.MBS_V_OUT, index=6 * i + 3 * s + k), f"{o['name']}.{sym}",
+                                 f"world-frame {qty} of a point on {o['body']}")
                         for k, ax in enumerate("xyz")]
     out += [Variable(f"vm.{body}.{node}", "output", "continuous", unit="Pa",
                      description=f"von Mises stress at FE node {node} of {body}", kind=L.MBS_V_VM, index=k)
@@ -174,9 +196,10 @@ def _derivatives(out, model):
     the derivative keeps |p| = 1 only as well as the host integrates it; docs/fmu.md, "Model exchange")."""
     y = [v for v in out if v.kind == L.MBS_V_Y]
     yd = [v for v in out if v.kind == L.MBS_V_YD]
-    der = [Variable(f"der({v.name})", "local", "continuous", unit=_per_second(v.unit),
-                    description=f"time derivative of {v.name}", start=None, kind=L.MBS_V_DER, index=i,
-                    derivative_of=v)
+    der = [_in_array(Variable(f"der({v.name})", "local", "continuous", unit=_per_second(v.unit),
+                              description=f"time derivative of {v.name}", start=None, kind=L.MBS_V_DER, index=i,
+                              derivative_of=v), v.array and f"der({v.array[0]})",
+                    v.array and f"time derivative of {v.array[0]}")
            for i, v in enumerate(y + yd)]
     for i, j in zip(model.plain_pos, model.plain_vel):  # ẏ_pos = ẏ (the engine's plain coordinates)
         der[i].depends_on = ("constant", [yd[j]])
@@ -184,3 +207,18 @@ def _derivatives(out, model):
         for i in p:
             der[i].depends_on = ("dependent", [y[k] for k in p if k != i] + [yd[k] for k in w])
     return der
+
+
+def fmi3_variables(variables):
+    """The FMI 3.0 variables: (name, [Variable, ...], description) in value-reference order, runs of consecutive
+    variables of one ``array`` as one array variable (shape: its length), every other variable a scalar as in FMI
+    2.0 (so are the elements of an array whose name another variable has). FMI 3.0 value reference = index."""
+    taken = {v.name for v in variables}
+    out = []
+    for v in variables:
+        array = v.array if v.array and v.array[0] not in taken else None
+        if array and out and out[-1][0] == array[0] and out[-1][1][-1].vr == v.vr - 1:
+            out[-1][1].append(v)
+        else:
+            out.append((array[0], [v], array[1]) if array else (v.name, [v], v.description))
+    return out
