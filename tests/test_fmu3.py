@@ -29,6 +29,7 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 import mbsfmu  # noqa: E402
 from mbsfmu.fmu import native  # noqa: E402
+from mbsfmu.fmu.variables import fmi3_variables, variables  # noqa: E402
 from mbsfmu.simulation import Simulation  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -59,8 +60,23 @@ def _outputs(fmu):
     return md, [v for v in md.modelVariables if v.causality == "output"]
 
 
+def _elements(model):
+    """{FMI 3.0 variable name: the FMI 2.0 scalars it holds} (fmu/variables.py: fmi3_variables)"""
+    return {name: [v.name for v in vs] for name, vs, _ in fmi3_variables(variables(SCENES[model].spec, derivatives=True))}
+
+
+def _size(v):
+    return int(np.prod(v.shape)) if v.shape else 1
+
+
+def _columns(result, names):
+    """The columns of fmpy's result for these variables, arrays flat (their elements in order)."""
+    return np.hstack([np.asarray(result[n]).reshape(len(result), -1) for n in names])
+
+
 # ---- what the archive holds -------------------------------------------------------------------------------
 def test_every_model_validates_with_both_interfaces(built):
+    shapes = set()
     for m in MODELS:
         fmu3 = built[m][0]
         assert validate_fmu(str(fmu3)) == [], m
@@ -75,18 +91,29 @@ def test_every_model_validates_with_both_interfaces(built):
         assert listed == {n[8:] for n in names if n.startswith("sources/") and n.endswith(".c")}, m
         assert "fmi3.c" in listed and "fmi2.c" not in listed, m
         assert (m in ELASTIC) == ("elastic.c" in listed), m  # the layer's closure (engine.build.linked_sources)
-        # one table of variables: the FMI 2 FMU's variables are the FMI 3 FMU's (same vr, unit, causality, start)
-        md2 = read_model_description(str(built[m][1]))
-        v3 = {v.valueReference: v for v in md.modelVariables if v.name != "time"}
-        for v in md2.modelVariables:
-            w = v3[v.valueReference]
-            assert (w.name, w.causality, w.variability, w.unit, w.start, w.nominal) == \
-                   (v.name, v.causality, v.variability, v.unit, v.start, v.nominal), (m, v.name)
+        # one table of variables: the FMI 2 FMU's scalars, runs of them as FMI 3 arrays (fmi3_variables): a force
+        # input's components, a point's r and v, an elastic body's modal coordinates; the same causality,
+        # variability, unit and starts, an array's nominal its elements' smallest
+        md2 = {v.name: v for v in read_model_description(str(built[m][1])).modelVariables}
+        v3 = [v for v in md.modelVariables if v.name != "time"]
+        groups = _elements(m)
+        assert [(v.name, v.valueReference) for v in v3] == [(n, k) for k, n in enumerate(groups)], m
+        for w in v3:
+            els = [md2[e] for e in groups[w.name]]
+            assert w.shape == (() if [w.name] == groups[w.name] else (len(els),)), (m, w.name)
+            assert {(e.causality, e.variability, e.unit) for e in els} == {(w.causality, w.variability, w.unit)}, w.name
+            starts = [e.start for e in els]  # an output has none
+            assert (w.start.split() if w.start is not None and w.type != "String" else [w.start] * len(els)) == \
+                   starts, (m, w.name)
+            nominals = [float(e.nominal) for e in els if e.nominal is not None]
+            assert (float(w.nominal) if w.nominal is not None else None) == (min(nominals) if nominals else None)
+        shapes |= {w.shape for w in v3}
         (time,) = [v for v in md.modelVariables if v.causality == "independent"]
         assert time.valueReference == len(md.modelVariables) - 1 and time.unit == "s"
         der = [v for v in md.modelVariables if v.derivative is not None]
         assert [d.derivative.name for d in der] == [v.name for v in md.modelVariables
                                                     if v.name.startswith(("y.", "yd."))], m
+    assert {(2,), (3,), (4,)} <= shapes  # arrays of modal coordinates and 3-vectors among the shipped models
 
 
 # ---- co-simulation: the FMI 2 FMU's numbers ---------------------------------------------------------------
@@ -94,14 +121,16 @@ def test_every_model_validates_with_both_interfaces(built):
 def test_cosimulation_equals_the_fmi2_fmu(built, model):
     fmu3, fmu2 = built[model]
     _, outs = _outputs(fmu3)
-    kw = dict(stop_time=0.3, output_interval=0.01, output=[v.name for v in outs])
-    r3 = simulate_fmu(str(fmu3), fmi_type="CoSimulation", **kw)
-    r2 = simulate_fmu(str(fmu2), fmi_type="CoSimulation", **kw)
+    elements = _elements(model)
+    kw = dict(stop_time=0.3, output_interval=0.01)
+    r3 = simulate_fmu(str(fmu3), fmi_type="CoSimulation", output=[v.name for v in outs], **kw)
+    r2 = simulate_fmu(str(fmu2), fmi_type="CoSimulation", output=[e for v in outs for e in elements[v.name]], **kw)
     assert len(r3) == len(r2) == 31
     for v in outs:
-        scale = max(1.0, np.abs(r2[v.name]).max())
-        np.testing.assert_allclose(r3[v.name], r2[v.name], rtol=0, atol=1e-12 * scale, err_msg=f"{model} {v.name}")
-    assert max(np.ptp(r3[v.name]) for v in outs) > 1e-4, model  # it moved
+        got, want = _columns(r3, [v.name]), _columns(r2, elements[v.name])
+        scale = max(1.0, np.abs(want).max())
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * scale, err_msg=f"{model} {v.name}")
+    assert np.ptp(_columns(r3, [v.name for v in outs]), axis=0).max() > 1e-4, model  # it moved
 
 
 # ---- model exchange: fmpy's CVode against the in-process engine -------------------------------------------
@@ -127,12 +156,13 @@ def test_model_exchange_under_cvode_matches_simulate(built, model):
                      output_interval=h, output=states)
     t, Y, YD = mbsfmu.simulate(SCENES[model], stop=stop, step=h, method="dop853", rtol=1e-13, atol=1e-16)
     ref = np.hstack([Y, YD])
-    got = np.column_stack([r[n] for n in states])
+    got = _columns(r, states)
     assert got.shape == ref.shape and np.allclose(r["time"], t, rtol=0, atol=1e-12)
     scale = _scale(ref)
     err = np.abs(got - ref).max(axis=0)
     zero = scale == 0  # identically zero in the reference (an unexcited mode): zero here too, to 1e-9
-    worst = dict(zip(np.array(states)[~zero], err[~zero] / scale[~zero]))
+    names = np.array([e for n in states for e in _elements(model)[n]])
+    worst = dict(zip(names[~zero], err[~zero] / scale[~zero]))
     assert (err[~zero] <= 1e-6 * scale[~zero]).all(), (model, worst)
     assert (err[zero] <= 1e-9).all(), model
 
@@ -159,6 +189,7 @@ def test_derivatives_are_the_engines_right_hand_side(built):
         vr = {v.name: v.valueReference for v in md.modelVariables}
         sim = Simulation(json.loads(json.dumps(SCENES[m].spec)))
         inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+        scalars = [e for i in inputs for e in _elements(m)[i]]  # the inputs' values, arrays flat
         me.instantiate()
         me.enterInitializationMode()
         me.exitInitializationMode()
@@ -168,32 +199,34 @@ def test_derivatives_are_the_engines_right_hand_side(built):
         for k in range(3):
             t = 0.1 + 0.37 * k
             x = np.array(sim.x) + (0.1 * rng.standard_normal(n) if k else 0.0)
-            u = rng.standard_normal(len(inputs))
+            u = rng.standard_normal(len(scalars))
             me.setFloat64([vr[i] for i in inputs], list(u))
             me.setTime(t)
             me.setContinuousStates(_ptr(x), n)
             dx = np.zeros(n)
             me.getContinuousStateDerivatives(_ptr(dx), n)
-            for name, val in zip(inputs, u):
+            for name, val in zip(scalars, u):
                 sim.set(name, float(val))
             ref = np.array(sim.f(t, x))
             assert dx.tolist() == ref.tolist(), m
-            ders = [v.valueReference for v in md.modelVariables if v.derivative is not None]
-            assert me.getFloat64(ders) == ref.tolist(), m
-        nominals = np.zeros(n)  # what a host's error weights take: the states' declared nominals
+            ders = [v for v in md.modelVariables if v.derivative is not None]
+            assert me.getFloat64([v.valueReference for v in ders], sum(map(_size, ders))) == ref.tolist(), m
+        nominals = np.zeros(n)  # what a host's error weights take: the states' nominals, of arrays the smallest
         me.getNominalsOfContinuousStates(_ptr(nominals), n)
-        assert nominals.tolist() == [float(v.derivative.nominal) for v in md.modelVariables if v.derivative], m
+        declared = [float(v.derivative.nominal) for v in md.modelVariables if v.derivative for _ in range(_size(v))]
+        assert nominals.tolist() == [v.nominal for v in variables(SCENES[m].spec) if v.nominal is not None], m
+        assert all(a >= b for a, b in zip(nominals, declared)), m
         me.terminate()
         me.freeInstance()
 
 
 # ---- FMU state: get/set/serialize, bit for bit ------------------------------------------------------------
-def _cs_run(s, outs, t, n, h=0.01):
+def _cs_run(s, outs, t, n, h=0.01, nvalues=None):
     rows = []
     for _ in range(n):
         s.doStep(t, h)
         t += h
-        rows.append(s.getFloat64(outs))
+        rows.append(s.getFloat64(outs, nvalues))
     return t, rows
 
 
@@ -201,23 +234,26 @@ def _cs_run(s, outs, t, n, h=0.01):
 def test_state_round_trip_is_bit_identical_and_fmi2_reads_the_bytes(built, model):
     fmu3, fmu2 = built[model]
     s, md = _fmu3(fmu3, FMU3Slave, "a")
-    outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    outputs = [v for v in md.modelVariables if v.causality == "output"]
+    outs, nvalues = [v.valueReference for v in outputs], sum(map(_size, outputs))
     s.instantiate()
     s.enterInitializationMode()
     s.exitInitializationMode()
-    t, _ = _cs_run(s, outs, 0.0, 7)
+    t, _ = _cs_run(s, outs, 0.0, 7, nvalues=nvalues)
     state = s.getFMUState()
     data = s.serializeFMUState(state)
     s.freeFMUState(state)
-    _, first = _cs_run(s, outs, t, 20)
+    _, first = _cs_run(s, outs, t, 20, nvalues=nvalues)
     restored = s.deserializeFMUState(data)
     s.setFMUState(restored)
-    _, again = _cs_run(s, outs, t, 20)
+    _, again = _cs_run(s, outs, t, 20, nvalues=nvalues)
     assert again == first  # bit for bit
     assert bytes(s.serializeFMUState(s.getFMUState())) != bytes(data)  # it did move on
     s.freeInstance()
     # the same byte layout as FMI 2: the FMI 2 FMU of the scene continues from the FMI 3 FMU's bytes
     md2 = read_model_description(str(fmu2))
+    vr2 = {v.name: v.valueReference for v in md2.modelVariables}
+    outs = [vr2[e] for v in outputs for e in _elements(model)[v.name]]
     s2 = FMU2Slave(guid=md2.guid, unzipDirectory=extract(str(fmu2)), modelIdentifier=md2.coSimulation.modelIdentifier,
                    instanceName="b")
     s2.instantiate()
