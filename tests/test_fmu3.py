@@ -546,9 +546,9 @@ def test_plain_c_host_cs_and_me_without_python(built, host, tmp_path):
         d = tmp_path / m
         zipfile.ZipFile(fmu).extractall(d)
         md = read_model_description(str(fmu))
-        outs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+        outs = [f"{v.valueReference}:{_size(v)}" for v in md.modelVariables if v.causality == "output"]
         lib = d / "binaries" / "x86_64-linux" / f"{md.coSimulation.modelIdentifier}.so"
-        base = [str(host), str(lib), str(d / "resources") + "/", md.guid, "-o", ",".join(map(str, outs)),
+        base = [str(host), str(lib), str(d / "resources") + "/", md.guid, "-o", ",".join(outs),
                 "-n", str(n), "-h", str(h), "-m"]
         runs[m] = (base, base + ["-E"])
     chunks = run_without_python({(m, k): args for m, both in runs.items() for k, args in zip(("cs", "me"), both)},
@@ -560,7 +560,7 @@ def test_plain_c_host_cs_and_me_without_python(built, host, tmp_path):
         md = read_model_description(str(fmu))
         names = [v.name for v in md.modelVariables if v.causality == "output"]
         ref = simulate_fmu(str(fmu), fmi_type="CoSimulation", stop_time=n * h, output_interval=h, output=names)
-        assert cs.tolist() == np.column_stack([ref["time"]] + [ref[k] for k in names]).tolist(), m
+        assert cs.tolist() == np.column_stack([ref["time"], _columns(ref, names)]).tolist(), m
         # model exchange: x += h·f(t, x) in numpy over the engine in-process, y.* and yd.* compared
         sim = Simulation(json.loads(json.dumps(SCENES[m].spec)))
         sim.initialize(0.0)
@@ -569,7 +569,8 @@ def test_plain_c_host_cs_and_me_without_python(built, host, tmp_path):
         for k in range(n):
             x = x + h * np.array(sim.f(k * h, x))
             euler.append(x.copy())
-        cols = [names.index(v.derivative.name) + 1 for v in md.modelVariables if v.derivative is not None]
+        flat = [e for k in names for e in _elements(m)[k]]  # the printed columns after t
+        cols = [flat.index(e) + 1 for v in md.modelVariables if v.derivative is not None for e in _elements(m)[v.derivative.name]]
         np.testing.assert_allclose(me[:, cols], np.array(euler), rtol=0, atol=1e-12, err_msg=m)
 
 
@@ -584,7 +585,7 @@ def test_sources_rebuild_the_fmi3_library(built, host, tmp_path):
     cmd = next(ln.strip() for ln in readme.splitlines() if ln.strip().startswith("cc "))
     subprocess.run(cmd, shell=True, cwd=d / "sources", check=True, capture_output=True)
     rebuilt = d / "sources" / f"{md.coSimulation.modelIdentifier}.so"
-    outs = ",".join(str(v.valueReference) for v in md.modelVariables if v.causality == "output")
+    outs = ",".join(f"{v.valueReference}:{_size(v)}" for v in md.modelVariables if v.causality == "output")
     runs = [subprocess.run([str(host), str(lib), str(d / "resources") + "/", md.guid, "-o", outs, "-n", "20"],
                            capture_output=True, text=True, timeout=60).stdout
             for lib in (rebuilt, d / "binaries" / "x86_64-linux" / rebuilt.name)]

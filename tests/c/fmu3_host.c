@@ -1,9 +1,10 @@
 /* A plain FMI 3.0 importer in C: dlopen an FMU binary, run it as co-simulation or model exchange, print outputs.
  *
- *   fmu3_host LIB RESOURCE_PATH TOKEN [-n steps] [-h step] [-o vr,vr,...] [-E] [-m]
+ *   fmu3_host LIB RESOURCE_PATH TOKEN [-n steps] [-h step] [-o vr[:values],vr,...] [-E] [-m]
  *
  * co-simulation (default): fmi3DoStep n times; -E: model exchange, n explicit Euler steps x += h·ẋ over
  * fmi3GetContinuousStateDerivatives (fmi3SetTime, fmi3SetContinuousStates, fmi3CompletedIntegratorStep).
+ * -o: the outputs to print, each with the number of values it holds (an array's elements; default 1).
  * Prints "OUT t v1 v2 ..." (%.17g) at t0 and after every step, "DONE" at the end; -m first prints
  * "LIBPYTHON yes|no": whether any libpython is mapped into this process (/proc/self/maps).
  * Exit codes: 0 ok, 2 usage/dlopen, 3 instantiate, 4 a call failed (its status is printed).
@@ -56,14 +57,14 @@ static int libpython_mapped(void) {
 int main(int argc, char **argv) {
     vr_t out[MAXV];
     double y[MAXV], h = 0.01, t = 0.0, *x = NULL, *dx = NULL;
-    int nout = 0, n = 10, me = 0, maps = 0, i, k, st;
+    int nout = 0, nvalues = 0, n = 10, me = 0, maps = 0, i, k, st;
     size_t nx = 0;
     void *so, *c;
     int (*enter)(void *, int, double, double, int, double), (*exit_init)(void *), (*terminate)(void *);
     int (*get)(void *, const vr_t *, size_t, double *, size_t);
     void (*free_instance)(void *);
     if (argc < 4) {
-        fprintf(stderr, "usage: %s LIB RESOURCE_PATH TOKEN [-n steps] [-h step] [-o vr,...] [-E] [-m]\n", argv[0]);
+        fprintf(stderr, "usage: %s LIB RESOURCE_PATH TOKEN [-n steps] [-h step] [-o vr[:values],...] [-E] [-m]\n", argv[0]);
         return 2;
     }
     for (i = 4; i < argc; i++) {
@@ -71,8 +72,11 @@ int main(int argc, char **argv) {
         if (!strcmp(a, "-n")) n = atoi(v), i++;
         else if (!strcmp(a, "-h")) h = atof(v), i++;
         else if (!strcmp(a, "-o")) {
-            for (char *p = (char *)v; *p && nout < MAXV; p += strspn(p, ","))
+            for (char *p = (char *)v; *p && nout < MAXV; p += strspn(p, ",")) {
                 out[nout++] = (vr_t)strtoul(p, &p, 10);
+                nvalues += *p == ':' ? (int)strtoul(p + 1, &p, 10) : 1;
+            }
+            if (nvalues > MAXV) { fprintf(stderr, "more than %d values\n", MAXV); return 2; }
             i++;
         } else if (!strcmp(a, "-E")) me = 1;
         else if (!strcmp(a, "-m")) maps = 1;
@@ -131,10 +135,10 @@ int main(int argc, char **argv) {
                                                                                                      &term)))
                 return fail("model exchange step", st);
         }
-        if (nout && (st = get(c, out, (size_t)nout, y, (size_t)nout)))
+        if (nout && (st = get(c, out, (size_t)nout, y, (size_t)nvalues)))
             return fail("fmi3GetFloat64", st);
         printf("OUT %.17g", t);
-        for (i = 0; i < nout; i++) printf(" %.17g", y[i]);
+        for (i = 0; i < nvalues; i++) printf(" %.17g", y[i]);
         printf("\n");
     }
     if ((st = terminate(c)))
