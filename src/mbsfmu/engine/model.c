@@ -209,8 +209,8 @@ static int fmi3_variables(MbsModel *m, const int32_t *arrays, int n, char *err, 
     for (int a = 0; a <= n / 2; a++) {
         const int first = a < n / 2 ? arrays[2 * a] : nvars, rows = a < n / 2 ? arrays[2 * a + 1] : 0;
         if (!in(first, row, nvars + 1) || !in(rows, a < n / 2, nvars - first + 1))
-            BAD("corrupt array table (array %d: rows %d..%d after row %d, inside the %d variables)", a, first,
-                first + rows - 1, row - 1, nvars);
+            BAD("corrupt array table (array %d: %d rows from row %d, after row %d and inside the %d variables)", a,
+                rows, first, row - 1, nvars);
         while (row < first) m->first3[k++] = row++;  /* the scalars before it */
         for (int r = first; r < first + rows; r++)
             if (m->vars[2 * r] == MBS_V_METHOD) BAD("corrupt array table (array %d holds a String)", a);
