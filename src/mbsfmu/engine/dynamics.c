@@ -141,6 +141,22 @@ void mbs_composites(const MbsModel *m, const real *D, real *work)
         if (bi->carrier != i && bi->parent >= 0)  /* welded to a body (one welded to the world is carried by none) */
             weld(mbs_body_row(m, D, i), work + (size_t)i * m->stride, work + (size_t)bi->parent * m->stride);
     }
+    /* parents first: the joint frame in the parent's carrier's frame, R0c = R0c_p R0, atc = atc_p + R0c_p at, where
+     * the parent is welded (a fixed joint: its body frame is its joint frame) */
+    for (int i = 0; i < NB(m); i++) {
+        const MbsBodyD *bd = mbs_body_row(m, D, i);
+        const int p = mbs_body_i(m, i)->parent;
+        real *wk = work + (size_t)i * m->stride, *R0c = wk + AB_R0C, *atc = wk + AB_ATC;
+        if (p >= 0 && mbs_welded(m, p)) {
+            const real *wp = work + (size_t)p * m->stride;
+            mm(wp + AB_R0C, bd->R0, R0c);
+            mv(wp + AB_R0C, bd->at, atc);
+            for (int r = 0; r < 3; r++) atc[r] += wp[AB_ATC + r];
+        } else {
+            memcpy(R0c, bd->R0, 9 * sizeof(real));
+            memcpy(atc, bd->at, 3 * sizeof(real));
+        }
+    }
 }
 
 /* Per carrier: I into AB_IA, P into AB_P, gravity's I (0, g) into AB_F (the force elements add to it). */

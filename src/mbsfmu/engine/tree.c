@@ -150,7 +150,13 @@ static void attachment(const MbsEval *e, int i, real *S_J, real *rho, const real
         *hi = 0;
         return;
     }
-    const real *pw = body_work(e, par);
+    const real *pw = body_work(e, par), *R0 = bd->R0, *at = bd->at;
+    if (!m->dense) {  /* a welded parent's frame is its carrier's (mbs_welded) */
+        const real *wk = body_work(e, i);
+        R0 = wk + AB_R0C;
+        at = wk + AB_ATC;
+        if (mbs_welded(m, par)) pw = body_work(e, mbs_body_i(m, par)->carrier);
+    }
     *lo = col_lo(pw);
     *hi = col_hi(pw);
 #ifdef MBS_WITH_ELASTIC
@@ -170,8 +176,8 @@ static void attachment(const MbsEval *e, int i, real *S_J, real *rho, const real
     const real *S_p = pw + W_S;
     *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
     if (m->dense) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(real));
-    mm(S_p, bd->R0, S_J);
-    mv(S_p, bd->at, rho);
+    mm(S_p, R0, S_J);
+    mv(S_p, at, rho);
 }
 
 /* The free columns of body i's joint as spatial motions at its origin (dynamics.c): (h_R, h_T), world axes. */
@@ -195,6 +201,7 @@ void mbs_kinematics(const MbsEval *e)
     const int f = NVEL(m);
     const real *y = e->x, *yd = e->x + NPOS(m);
     for (int i = 0; i < NB(m); i++) {
+        if (mbs_welded(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
         const MbsBodyD *bd = mbs_body_d(e, i);
         real *wk = body_work(e, i);
@@ -280,6 +287,17 @@ void mbs_kinematics(const MbsEval *e)
     }
 }
 
+/* x = S_i x_b: a vector in body i's axes in world axes */
+static void body_axes(const MbsEval *e, int i, const real *x_b, real *x)
+{
+    if (mbs_welded(e->m, i)) {
+        real x_c[3];
+        mv(body_work(e, i) + AB_R0C, x_b, x_c);
+        mv(body_work(e, mbs_body_i(e->m, i)->carrier) + W_S, x_c, x);
+    } else
+        mv(body_work(e, i) + W_S, x_b, x);
+}
+
 /* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only; dense path) of a point fixed on
  * body i (r_b in the body frame); i < 0: a point of the world. */
 void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real *J)
@@ -289,6 +307,14 @@ void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real 
         memcpy(x, r_b, 3 * sizeof(real));
         memset(v, 0, 3 * sizeof(real));
         return;
+    }
+    real r_c[3];
+    if (mbs_welded(e->m, i)) {  /* the point on the carrier */
+        const real *wk = body_work(e, i);
+        mv(wk + AB_R0C, r_b, r_c);
+        for (int k = 0; k < 3; k++) r_c[k] += wk[AB_ATC + k];
+        r_b = r_c;
+        i = mbs_body_i(e->m, i)->carrier;
     }
     const real *wk = body_work(e, i), *J_R = wk + W_J, *J_T = J_R + 3 * f;
     real r[3], wxr[3];
@@ -436,7 +462,7 @@ void mbs_applied_forces(const MbsEval *e)
             const real *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd->vec;
             real vec[3], xp[3], vp[3];
             if (src[0] == 0.0 && src[1] == 0.0 && src[2] == 0.0) break;
-            if (fi->frame) mv(wk + W_S, src, vec);
+            if (fi->frame) body_axes(e, i, src, vec);
             else memcpy(vec, src, sizeof vec);
             if (fi->type == FE_TORQUE) {
 #ifdef MBS_WITH_ELASTIC
