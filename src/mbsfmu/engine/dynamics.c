@@ -251,17 +251,14 @@ static void forces(const MbsEval *e)
     mbs_applied_forces(e);
 }
 
-/* A⁻¹ of a 3 × 3 matrix (adjugate over the determinant) */
+/* A⁻¹ of a 3 × 3 matrix: its adjugate (the cofactors, transposed) over the determinant */
 static void inverse3(const real *A, real *Ai)
 {
-    real c[9];
-    for (int r = 0; r < 3; r++)
-        for (int k = 0; k < 3; k++) {  /* cofactor of A[k][r], into Ai's row r */
-            const int r1 = (k + 1) % 3, r2 = (k + 2) % 3, c1 = (r + 1) % 3, c2 = (r + 2) % 3;
-            c[3 * r + k] = A[3 * r1 + c1] * A[3 * r2 + c2] - A[3 * r1 + c2] * A[3 * r2 + c1];
-        }
-    const real det = A[0] * c[0] + A[1] * c[3] + A[2] * c[6];
-    for (int k = 0; k < 9; k++) Ai[k] = c[k] / det;
+    const real c[9] = {A[4] * A[8] - A[5] * A[7], A[2] * A[7] - A[1] * A[8], A[1] * A[5] - A[2] * A[4],
+                       A[5] * A[6] - A[3] * A[8], A[0] * A[8] - A[2] * A[6], A[2] * A[3] - A[0] * A[5],
+                       A[3] * A[7] - A[4] * A[6], A[1] * A[6] - A[0] * A[7], A[0] * A[4] - A[1] * A[3]};
+    const real det = A[0] * c[0] + A[1] * c[3] + A[2] * c[6], inv = 1.0 / det;
+    for (int k = 0; k < 9; k++) Ai[k] = c[k] * inv;
 }
 
 /* A free joint's 6 free coordinates (translation, then rotation) span every motion: S = [0 A; B 0] (ω = A ẏ_rot,
