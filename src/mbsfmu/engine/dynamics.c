@@ -6,7 +6,8 @@
  * (a fixed joint) moves with it, so its mass, centre of mass and inertia join its carrier's, as Pinocchio merges a
  * URDF's fixed links. mbs_composites derives these merged inertias at bind time, leaves first, into the
  * per-instance workspace (they may depend on parameters); forces on a welded body act on its carrier. The
- * kinematics, outputs and force points keep every body.
+ * kinematics skip the welded bodies too (mbs_welded): output and force points on them are found through their
+ * carrier's frame and a constant offset.
  *
  * Spatial vectors in world axes about each body's origin o (Pinocchio's LOCAL_WORLD_ALIGNED): a motion (ω, v),
  * v the velocity of the body point at o; a force (n, F), n its moment about o. Between a body and its parent only
