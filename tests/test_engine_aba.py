@@ -236,6 +236,10 @@ forces:
   - {type: force, body: w2, at: [0.1, 0.2, 0], frame: body, value: ["sin(t)", 1, 0.5]}
   - {type: torque, body: tip, frame: body, value: [0.1, -0.3, 0.2]}
   - {type: force, body: pad, at: [0, 0.02, 0], frame: world, value: [0, 0, -2]}
+outputs:
+  - {body: w2, point: [0.1, -0.2, 0.3], quantities: [position, velocity], name: on_w2}
+  - {body: pad, point: [0.02, 0, 0.01], quantities: [position, velocity], name: on_pad}
+  - {body: stand, point: [0, 0.1, 0], quantities: [position, velocity], name: on_stand}
 """
 
 
@@ -243,7 +247,8 @@ def test_welded_and_massless_links_join_their_carriers():
     """Bodies on fixed joints (massive and massless, in chains, one on the world, moving bodies on them, forces
     and torques on them in both frames) are welded to their carriers (compile.carriers): the recursive path's M,
     k, q and ÿ equal the numpy reference's, which keeps every body, to 1e-12, also after the parameter that sets a
-    welded body's mass changes (the composites are derived at bind time)."""
+    welded body's mass changes (the composites are derived at bind time); output points on welded bodies (whose
+    frames the recursive kinematics derive from their carriers') equal the reference's."""
     from mbsfmu.engine.compile import carriers
     spec = mbsfmu.loads(WELDED).spec
     ev, sim = mbsfmu.compile(spec), Simulation(spec)
@@ -265,3 +270,6 @@ def test_welded_and_massless_links_join_their_carriers():
                 np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * scale)
             ydd = np.linalg.solve(M, q - k)
             np.testing.assert_allclose(sim.f(t, x)[len(y):], ydd, rtol=0, atol=1e-12 * np.linalg.cond(M) * np.abs(ydd).max())
+            want, got = ev.output_values(y, yd, t), sim.output_values(x, t)
+            assert want.keys() == got.keys()
+            np.testing.assert_allclose([got[k] for k in want], list(want.values()), rtol=0, atol=1e-12)

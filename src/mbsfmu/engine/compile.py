@@ -353,7 +353,7 @@ def carriers(model):
     joint on a rigid parent, not at an elastic node) moves with it and joins its carrier (-1: the world), the rest
     carry themselves. The engine derives each carrier's composite mass and inertia at bind time (mbs_derive: the
     numbers may depend on parameters), so its recursion runs over the moving bodies only, as Pinocchio merges a
-    URDF's fixed links; the kinematics, outputs and force points keep every body."""
+    URDF's fixed links; its kinematics skip them too, and find points on them through their carrier's frame."""
     out = []
     for i, b in enumerate(model.bodies):
         p = b.parent

@@ -6,7 +6,8 @@
  * (a fixed joint) moves with it, so its mass, centre of mass and inertia join its carrier's, as Pinocchio merges a
  * URDF's fixed links. mbs_composites derives these merged inertias at bind time, leaves first, into the
  * per-instance workspace (they may depend on parameters); forces on a welded body act on its carrier. The
- * kinematics, outputs and force points keep every body.
+ * kinematics skip the welded bodies too (mbs_welded): output and force points on them are found through their
+ * carrier's frame and a constant offset.
  *
  * Spatial vectors in world axes about each body's origin o (Pinocchio's LOCAL_WORLD_ALIGNED): a motion (ω, v),
  * v the velocity of the body point at o; a force (n, F), n its moment about o. Between a body and its parent only
@@ -141,6 +142,22 @@ void mbs_composites(const MbsModel *m, const real *D, real *work)
         if (bi->carrier != i && bi->parent >= 0)  /* welded to a body (one welded to the world is carried by none) */
             weld(mbs_body_row(m, D, i), work + (size_t)i * m->stride, work + (size_t)bi->parent * m->stride);
     }
+    /* parents first: the joint frame in the parent's carrier's frame, R0c = R0c_p R0, atc = atc_p + R0c_p at, where
+     * the parent is welded (a fixed joint: its body frame is its joint frame) */
+    for (int i = 0; i < NB(m); i++) {
+        const MbsBodyD *bd = mbs_body_row(m, D, i);
+        const int p = mbs_body_i(m, i)->parent;
+        real *wk = work + (size_t)i * m->stride, *R0c = wk + AB_R0C, *atc = wk + AB_ATC;
+        if (p >= 0 && mbs_welded(m, p)) {
+            const real *wp = work + (size_t)p * m->stride;
+            mm(wp + AB_R0C, bd->R0, R0c);
+            mv(wp + AB_R0C, bd->at, atc);
+            for (int r = 0; r < 3; r++) atc[r] += wp[AB_ATC + r];
+        } else {
+            memcpy(R0c, bd->R0, 9 * sizeof(real));
+            memcpy(atc, bd->at, 3 * sizeof(real));
+        }
+    }
 }
 
 /* Per carrier: I into AB_IA, P into AB_P, gravity's I (0, g) into AB_F (the force elements add to it). */
@@ -235,8 +252,41 @@ static void forces(const MbsEval *e)
     mbs_applied_forces(e);
 }
 
+/* A⁻¹ of a 3 × 3 matrix: its adjugate (the cofactors, transposed) over the determinant */
+static void inverse3(const real *A, real *Ai)
+{
+    const real c[9] = {A[4] * A[8] - A[5] * A[7], A[2] * A[7] - A[1] * A[8], A[1] * A[5] - A[2] * A[4],
+                       A[5] * A[6] - A[3] * A[8], A[0] * A[8] - A[2] * A[6], A[2] * A[3] - A[0] * A[5],
+                       A[3] * A[7] - A[4] * A[6], A[1] * A[6] - A[0] * A[7], A[0] * A[4] - A[1] * A[3]};
+    const real det = A[0] * c[0] + A[1] * c[3] + A[2] * c[6], inv = 1.0 / det;
+    for (int k = 0; k < 9; k++) Ai[k] = c[k] * inv;
+}
+
+/* A free joint's 6 free coordinates (translation, then rotation) span every motion: S = [0 A; B 0] (ω = A ẏ_rot,
+ * v = B ẏ_trans) is invertible, so the joint passes the parent only its force f_J = S⁻ᵀ τ = (A⁻ᵀ τ_rot, B⁻ᵀ τ_trans)
+ * (I_A − U D⁻¹ Uᵀ = 0, p + U D⁻¹ u = f_J) and the body's Δa = I_A⁻¹ (f_J − p) needs no D = Sᵀ I_A S: I_A
+ * Cholesky-factored in place, Δa into z, A⁻¹ and B⁻¹ into W for ÿ = S⁻¹ (Δa − Δa_p) (Featherstone's floating
+ * base). */
+static int free_joint(const MbsEval *e, const MbsBodyI *bi, real *wk, const real *p, real *f_J)
+{
+    real *L = wk + AB_IA, *z = wk + AB_Z, *Ai = wk + AB_W, *Bi = Ai + 9, A[9], B[9], tau[6];
+    const real *S = wk + AB_S;
+    for (int r = 0; r < 3; r++)
+        for (int k = 0; k < 3; k++) { A[3 * r + k] = S[6 * (3 + k) + r]; B[3 * r + k] = S[6 * k + 3 + r]; }
+    inverse3(A, Ai);
+    inverse3(B, Bi);
+    for (int k = 0; k < 6; k++) tau[k] = e->q[bi->vel[k]];
+    mtv(Ai, tau + 3, f_J);
+    mtv(Bi, tau, f_J + 3);
+    if (mbs_cholesky(6, L)) return 1;
+    for (int r = 0; r < 6; r++) z[r] = f_J[r] - p[r];
+    mbs_cholesky_apply(6, L, z);
+    return 0;
+}
+
 /* Leaves to root: U = I_A S, D = Sᵀ U = L Lᵀ, u = τ − Sᵀ p, W = U L⁻ᵀ, z = L⁻¹ u; the parent gets
- * I_A − W Wᵀ and p + W z, moved to its origin. Returns 1 if some D is not positive definite (then M is not). */
+ * I_A − W Wᵀ and p + W z, moved to its origin (the root needs no W: its Δa_p is zero); free joints: free_joint.
+ * Returns 1 if some D is not positive definite (then M is not). */
 static int articulated_inertias(const MbsEval *e)
 {
     const MbsModel *m = e->m;
@@ -247,8 +297,17 @@ static int articulated_inertias(const MbsEval *e)
         real *wk = mbs_body_work(e, i), *IA = wk + AB_IA, *W = wk + AB_W, *L = wk + AB_L, *z = wk + AB_Z;
         const real *S = wk + AB_S;
         const int nv = (int)wk[AB_NV];
-        real p[6];
+        real p[6], d[3], *pw = parent < 0 ? NULL : mbs_body_work(e, parent);
         for (int r = 0; r < 6; r++) p[r] = wk[AB_P + r] - wk[AB_F + r];
+        if (nv == 6) {
+            real f_J[6];
+            if (free_joint(e, bi, wk, p, f_J)) return 1;
+            if (pw) {
+                offset(e, wk, parent, d);
+                add_force_at(d, f_J, pw + AB_P);
+            }
+            continue;
+        }
         if (nv == 1) {  /* most joints: D a number, no factorization loop */
             int c = 0;
             while (bi->vel[c] < 0) c++;
@@ -271,14 +330,14 @@ static int articulated_inertias(const MbsEval *e)
             for (int k = 0; k < nv; k++) {
                 real *Wk = W + 6 * k;
                 for (int j = 0; j < k; j++) {
-                    for (int r = 0; r < 6; r++) Wk[r] -= L[nv * k + j] * W[6 * j + r];
+                    if (pw) for (int r = 0; r < 6; r++) Wk[r] -= L[nv * k + j] * W[6 * j + r];
                     z[k] -= L[nv * k + j] * z[j];
                 }
-                for (int r = 0; r < 6; r++) Wk[r] /= L[nv * k + k];
+                if (pw) for (int r = 0; r < 6; r++) Wk[r] /= L[nv * k + k];
                 z[k] /= L[nv * k + k];
             }
         }
-        if (parent < 0) continue;
+        if (!pw) continue;
         for (int k = 0; k < nv; k++)
             for (int r = 0; r < 6; r++) p[r] += W[6 * k + r] * z[k];
         for (int r = 0; r < 6; r++)  /* I_A − W Wᵀ is symmetric: one triangle computed */
@@ -287,7 +346,6 @@ static int articulated_inertias(const MbsEval *e)
                 for (int k = 0; k < nv; k++) x -= W[6 * k + r] * W[6 * k + c];
                 IA[6 * r + c] = IA[6 * c + r] = x;
             }
-        real d[3], *pw = mbs_body_work(e, parent);
         offset(e, wk, parent, d);
         add_inertia_at(d, IA, pw + AB_IA);
         add_force_at(d, p, pw + AB_P);
@@ -317,8 +375,13 @@ static void accelerations(const MbsEval *e)
             cross(d, pa, dxa);
             for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
         }
-        for (int k = 0; k < nv; k++) x[k] = wk[AB_Z + k] - dot6(wk + AB_W + 6 * k, ap);
-        for (int k = nv - 1; k >= 0; k--) {
+        if (nv == 6) {  /* free_joint: Δa = z, ÿ = S⁻¹ (Δa − Δa_p) */
+            real da[6];
+            for (int r = 0; r < 6; r++) { da[r] = wk[AB_Z + r] - acc[r]; acc[r] = wk[AB_Z + r]; }
+            mv(wk + AB_W + 9, da + 3, x);
+            mv(wk + AB_W, da, x + 3);
+        } else for (int k = 0; k < nv; k++) x[k] = wk[AB_Z + k] - (parent < 0 ? 0.0 : dot6(wk + AB_W + 6 * k, ap));
+        for (int k = nv - 1; nv < 6 && k >= 0; k--) {
             for (int j = k + 1; j < nv; j++) x[k] -= L[nv * j + k] * x[j];
             x[k] /= L[nv * k + k];
             for (int r = 0; r < 6; r++) acc[r] += S[6 * k + r] * x[k];

@@ -34,7 +34,10 @@
  * 20.3k/19.0k, 92.7k/51.0k; the free body 6.6k/8.1k; the 6-dof arm (7 bodies, 1 welded) 22.6k/25.4k; of
  * example-robot-data: UR arms (10 bodies, 4 welded) 26.4k/27.9k, the double pendulums (3-4 bodies, 1-2 welded)
  * 7.6k-8.6k/8.2k-9.1k, finger_edu (3 dof, 3 welded) 15.1k/14.2k, kinova (6 dof, 7 welded) 39.4k/30.7k, iris_simple
- * (a free body with 5 welded) 24.4k/12.7k. The shipped scenes all stay on the dense path, bit for bit */
+ * (a free body with 5 welded) 24.4k/12.7k. The shipped scenes all stay on the dense path, bit for bit. Since the
+ * recursive path skips welded bodies and solves free joints without D (dynamics.c: free_joint), it is the faster
+ * for some of these too (C loop µs, dense/recursive): hector's free body 0.34/0.29, finger_edu 0.67/0.58, the
+ * double pendulum not (0.34/0.36); moving the threshold would move shipped scenes off their bit-for-bit results */
 #define MBS_DENSE_MAX_NVEL 6
 
 /* "MBSC", int32 format version, char guid[64], int32 nsec, then nsec rows {int32 id, int32 kind (0 int32,

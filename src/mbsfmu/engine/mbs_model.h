@@ -164,14 +164,16 @@ typedef struct {
 #define AB_IA 63          /* spatial inertia, articulated (ABA) or composite (CRBA), 6 × 6 */
 #define AB_P 99           /* bias force: I â + v ×* I v, gravity and accelerations of driven coordinates in â */
 #define AB_F 105          /* applied spatial force (gravity, force elements) */
-#define AB_W 111          /* U L⁻ᵀ, 6 × nv (U = I_A S, L Lᵀ = D = Sᵀ U) */
-#define AB_L 147          /* Cholesky factor L of D, nv × nv */
-#define AB_Z 183          /* L⁻¹ u */
-#define AB_ACC 189        /* spatial acceleration beyond the bias (Σ S ÿ of the path to the root) */
-#define AB_MC 195         /* mass, centre of mass (body frame), inertia about it (body axes) of the body with the */
-#define AB_CC 196         /* bodies welded to it (IB_CARRIER): written at bind time (mbs_composites), read per step */
-#define AB_IC 199
-#define AB_SIZE 208
+#define AB_W 111          /* U L⁻ᵀ, 6 × nv (U = I_A S, L Lᵀ = D = Sᵀ U; nv ≤ 5: a free joint's A⁻¹, B⁻¹ instead) */
+#define AB_L 141          /* Cholesky factor L of D, nv × nv (nv ≤ 5: a free joint's factor of I_A is in AB_IA) */
+#define AB_Z 166          /* L⁻¹ u (a free joint: its Δa) */
+#define AB_ACC 172        /* spatial acceleration beyond the bias (Σ S ÿ of the path to the root) */
+#define AB_MC 178         /* mass, centre of mass (body frame), inertia about it (body axes) of the body with the */
+#define AB_CC 179         /* bodies welded to it (IB_CARRIER): written at bind time (mbs_composites), read per step */
+#define AB_IC 182
+#define AB_R0C 191        /* the joint frame (R0, at) in the frame of the parent's carrier if the parent is welded */
+#define AB_ATC 200        /* (mbs_welded), else the parent's: written at bind time (mbs_composites) */
+#define AB_SIZE 203
 
 /* The evaluation path, chosen from the scene's header in this one place (compile.py's workspace check follows it):
  * elastic scenes keep the dense path (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic
@@ -189,6 +191,14 @@ static inline double mbs_work_doubles(const int32_t *hdr)
     return mbs_dense_path(hdr) ? nb * W_SIZE(f) + 6 * f + f * f : nb * AB_SIZE;
 }
 static inline real *mbs_body_work(const MbsEval *e, int i) { return e->work + (size_t)i * e->m->stride; }
+/* On the recursive path the kinematics skip a body welded to a moving carrier (IB_CARRIER): the dynamics read only
+ * the carriers, and its frame, where something reads it (mbs_point, a force's body axes), is its carrier's and the
+ * constant offset AB_R0C, AB_ATC. */
+static inline int mbs_welded(const MbsModel *m, int i)
+{
+    const int c = mbs_body_i(m, i)->carrier;
+    return !m->dense && c >= 0 && c != i;
+}
 /* the dense path's M: the last f × f of the workspace (after the bodies and the 6 f scratch) */
 static inline size_t mbs_work_M_offset(const int32_t *hdr) { return (size_t)hdr[H_NB] * W_SIZE(hdr[H_NVEL]) + 6 * (size_t)hdr[H_NVEL]; }
 

@@ -29,7 +29,7 @@ static void quat_to_matrix(const real *p, real *S)
 }
 
 /* Joint motion in the joint frame (joints.py): R_rel, d_rel, H_R, H_T (3 × nv, column-major per joint
- * velocity: H[3*j + r]), b_R, b_T. Zero parts are written as zeros. */
+ * velocity: H[3*j + r]) and b_R (b_T is zero for every joint type). Zero parts are written as zeros. */
 static void cardan(const real *p, const real *v, real *R, real *H, real *b_R)
 {
     real ca = r_cos(p[0]), sa = r_sin(p[0]), cb = r_cos(p[1]), sb = r_sin(p[1]), cc = r_cos(p[2]), sc = r_sin(p[2]);
@@ -51,15 +51,21 @@ static void cardan(const real *p, const real *v, real *R, real *H, real *b_R)
 
 static void zero3(real *a) { a[0] = a[1] = a[2] = 0.0; }
 
+/* the parts of a joint's motion that may be nonzero (joint_motion): the offset d_rel, the columns H_T, b_R */
+enum { JM_D = 1, JM_T = 2, JM_B = 4 };
+static const int JM_PARTS[J_N] = {[J_PRISMATIC] = JM_D | JM_T, [J_CYLINDRICAL] = JM_D | JM_T, [J_UNIVERSAL] = JM_B,
+                                  [J_PLANAR] = JM_D | JM_T, [J_SPH_CARDAN] = JM_B, [J_FREE_QUAT] = JM_D | JM_T,
+                                  [J_FREE_CARDAN] = JM_D | JM_T | JM_B};
+
 static void joint_motion(int type, int nv, const MbsBodyD *bd, const real *p, const real *v,
-                         real *R, real *d, real *H_R, real *H_T, real *b_R, real *b_T)
+                         real *R, real *d, real *H_R, real *H_T, real *b_R)
 {
     const real *a = bd->a1, *a2 = bd->a2;
     static const real E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
     memcpy(R, E, sizeof E);
     /* three at a time, only the joint's columns: a memset of these small arrays compiles to `rep stos`,
      * whose start-up cost was a third of the kinematics */
-    zero3(d), zero3(b_R), zero3(b_T);
+    zero3(d), zero3(b_R);
     for (int k = 0; k < nv; k++) zero3(H_R + 3 * k), zero3(H_T + 3 * k);
     switch (type) {
     case J_REVOLUTE:
@@ -150,7 +156,13 @@ static void attachment(const MbsEval *e, int i, real *S_J, real *rho, const real
         *hi = 0;
         return;
     }
-    const real *pw = body_work(e, par);
+    const real *pw = body_work(e, par), *R0 = bd->R0, *at = bd->at;
+    if (!m->dense) {  /* a welded parent's frame is its carrier's (mbs_welded) */
+        const real *wk = body_work(e, i);
+        R0 = wk + AB_R0C;
+        at = wk + AB_ATC;
+        if (mbs_welded(m, par)) pw = body_work(e, mbs_body_i(m, par)->carrier);
+    }
     *lo = col_lo(pw);
     *hi = col_hi(pw);
 #ifdef MBS_WITH_ELASTIC
@@ -170,19 +182,18 @@ static void attachment(const MbsEval *e, int i, real *S_J, real *rho, const real
     const real *S_p = pw + W_S;
     *o_p = pw + W_O; *w_p = pw + W_W; *v_p = pw + W_V; *a_p = pw + W_A; *al_p = pw + W_AL;
     if (m->dense) memcpy(J_R, pw + W_J, 6 * (size_t)f * sizeof(real));
-    mm(S_p, bd->R0, S_J);
-    mv(S_p, bd->at, rho);
+    mm(S_p, R0, S_J);
+    mv(S_p, at, rho);
 }
 
-/* The free columns of body i's joint as spatial motions at its origin (dynamics.c): (h_R, h_T), world axes. */
-static void motion_subspace(const MbsBodyI *bi, const real *S_J, const real *H_R, const real *H_T, real *wk)
+/* The free columns of body i's joint as spatial motions at its origin (dynamics.c): (s_R, s_T), world axes. */
+static void motion_subspace(const MbsBodyI *bi, const real *s_R, const real *s_T, real *wk)
 {
     int n = 0;
     for (int k = 0; k < bi->nvel; k++) {
         if (bi->vel[k] < 0) continue;
         real *s = wk + AB_S + 6 * n++;
-        mv(S_J, H_R + 3 * k, s);
-        mv(S_J, H_T + 3 * k, s + 3);
+        for (int r = 0; r < 3; r++) { s[r] = s_R[3 * k + r]; s[3 + r] = s_T[3 * k + r]; }
     }
     wk[AB_NV] = n;
 }
@@ -195,6 +206,7 @@ void mbs_kinematics(const MbsEval *e)
     const int f = NVEL(m);
     const real *y = e->x, *yd = e->x + NPOS(m);
     for (int i = 0; i < NB(m); i++) {
+        if (mbs_welded(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
         const MbsBodyD *bd = mbs_body_d(e, i);
         real *wk = body_work(e, i);
@@ -204,7 +216,7 @@ void mbs_kinematics(const MbsEval *e)
         real S_J[9], rho[3], node_buf[15];
         int lo, hi;
         attachment(e, i, S_J, rho, &o_p, &w_p, &v_p, &a_p, &al_p, J_R, &lo, &hi, node_buf);
-        real p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3], b_T[3];
+        real p[7], v[6], acc[6] = {0}, R[9], d[3], H_R[18], H_T[18], b_R[3];
         for (int k = 0; k < np; k++) {
             int pi = bi->pos[k], s = bi->drv[k];
             p[k] = pi >= 0 ? y[pi] : e->td[3 * s];
@@ -214,18 +226,33 @@ void mbs_kinematics(const MbsEval *e)
             if (vi >= 0) v[k] = yd[vi];
             else { v[k] = e->td[3 * s + 1]; acc[k] = e->td[3 * s + 2]; }
         }
-        joint_motion(bi->jtype, nv, bd, p, v, R, d, H_R, H_T, b_R, b_T);
-        real w_rel_j[3] = {0, 0, 0}, v_rel_j[3] = {0, 0, 0}, dd[3], w_rel[3], v_rel[3], wxr[3];
-        for (int k = 0; k < nv; k++)
+        joint_motion(bi->jtype, nv, bd, p, v, R, d, H_R, H_T, b_R);
+        /* the joint's columns in world axes s = S_J H, and ω_rel = Σ s_R ẏ, v_rel = Σ s_T ẏ; the prescribed
+         * accelerations of driven coordinates join the bias terms: S_J b + Σ s ÿ_prescribed (zero parts skipped) */
+        const int parts = JM_PARTS[bi->jtype];
+        real s_R[18], s_T[18], w_rel[3] = {0, 0, 0}, v_rel[3] = {0, 0, 0}, SbR[3] = {0, 0, 0}, SbT[3] = {0, 0, 0};
+        for (int k = 0; k < nv; k++) {
+            mv(S_J, H_R + 3 * k, s_R + 3 * k);
+            if (parts & JM_T) mv(S_J, H_T + 3 * k, s_T + 3 * k);
+            else zero3(s_T + 3 * k);
             for (int r = 0; r < 3; r++) {
-                w_rel_j[r] += H_R[3 * k + r] * v[k];
-                v_rel_j[r] += H_T[3 * k + r] * v[k];
+                w_rel[r] += s_R[3 * k + r] * v[k];
+                v_rel[r] += s_T[3 * k + r] * v[k];
             }
-        mv(S_J, d, dd);
-        mv(S_J, w_rel_j, w_rel);
-        mv(S_J, v_rel_j, v_rel);
-        for (int r = 0; r < 3; r++) rho[r] += dd[r];
-        real *w = wk + W_W, *al = wk + W_AL, *o = wk + W_O, *vv = wk + W_V, *a = wk + W_A;
+            if (bi->vel[k] < 0)
+                for (int r = 0; r < 3; r++) { SbR[r] += s_R[3 * k + r] * acc[k]; SbT[r] += s_T[3 * k + r] * acc[k]; }
+        }
+        if (parts & JM_D) {
+            real dd[3];
+            mv(S_J, d, dd);
+            for (int r = 0; r < 3; r++) rho[r] += dd[r];
+        }
+        if (parts & JM_B) {
+            real Sb[3];
+            mv(S_J, b_R, Sb);
+            for (int r = 0; r < 3; r++) SbR[r] += Sb[r];
+        }
+        real *w = wk + W_W, *al = wk + W_AL, *o = wk + W_O, *vv = wk + W_V, *a = wk + W_A, wxr[3];
         /* ω = ω_p + ω_rel;  v = v_p + ω_p × ρ + v_rel */
         cross(w_p, rho, wxr);
         for (int r = 0; r < 3; r++) {
@@ -234,16 +261,8 @@ void mbs_kinematics(const MbsEval *e)
             vv[r] = v_p[r] + wxr[r] + v_rel[r];
         }
         mm(S_J, R, wk + W_S);
-        /* prescribed accelerations of driven coordinates join the bias terms */
-        for (int k = 0; k < nv; k++)
-            for (int r = 0; r < 3; r++) {
-                b_R[r] += H_R[3 * k + r] * acc[k];
-                b_T[r] += H_T[3 * k + r] * acc[k];
-            }
-        real SbR[3], SbT[3], t1[3], t2[3], axr[3], wwxr[3];
-        mv(S_J, b_R, SbR);
-        mv(S_J, b_T, SbT);
-        /* ᾱ = ᾱ_p + ω_p × ω_rel + S_J b_R;  ā = ā_p + ᾱ_p × ρ + ω_p × (ω_p × ρ) + 2 ω_p × v_rel + S_J b_T */
+        real t1[3], t2[3], axr[3], wwxr[3];
+        /* ᾱ = ᾱ_p + ω_p × ω_rel + S_J b_R;  ā = ā_p + ᾱ_p × ρ + ω_p × (ω_p × ρ) + 2 ω_p × v_rel (+ the drives') */
         cross(w_p, w_rel, t1);
         cross(al_p, rho, axr);
         cross(w_p, wxr, wwxr);
@@ -253,7 +272,7 @@ void mbs_kinematics(const MbsEval *e)
             a[r] = a_p[r] + axr[r] + wwxr[r] + 2.0 * t2[r] + SbT[r];
         }
         if (!m->dense) {
-            motion_subspace(bi, S_J, H_R, H_T, wk);
+            motion_subspace(bi, s_R, s_T, wk);
             continue;
         }
         /* J_T = J_Tp − ρ̃ J_Rp, then the joint's own columns */
@@ -267,10 +286,7 @@ void mbs_kinematics(const MbsEval *e)
             if (col < 0) continue;
             if (col < lo) lo = col;
             if (col + 1 > hi) hi = col + 1;
-            real hr[3], ht[3];
-            mv(S_J, H_R + 3 * k, hr);
-            mv(S_J, H_T + 3 * k, ht);
-            for (int r = 0; r < 3; r++) { J_R[r * f + col] += hr[r]; J_T[r * f + col] += ht[r]; }
+            for (int r = 0; r < 3; r++) { J_R[r * f + col] += s_R[3 * k + r]; J_T[r * f + col] += s_T[3 * k + r]; }
         }
         wk[W_LO] = lo;
         wk[W_HI] = hi;
@@ -278,6 +294,17 @@ void mbs_kinematics(const MbsEval *e)
         if (bi->elastic >= 0) mbs_elastic_kinematics(e, i);  /* may widen [lo, hi) to its q columns */
 #endif
     }
+}
+
+/* x = S_i x_b: a vector in body i's axes in world axes */
+static void body_axes(const MbsEval *e, int i, const real *x_b, real *x)
+{
+    if (mbs_welded(e->m, i)) {
+        real x_c[3];
+        mv(body_work(e, i) + AB_R0C, x_b, x_c);
+        mv(body_work(e, mbs_body_i(e->m, i)->carrier) + W_S, x_c, x);
+    } else
+        mv(body_work(e, i) + W_S, x_b, x);
 }
 
 /* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only; dense path) of a point fixed on
@@ -289,6 +316,14 @@ void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real 
         memcpy(x, r_b, 3 * sizeof(real));
         memset(v, 0, 3 * sizeof(real));
         return;
+    }
+    real r_c[3];
+    if (mbs_welded(e->m, i)) {  /* the point on the carrier */
+        const real *wk = body_work(e, i);
+        mv(wk + AB_R0C, r_b, r_c);
+        for (int k = 0; k < 3; k++) r_c[k] += wk[AB_ATC + k];
+        r_b = r_c;
+        i = mbs_body_i(e->m, i)->carrier;
     }
     const real *wk = body_work(e, i), *J_R = wk + W_J, *J_T = J_R + 3 * f;
     real r[3], wxr[3];
@@ -436,7 +471,7 @@ void mbs_applied_forces(const MbsEval *e)
             const real *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd->vec;
             real vec[3], xp[3], vp[3];
             if (src[0] == 0.0 && src[1] == 0.0 && src[2] == 0.0) break;
-            if (fi->frame) mv(wk + W_S, src, vec);
+            if (fi->frame) body_axes(e, i, src, vec);
             else memcpy(vec, src, sizeof vec);
             if (fi->type == FE_TORQUE) {
 #ifdef MBS_WITH_ELASTIC
