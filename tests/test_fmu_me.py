@@ -199,6 +199,34 @@ def test_directional_derivatives_equal_central_differences(built, m):
     s.freeInstance()
 
 
+def test_directional_derivative_refusals(built):
+    """Before initialization, a parameter as a known, an input as an unknown, an unknown reference, a NaN seed:
+    fmi2Error (the engine's messages: tests/test_directional.py), and the next good call answers."""
+    from fmpy import extract
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Model
+    md = read_model_description(str(built["pendulum"]))
+    s = FMU2Model(guid=md.guid, unzipDirectory=extract(str(built["pendulum"])), instanceName="refusals",
+                  modelIdentifier=md.modelExchange.modelIdentifier)
+    s.instantiate()
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    der, y, param = vr["der(yd.theta)"], vr["y.theta"], next(v.valueReference for v in md.modelVariables
+                                                              if v.causality == "parameter")
+    with pytest.raises(FMICallException):  # instantiated: not yet
+        s.getDirectionalDerivative([der], [y], [1.0])
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    for unknowns, knowns, seed in (([der], [param], [1.0]), ([vr["q.theta"]], [y], [1.0]), ([der], [10 ** 6], [1.0]),
+                                   ([der], [y], [float("nan")])):
+        with pytest.raises(FMICallException):
+            s.getDirectionalDerivative(unknowns, knowns, seed)
+    (d,) = s.getDirectionalDerivative([der], [y], [1.0])
+    assert np.isfinite(d) and d < 0  # the pendulum's restoring stiffness, -g/L cos θ near rest
+    s.terminate()
+    s.freeInstance()
+
+
 # ---- numbers: fmpy's solvers against the engine's run ----------------------------------------------------
 @pytest.mark.parametrize("m", MODELS)
 def test_cvode_equals_the_engine(built, m):
