@@ -3,7 +3,8 @@
 References: scipy's DOP853 at rtol 1e-12 over the in-process right-hand side (the values read in the callback are
 the integrator's internal points); the FMI 2.0 native FMU of the same scene, which never observes (outputs bit for
 bit); the FMI 3.0 standard's intermediate update mode (times inside the step, reading only the variables marked
-intermediateUpdate="true", every other call refused). Skipped without a C compiler.
+intermediateUpdate="true", every other call refused), also under AddressSanitizer and UBSan. Skipped without a C
+compiler.
 """
 from __future__ import annotations
 
@@ -229,10 +230,12 @@ print("RESULT " + json.dumps(out))
 '''
 
 
-def test_hostile_calls_in_the_callback_are_errors(built, tmp_path):
+@pytest.mark.parametrize("build", ["shipped", "sanitized"])
+def test_hostile_calls_in_the_callback_are_errors(built, tmp_path, build):
     """Inside the callback every call but reading an intermediate variable (and logging switches) is fmi3Error
     with a message naming intermediate update mode, nothing changes (FreeInstance: refused, logged), and the
-    instance steps on exactly like an untouched twin without a callback (a NULL one)."""
+    instance steps on exactly like an untouched twin without a callback (a NULL one); the same on the FMU's
+    sources/ built with AddressSanitizer and UBSan, which report nothing."""
     fmu = built[0]
     d = tmp_path / "fmu"
     zipfile.ZipFile(fmu).extractall(d)
@@ -246,10 +249,18 @@ def test_hostile_calls_in_the_callback_are_errors(built, tmp_path):
     assert out_vrs == list(range(out_vrs[0], out_vrs[0] + len(out_vrs)))
     script = tmp_path / "child.py"
     script.write_text(CHILD)
-    lib = d / "binaries" / "x86_64-linux" / f"{md.coSimulation.modelIdentifier}.so"
+    lib, env = d / "binaries" / "x86_64-linux" / f"{md.coSimulation.modelIdentifier}.so", dict(os.environ)
+    if build == "sanitized":
+        from test_fmu3 import _asan_library  # the FMI 3.0 tests' sanitized build of sources/
+        asan = _asan_library(d / "sources", tmp_path / "asan.so")
+        if asan is None:
+            pytest.skip("no AddressSanitizer runtime (gcc's libasan)")
+        lib = asan[0]
+        env.update(LD_PRELOAD=asan[1], ASAN_OPTIONS="detect_leaks=0:abort_on_error=1")
     r = subprocess.run([sys.executable, str(script), str(lib), str(d / "resources") + os.sep, md.guid,
-                        *map(str, args)], capture_output=True, text=True, timeout=120, env=dict(os.environ))
+                        *map(str, args)], capture_output=True, text=True, timeout=120, env=env)
     assert r.returncode == 0, (r.returncode, r.stdout[-3000:], r.stderr[-3000:])
+    assert "runtime error" not in r.stderr and "AddressSanitizer" not in r.stderr, r.stderr[-3000:]
     out = json.loads(r.stdout.split("RESULT ", 1)[1])
     assert out.pop("same as twin") is True
     assert out.pop("outputs readable") == 0
