@@ -3,11 +3,12 @@ GetDirectionalDerivative and fmi3GetAdjointDerivative answer): ∂(ẋ, outputs)
 through the evaluation (engine/deriv.c).
 
 Reference: 4th-order central differences of the engine's own double-precision evaluation (ẋ of mbs_derivatives,
-outputs of mbs_get_real), a path that shares no arithmetic with the complex step's. Steps: positions 1e-4 of their
-nominal; velocities and inputs their nominal and 1 (ẋ is exactly quadratic in the velocities and linear in the
-inputs: the stencil is exact there, and a large step keeps rounding out). Agreement to 1e-7 of the larger of the
-entry's row and column maxima, on every shipped model and on random trees of every joint type (the recursive
-path), at states away from the initial one.
+outputs of mbs_get_real), a path that shares no arithmetic with the complex step's. Steps: positions 1e-3 and 1e-4
+of their nominal (POSITION_STEPS: the larger keeps rounding out of stiff elastic rows, the smaller truncation out
+of a stress near zero, where √ bends sharply; an entry agrees with either); velocities and inputs their nominal and
+1 (ẋ is exactly quadratic in the velocities and linear in the inputs: the stencil is exact there). Agreement to
+1e-7 of the larger of the entry's row and column maxima, on every shipped model and on random trees of every joint
+type (the recursive path), at states away from the initial one.
 """
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from test_engine_aba import random_tree
 REPO = Path(__file__).resolve().parent.parent
 MODELS = [p.stem for p in sorted((REPO / "models").glob("*.yaml"))]
 STENCIL = ((-2, 1 / 12), (-1, -8 / 12), (1, 8 / 12), (2, -1 / 12))
+POSITION_STEPS = (1e-3, 1e-4)  # of the nominal
 
 
 class Case:
@@ -58,11 +60,11 @@ class Case:
         eye = np.eye(len(self.knowns))
         return np.array([self.inst.directional_derivative(self.unknowns, self.knowns, e) for e in eye]).T
 
-    def central_differences(self):
+    def central_differences(self, step):
         J = np.empty((len(self.unknowns), len(self.knowns)))
         for j, vr in enumerate(self.knowns):
             if j < len(self.states):
-                h = self.nominal[j] * (1e-4 if j < self.npos else 1.0)
+                h = self.nominal[j] * (step if j < self.npos else 1.0)
                 def at(d, j=j):
                     x = self.x.copy()
                     x[j] += d
@@ -80,17 +82,18 @@ class Case:
         return J
 
 
-def assert_jacobians_agree(J, ref, rtol=1e-7):
-    scale = np.maximum(np.abs(ref).max(axis=1, keepdims=True), np.abs(ref).max(axis=0, keepdims=True))
-    bad = np.abs(J - ref) > rtol * scale
-    assert not bad.any(), f"{bad.sum()} entries differ, worst {np.max(np.abs(J - ref) / np.maximum(scale, 1e-300)):.2e}"
+def assert_jacobians_agree(J, refs, rtol=1e-7):
+    """Each entry of J within rtol of the larger of its row's and column's maxima from one of the references."""
+    scale = np.maximum(np.abs(refs[0]).max(axis=1, keepdims=True), np.abs(refs[0]).max(axis=0, keepdims=True))
+    err = np.min([np.abs(J - ref) for ref in refs], axis=0) / np.maximum(scale, 1e-300)
+    assert not (err > rtol).any(), f"{(err > rtol).sum()} entries differ, worst {err.max():.2e}"
 
 
 @pytest.mark.parametrize("model", MODELS)
 def test_every_shipped_model_equals_central_differences(model):
     case = Case(mbsfmu.load(REPO / "models" / f"{model}.yaml").spec)
     J = case.jacobian()
-    assert_jacobians_agree(J, case.central_differences())
+    assert_jacobians_agree(J, [case.central_differences(step) for step in POSITION_STEPS])
     # the states as unknowns: the identity on their own seeds, zero on the inputs'
     S = np.array([case.inst.directional_derivative(case.states, case.knowns, e) for e in np.eye(len(case.knowns))]).T
     np.testing.assert_array_equal(S, np.eye(len(case.states), len(case.knowns)))
@@ -108,7 +111,7 @@ def test_random_trees_of_every_joint_type_on_the_recursive_path(seed):
     spec = mbsfmu.loads(random_tree(rng, 12)).spec
     case = Case(spec, seed)
     assert case.inst.nvel > L.MBS_DENSE_MAX_NVEL and case.inputs
-    assert_jacobians_agree(case.jacobian(), case.central_differences())
+    assert_jacobians_agree(case.jacobian(), [case.central_differences(step) for step in POSITION_STEPS])
 
 
 def test_a_seed_is_one_direction():

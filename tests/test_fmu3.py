@@ -220,6 +220,61 @@ def test_derivatives_are_the_engines_right_hand_side(built):
         me.freeInstance()
 
 
+@pytest.mark.parametrize("m", ["robot_arm_elastic", "free_body", "fe_stress"])
+def test_directional_and_adjoint_derivatives_are_the_engines(built, m):
+    """fmi3GetDirectionalDerivative and fmi3GetAdjointDerivative over arrays (seeds and sensitivities flat, an
+    array's elements in order) at a state the host set: equal to the in-process engine's columns of the same
+    Jacobian (tests/test_directional.py holds those against central differences), and the adjoint seedᵀJ; a seed
+    or sensitivity count that is not the variables' size is fmi3Error with a message."""
+    from mbsfmu.engine import Instance
+    from mbsfmu.simulation import compiled
+    me, md = _fmu3(built[m][0], FMU3Model, "dd")
+    me.instantiate()
+    me.enterInitializationMode()
+    me.exitInitializationMode()
+    me.updateDiscreteStates()
+    me.enterContinuousTimeMode()
+    blob, var, _ = compiled(SCENES[m].spec, derivatives=True)
+    inst = Instance(blob)
+    inst.initialize(0.0)
+    rng = np.random.default_rng(5)
+    n = inst.n
+    x = np.array(inst.state()) + 0.1 * np.array(inst.nominals()) * rng.standard_normal(n)
+    inputs = [v for v in md.modelVariables if v.causality == "input"]
+    u = rng.standard_normal(sum(map(_size, inputs)))
+    me.setFloat64([v.valueReference for v in inputs], list(u))
+    me.setTime(0.2)
+    me.setContinuousStates(_ptr(x), n)
+    index = {v.name: v.vr for v in var}  # the engine's rows, by FMI 2.0 name
+    for name, value in zip([e for v in inputs for e in _elements(m)[v.name]], u):
+        inst.set_real(index[name], float(value))
+    inst.set_time(0.2)
+    inst.set_state(x)
+    states = [v.derivative for v in md.modelVariables if v.derivative is not None]
+    unknowns = [v for v in md.modelVariables if v.derivative is not None or v.causality == "output"]
+    knowns = states + inputs
+    rows = lambda vs: [index[e] for v in vs for e in _elements(m)[v.name]]  # noqa: E731
+    nk, nu = len(rows(knowns)), len(rows(unknowns))
+    seed = rng.standard_normal(nk)
+    got = me.getDirectionalDerivative([v.valueReference for v in unknowns], [v.valueReference for v in knowns],
+                                      list(seed), nu)
+    want = inst.directional_derivative(rows(unknowns), rows(knowns), seed)
+    np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-14 * np.abs(want).max())
+    wseed = rng.standard_normal(nu)
+    got = me.getAdjointDerivative([v.valueReference for v in unknowns], [v.valueReference for v in knowns],
+                                  list(wseed), nk)
+    want = inst.adjoint_derivative(rows(unknowns), rows(knowns), wseed)
+    np.testing.assert_allclose(got, want, rtol=1e-14, atol=1e-14 * np.abs(want).max())
+    J = np.array([inst.directional_derivative(rows(unknowns), rows(knowns), e) for e in np.eye(nk)]).T
+    np.testing.assert_allclose(got, wseed @ J, rtol=1e-12, atol=1e-12 * np.abs(wseed @ J).max())
+    from fmpy.fmi1 import FMICallException
+    with pytest.raises(FMICallException):  # one seed short
+        me.getDirectionalDerivative([unknowns[0].valueReference], [v.valueReference for v in knowns], list(seed[1:]),
+                                    _size(unknowns[0]))
+    me.terminate()
+    me.freeInstance()
+
+
 # ---- FMU state: get/set/serialize, bit for bit ------------------------------------------------------------
 def _cs_run(s, outs, t, n, h=0.01, nvalues=None):
     rows = []

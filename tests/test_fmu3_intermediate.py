@@ -195,6 +195,8 @@ getst = sig("fmi3GetFMUState", int, P, ctypes.POINTER(P))
 term = sig("fmi3Terminate", int, P)
 reset = sig("fmi3Reset", int, P)
 free = sig("fmi3FreeInstance", None, P)
+dirder = sig("fmi3GetDirectionalDerivative", int, P, ctypes.POINTER(U), S, ctypes.POINTER(U), S, ctypes.POINTER(D), S,
+             ctypes.POINTER(D), S)
 def vrs(*v): return (U * len(v))(*v)
 def dbl(n): return (D * n)()
 flags = [B() for _ in range(3)]; last = D()
@@ -204,6 +206,7 @@ calls = {"DoStep": lambda c: do_step(c, 0.0, 0.01),
          "GetFloat64 of a parameter": lambda c: getf(c, vrs(PARAM), 1, dbl(1), 1),
          "GetFloat64 of a derivative": lambda c: getf(c, vrs(DER), 1, dbl(1), 1),
          "GetFMUState": lambda c: getst(c, ctypes.byref(P())),
+         "GetDirectionalDerivative": lambda c: dirder(c, vrs(OUT), 1, vrs(OUT), 1, dbl(1), 1, dbl(1), 1),
          "Terminate": lambda c: term(c), "Reset": lambda c: reset(c),
          "EnterInitializationMode": lambda c: enter(c, False, 0.0, 0.0, False, 0.0),
          "FreeInstance": lambda c: free(c)}

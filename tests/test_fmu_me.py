@@ -132,6 +132,101 @@ def test_declared_derivative_dependencies_hold(built, m):
     s.freeInstance()
 
 
+@pytest.mark.parametrize("m", MODELS)
+def test_directional_derivatives_equal_central_differences(built, m):
+    """fmi2GetDirectionalDerivative (the engine's complex step, engine/deriv.c) through fmpy: the Jacobian of the
+    derivatives and outputs with respect to the states and inputs, one unit seed at a time, against 4th-order
+    central differences of the FMU's own fmi2GetDerivatives / fmi2GetReal at a state off the trajectory (steps and
+    agreement as tests/test_directional.py's); a seed over every known at once is the sum of the columns."""
+    from fmpy import extract
+    from fmpy.fmi2 import FMU2Model
+    import ctypes
+    from test_directional import POSITION_STEPS, STENCIL, assert_jacobians_agree
+    md = read_model_description(str(built[m]))
+    s = FMU2Model(guid=md.guid, unzipDirectory=extract(str(built[m])), instanceName="dd",
+                  modelIdentifier=md.modelExchange.modelIdentifier)
+    s.instantiate()
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    s.newDiscreteStates()
+    s.enterContinuousTimeMode()
+    nx, A = md.numberOfContinuousStates, ctypes.c_double * md.numberOfContinuousStates
+    rng = np.random.default_rng(4)
+    x0, nominal = A(), A()
+    s.getContinuousStates(x0, nx)
+    s.getNominalsOfContinuousStates(nominal, nx)
+    nominal = np.array(nominal)
+    x = np.array(x0) + 0.1 * nominal * rng.standard_normal(nx)
+    states = [u.variable.derivative for u in md.derivatives]
+    inputs = [v for v in md.modelVariables if v.causality == "input"]
+    outputs = [v for v in md.modelVariables if v.causality == "output" and v not in states]
+    s.setReal([v.valueReference for v in inputs], list(rng.standard_normal(len(inputs))))
+    s.setTime(0.2)
+    s.setContinuousStates(A(*x), nx)
+    knowns = [v.valueReference for v in states + inputs]
+    unknowns = [u.variable.valueReference for u in md.derivatives] + [v.valueReference for v in outputs]
+
+    def values():
+        dx = A()
+        s.getDerivatives(dx, nx)
+        return np.r_[np.array(dx), s.getReal([v.valueReference for v in outputs])]
+
+    def central_differences(step):
+        ref = np.empty((len(unknowns), len(knowns)))
+        for j, vr in enumerate(knowns):
+            cols = []
+            if j < nx:
+                h = nominal[j] * (step if md.derivatives[j].variable.name.startswith("der(y.") else 1.0)
+                for c, _ in STENCIL:
+                    s.setContinuousStates(A(*(x + c * h * np.eye(nx)[j])), nx)
+                    cols.append(values())
+                s.setContinuousStates(A(*x), nx)
+            else:
+                h, (v0,) = 1.0, s.getReal([vr])
+                for c, _ in STENCIL:
+                    s.setReal([vr], [v0 + c * h])
+                    cols.append(values())
+                s.setReal([vr], [v0])
+            ref[:, j] = sum(w * col for (_, w), col in zip(STENCIL, cols)) / h
+        return ref
+
+    J = np.array([s.getDirectionalDerivative(unknowns, knowns, list(e)) for e in np.eye(len(knowns))]).T
+    assert_jacobians_agree(J, [central_differences(step) for step in POSITION_STEPS])
+    ones = s.getDirectionalDerivative(unknowns, knowns, [1.0] * len(knowns))
+    np.testing.assert_allclose(ones, J.sum(axis=1), rtol=1e-12, atol=1e-12 * np.abs(J).max())
+    s.terminate()
+    s.freeInstance()
+
+
+def test_directional_derivative_refusals(built):
+    """Before initialization, a parameter as a known, an input as an unknown, an unknown reference, a NaN seed:
+    fmi2Error (the engine's messages: tests/test_directional.py), and the next good call answers."""
+    from fmpy import extract
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Model
+    md = read_model_description(str(built["pendulum"]))
+    s = FMU2Model(guid=md.guid, unzipDirectory=extract(str(built["pendulum"])), instanceName="refusals",
+                  modelIdentifier=md.modelExchange.modelIdentifier)
+    s.instantiate()
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    der, y, param = vr["der(yd.theta)"], vr["y.theta"], next(v.valueReference for v in md.modelVariables
+                                                              if v.causality == "parameter")
+    with pytest.raises(FMICallException):  # instantiated: not yet
+        s.getDirectionalDerivative([der], [y], [1.0])
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    for unknowns, knowns, seed in (([der], [param], [1.0]), ([vr["q.theta"]], [y], [1.0]), ([der], [10 ** 6], [1.0]),
+                                   ([der], [y], [float("nan")])):
+        with pytest.raises(FMICallException):
+            s.getDirectionalDerivative(unknowns, knowns, seed)
+    (d,) = s.getDirectionalDerivative([der], [y], [1.0])
+    assert np.isfinite(d) and d < 0  # the pendulum's restoring stiffness, -g/L cos θ near rest
+    s.terminate()
+    s.freeInstance()
+
+
 # ---- numbers: fmpy's solvers against the engine's run ----------------------------------------------------
 @pytest.mark.parametrize("m", MODELS)
 def test_cvode_equals_the_engine(built, m):

@@ -391,7 +391,7 @@ def test_null_pointers_and_sizes_do_not_crash(built, tmp_path):
                        ("fmi2GetString", (c, None, 1, None)), ("fmi2SetFMUstate", (c, None)),
                        ("fmi2GetFMUstate", (c, None)), ("fmi2SerializedFMUstateSize", (c, None, None)),
                        ("fmi2DeSerializeFMUstate", (c, None, 5, None)), ("fmi2DoStep", (None, 0.0, 0.1, 1)),
-                       ("fmi2SetDebugLogging", (c, 1, 1, None)), ("fmi2GetDirectionalDerivative", (c, None, 0, None, 0, None, None))):
+                       ("fmi2SetDebugLogging", (c, 1, 1, None)), ("fmi2GetDirectionalDerivative", (c, None, 2, None, 1, None, None))):
         fn = getattr(lib, name)
         fn.restype = ctypes.c_int
         fn.argtypes = [P] + [ctypes.c_double if isinstance(a, float) else ctypes.c_size_t if isinstance(a, int) else P

@@ -132,6 +132,11 @@ const double *mbs_nominals(const MbsInstance *s) {  /* every state's nominal is 
     return one;
 }
 const char *mbs_message(const MbsInstance *s) { (void)s; return ""; }
+int mbs_directional_derivative(MbsInstance *s, const unsigned *u, size_t nu, const unsigned *k, size_t nk,
+                               const double *seed, double *sens) {  /* (fmi2.c calls it; the benchmark does not) */
+    (void)s, (void)u, (void)nu, (void)k, (void)nk, (void)seed, (void)sens;
+    return MBS_ERROR;
+}
 
 /* state: the numbers that determine the future */
 size_t mbs_state_size(const MbsInstance *s) { return (3 + (size_t)s->m->n) * sizeof(double); }

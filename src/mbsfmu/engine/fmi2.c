@@ -272,10 +272,10 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
                                         const fmi2ValueReference vKnown_ref[], size_t nKnown,
                                         const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
-    CHECK(P_ANY, "fmi2GetDirectionalDerivative");
-    (void)vUnknown_ref, (void)nUnknown, (void)vKnown_ref, (void)nKnown, (void)dvKnown, (void)dvUnknown;
-    mbs_fmi_logf(f, fmi2Error, "fmi2GetDirectionalDerivative: not provided (providesDirectionalDerivative=false)");
-    return fmi2Error;
+    /* the engine's: knowns are states and inputs, unknowns derivatives, outputs and states (mbs_engine.h) */
+    CHECK(P_INIT | P_RUNNING | P_TERMINATED | P_ERROR, "fmi2GetDirectionalDerivative");
+    return engine_status(f, mbs_directional_derivative(f->sim, vUnknown_ref, nUnknown, vKnown_ref, nKnown, dvKnown,
+                                                       dvUnknown), "fmi2GetDirectionalDerivative");
 }
 
 /* ---- co-simulation ---- */

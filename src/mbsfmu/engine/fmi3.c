@@ -446,19 +446,42 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference
     (void)dependencyKinds, (void)nDependencies;
     NOT_PROVIDED(fmi3GetVariableDependencies, "the modelDescription lists no dependencies");
 }
+/* Directional and adjoint derivatives: the engine's over the rows the variables hold (knowns: states and inputs;
+ * unknowns: derivatives, outputs, states), seeds and sensitivities flat as fmi3GetFloat64's values. */
+typedef int (*EngineDerivative)(MbsInstance *, const unsigned *, size_t, const unsigned *, size_t, const double *,
+                                double *);
+static fmi3Status derivative(MbsFmiHead *f, EngineDerivative fn, int adjoint, const fmi3ValueReference unknowns[],
+                             size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns,
+                             const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity,
+                             const char *name) {
+    size_t nu, nk;
+    long ru, rk;
+    if (mbs_fmi_bad_array(f, unknowns, unknowns, nUnknowns, name) || mbs_fmi_bad_array(f, knowns, knowns, nKnowns, name) ||
+        (ru = expand(f, unknowns, nUnknowns, 0, &nu, name)) < 0 ||
+        (rk = expand(f, knowns, nKnowns, (size_t)ru, &nk, name)) < 0 ||
+        bad_count(f, nSeed, adjoint ? nu : nk, name) || bad_count(f, nSensitivity, adjoint ? nk : nu, name))
+        return fmi3Error;
+    if ((size_t)ru != nu || (size_t)rk != nk) {
+        mbs_fmi_logf(f, fmi3Error, "%s: the independent variable (time) is neither a known nor an unknown here", name);
+        return fmi3Error;
+    }
+    return engine_status(f, fn(f->sim, ((Fmu *)f)->rows, nu, ((Fmu *)f)->rows + nu, nk, seed, sensitivity), name);
+}
+
+#define P_DERIVATIVES (P_INIT | P_RUNNING | P_TERMINATED | P_ERROR)
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
                                         const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
                                         size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
-    (void)unknowns, (void)nUnknowns, (void)knowns, (void)nKnowns, (void)seed, (void)nSeed, (void)sensitivity;
-    (void)nSensitivity;
-    NOT_PROVIDED(fmi3GetDirectionalDerivative, "providesDirectionalDerivatives=false");
+    CHECK(P_DERIVATIVES, "fmi3GetDirectionalDerivative");
+    return derivative(f, mbs_directional_derivative, 0, unknowns, nUnknowns, knowns, nKnowns, seed, nSeed, sensitivity,
+                      nSensitivity, "fmi3GetDirectionalDerivative");
 }
 fmi3Status fmi3GetAdjointDerivative(fmi3Instance instance, const fmi3ValueReference unknowns[], size_t nUnknowns,
                                     const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
                                     size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
-    (void)unknowns, (void)nUnknowns, (void)knowns, (void)nKnowns, (void)seed, (void)nSeed, (void)sensitivity;
-    (void)nSensitivity;
-    NOT_PROVIDED(fmi3GetAdjointDerivative, "providesAdjointDerivatives=false");
+    CHECK(P_DERIVATIVES, "fmi3GetAdjointDerivative");
+    return derivative(f, mbs_adjoint_derivative, 1, unknowns, nUnknowns, knowns, nKnowns, seed, nSeed, sensitivity,
+                      nSensitivity, "fmi3GetAdjointDerivative");
 }
 fmi3Status fmi3EnterConfigurationMode(fmi3Instance instance) {
     NOT_PROVIDED(fmi3EnterConfigurationMode, "no structural parameters");

@@ -29,7 +29,8 @@ struct MbsInstance {
     double *work, *M, *k, *q, *xdot, *out;
     double *der;          /* ẋ at (time, x) with the inputs and parameters set, when der_valid (model exchange) */
     void *elastic_work;
-    void *tangent;        /* directional derivatives' workspace (deriv.c), made at the first one asked for */
+    void *tangent;        /* directional derivatives' workspace (deriv.c), made at the first one asked for, */
+    double *dx;           /* then the seeds dx (n), du (nu) and dẋ (n), d out (6 nout), d σ (nstress) */
     int tangent_bound;    /* it holds the bound numbers of D (binding clears it) */
     int method;
     double rtol, atol, max_step, step;
@@ -1021,9 +1022,6 @@ static int check_refs(MbsInstance *s, const char *what, const unsigned *vr, size
     return MBS_OK;
 }
 
-/* The tangent workspace: [complex numbers (deriv.c) | dx (n), du (nu), dẋ (n), d out (6 nout), d σ (nstress)] */
-static double *tangent_numbers(const MbsInstance *s) { return (double *)((char *)s->tangent + mbs_tangent_work_size(s->m)); }
-
 /* J seed into the tangent workspace (the knowns and unknowns checked; the instance prepared as for ẋ, before
  * initialization at the initial state); only what the unknowns need is evaluated. */
 static int tangent(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known, size_t nknown,
@@ -1032,10 +1030,12 @@ static int tangent(MbsInstance *s, const unsigned *unknown, size_t nunknown, con
     const MbsModel *m = s->m;
     const int f = NVEL(m), nout = m->hdr[H_NOUT];
     if (!s->tangent) {
-        s->tangent = calloc(1, mbs_tangent_work_size(m) + sizeof(double) * (2 * (size_t)s->n + s->nu + 6 * (size_t)nout + m->nstress));
+        const size_t bytes = mbs_tangent_work_size(m);  /* a multiple of 16 */
+        s->tangent = calloc(1, bytes + sizeof(double) * (2 * (size_t)s->n + s->nu + 6 * (size_t)nout + m->nstress));
         if (!s->tangent) return report(s, MBS_ERROR, "no memory for the directional derivatives' workspace");
+        s->dx = (double *)((char *)s->tangent + bytes);
     }
-    double *dx = tangent_numbers(s), *du = dx + s->n, *dxdot = du + s->nu, *dout = dxdot + s->n, *dvm = dout + 6 * (size_t)nout;
+    double *dx = s->dx, *du = dx + s->n, *dxdot = du + s->nu, *dout = dxdot + s->n, *dvm = dout + 6 * (size_t)nout;
     int want[MBS_V_N] = {0};
     int rc = !s->initialized && !s->initial_valid ? initial_state(s) : MBS_OK;
     if (!rc) rc = pending(s, MBS_ERROR, "no directional derivatives");
@@ -1063,7 +1063,7 @@ static double tangent_of(const MbsInstance *s, unsigned vr)
 {
     const MbsModel *m = s->m;
     const int kind = m->vars[2 * vr], idx = m->vars[2 * vr + 1];
-    const double *dx = tangent_numbers(s), *dxdot = dx + s->n + s->nu, *dout = dxdot + s->n;
+    const double *dx = s->dx, *dxdot = dx + s->n + s->nu, *dout = dxdot + s->n;
     return kind == MBS_V_DER ? dxdot[idx] : kind == MBS_V_OUT ? dout[idx] : kind == MBS_V_VM ? dout[6 * m->hdr[H_NOUT] + idx] :
            kind == MBS_V_Y ? dx[idx] : dx[NPOS(m) + idx];
 }

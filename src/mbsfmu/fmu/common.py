@@ -90,7 +90,7 @@ MODEL_EXCHANGE = {
     "canNotUseMemoryManagementFunctions": "true",
     "canGetAndSetFMUstate": "true",
     "canSerializeFMUstate": "true",
-    "providesDirectionalDerivative": "false",
+    "providesDirectionalDerivative": "true",  # the engine's, exact to rounding (engine/deriv.c)
 }
 
 
@@ -266,10 +266,12 @@ def _derivative_dependencies(der, base: int) -> dict:
 
 
 # FMI 3.0: what an FMU offers beyond the defaults (all false), per interface
+FMI3_DERIVATIVES = {"providesDirectionalDerivatives": "true", "providesAdjointDerivatives": "true"}
 FMI3_COSIMULATION = {"canHandleVariableCommunicationStepSize": "true", "canGetAndSetFMUState": "true",
-                     "canSerializeFMUState": "true", "providesIntermediateUpdate": "true", "hasEventMode": "false"}
+                     "canSerializeFMUState": "true", "providesIntermediateUpdate": "true", "hasEventMode": "false",
+                     **FMI3_DERIVATIVES}
 FMI3_MODEL_EXCHANGE = {"needsCompletedIntegratorStep": "false", "canGetAndSetFMUState": "true",
-                       "canSerializeFMUState": "true"}
+                       "canSerializeFMUState": "true", **FMI3_DERIVATIVES}
 
 
 def model_description3(spec: dict, name: str, variables, version: str, token: str) -> bytes:

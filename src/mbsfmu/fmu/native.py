@@ -42,7 +42,7 @@ _INCLUDE = re.compile(rb'^\s*#\s*include\s+"([^"]+)"', re.M)
 
 # Co-simulation capabilities that differ from the pythonfmu kind.
 COSIMULATION = {"needsExecutionTool": "false", "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true",
-                "canHandleVariableCommunicationStepSize": "true"}
+                "canHandleVariableCommunicationStepSize": "true", "providesDirectionalDerivative": "true"}
 
 
 def source_files(blob: bytes, fmi: str = "2") -> dict[str, bytes]:
