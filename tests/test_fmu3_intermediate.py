@@ -252,14 +252,8 @@ def test_hostile_calls_in_the_callback_are_errors(built, tmp_path, build):
     assert out_vrs == list(range(out_vrs[0], out_vrs[0] + len(out_vrs)))
     script = tmp_path / "child.py"
     script.write_text(CHILD)
-    lib, env = d / "binaries" / "x86_64-linux" / f"{md.coSimulation.modelIdentifier}.so", dict(os.environ)
-    if build == "sanitized":
-        from test_fmu3 import _asan_library  # the FMI 3.0 tests' sanitized build of sources/
-        asan = _asan_library(d / "sources", tmp_path / "asan.so")
-        if asan is None:
-            pytest.skip("no AddressSanitizer runtime (gcc's libasan)")
-        lib = asan[0]
-        env.update(LD_PRELOAD=asan[1], ASAN_OPTIONS="detect_leaks=0:abort_on_error=1")
+    from test_fmu3 import fmu_library  # as shipped, or sources/ with ASan + UBSan
+    lib, env = fmu_library(d, md, tmp_path, build)
     r = subprocess.run([sys.executable, str(script), str(lib), str(d / "resources") + os.sep, md.guid,
                         *map(str, args)], capture_output=True, text=True, timeout=120, env=env)
     assert r.returncode == 0, (r.returncode, r.stdout[-3000:], r.stderr[-3000:])
