@@ -282,3 +282,50 @@ def test_an_unstable_step_that_breaks_the_mass_matrix_says_so():
     with pytest.raises(IntegrationError, match="unstable step .*radau5") as e:
         sim.run(np.linspace(0.0, 0.1, 11))
     assert 0.0 < e.value.t < 0.1
+
+
+@pytest.mark.parametrize("model,method", [("spinning_top", "dop853"), ("driven_crank", "auto"),
+                                          ("driven_crank", "rk4")])
+def test_step_observer_shows_each_internal_point_and_refuses_changes(model, method):
+    """mbs_set_step_observer: inside mbs_do_step at each internal point and the end, the instance shows that
+    point (time, state, output points as a fresh instance computes them there: not the step's end), refuses
+    steps, settings and state changes with a message; afterwards it is at the end, bit for bit where an
+    instance without an observer is."""
+    from mbsfmu.engine.api import STEP_OBSERVER
+    spec = mbsfmu.load(REPO / "models" / f"{model}.yaml").spec
+    sims = [Simulation(spec), Simulation(spec)]
+    names = [v.name for v in sims[0].variables if v.causality == "output" and not v.name.startswith(("y.", "yd."))]
+    seen, refusals = [], []
+    sim = sims[0]
+
+    def observe(env, t, x):
+        xs = np.ctypeslib.as_array(x, (sim.engine.n,)).copy()
+        seen.append((t, sim.engine.time, xs, sim.x, [sim.get(n) for n in names]))
+        for call in (lambda: sim.engine.do_step(t, 0.01), lambda: sim.engine.set_state(xs),
+                     lambda: sim.set("integrator.rtol", 1e-3), lambda: sim.engine.reset()):
+            with pytest.raises(EngineError) as e:
+                call()
+            refusals.append(str(e.value))
+
+    cb = STEP_OBSERVER(observe)
+    assert sim.engine.lib.mbs_set_step_observer(sim.engine.ptr, cb, None) == 0
+    for s in sims:
+        s.set("integrator.method", method)
+        s.set("integrator.step", 0.002)
+        s.initialize(0.0)
+    fresh = Simulation(spec)
+    for k in range(5):
+        n0 = len(seen)
+        for s in sims:
+            s.do_step(k * 0.01, 0.01)
+        assert np.array_equal(sims[0].x, sims[1].x) and sims[0].engine.time == sims[1].engine.time == (k + 1) * 0.01
+        step = seen[n0:]
+        assert step[-1][0] == sims[0].engine.time and all(k * 0.01 < t for t, *_ in step)
+        assert np.array_equal(step[-1][2], sims[0].x)
+        for t, time, x, shown, values in step:
+            assert time == t and np.array_equal(x, shown)
+            want = fresh.output_values(x, t)
+            assert values == [want[n] for n in names], (t, values)
+        assert len({tuple(v) for *_, v in step}) == len(step)  # each point's own outputs
+    assert len(seen) > 5  # internal points besides the ends
+    assert refusals and all("not allowed while the step observer runs" in m for m in refusals), refusals[:4]

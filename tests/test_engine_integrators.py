@@ -474,3 +474,48 @@ def test_common_driver_names_no_method():
     named |= {f"mbs_{e[2]}_class" for e in layout.LISTS["MBS_METHODS"]} | {"composite"}
     assert not words & named, words & named
     assert not re.search(r"method\s*[!=]=|[!=]=\s*\w*method\b|cls\s*[!=]=|ops\s*[!=]=", code)
+
+
+OBSERVER = C.CFUNCTYPE(None, C.c_void_p, C.c_double, C.POINTER(C.c_double))
+
+
+@pytest.mark.parametrize("method,dense", [(m, d) for m in METHODS for d in (0, -1) if (m, d) != ("rk4", -1)])
+def test_observer_sees_every_accepted_step_once(lib, method, dense):
+    """mbs_integ_set_observer: each accepted step strictly inside an advance, once, in increasing t; landing steps
+    are the caller's (without dense output every advance ends on one: reports = steps − advances). radau5 and
+    auto on a stiff linear system (ẋ0 = 1, ẋ1 = −λ(x1 − x0), λ = 1e4: auto's dopri5 finds it stiff
+    after the transient and hands over to radau5, whose steps are reported too), the others on van der Pol; the
+    points are the trajectory's (the closed form x1 = t − (1 − e^(−λt))/λ; scipy's DOP853 at rtol 1e-12) to the
+    tolerance asked for."""
+    stiff = method in ("radau5", "auto")  # gen_alpha: a mechanical system (ẏ is the velocity), van der Pol
+    ts = np.linspace(0.1, 1.5, 8) if stiff else np.linspace(0.5, 4.0, 8)
+    ode = Ode(lib, "confined", 1e4) if stiff else Ode(lib, "vdp", 1.0)
+    x0 = np.array([0.0, 0.0] if stiff else [2.0, 0.0])
+    it = Integ(lib, method, ode, 2, rtol=1e-8, atol=1e-10, h=0.01 if method == "rk4" else 0.0, dense=dense)
+    seen = []
+    cb = OBSERVER(lambda env, t, x: seen.append((t, x[0], x[1])))
+    lib.mbs_integ_set_observer.argtypes = [C.c_void_p, OBSERVER, C.c_void_p]
+    lib.mbs_integ_set_observer(it.ptr, cb, None)
+    it.reset(0.0, x0)
+    t0 = 0.0
+    for t_end in ts:
+        n0 = len(seen)
+        it.advance(t_end)
+        assert all(t0 < t < t_end for t, *_ in seen[n0:]), method
+        t0 = t_end
+    times = np.array([t for t, *_ in seen])
+    assert len(times) > 4 and np.all(np.diff(times) > 0), method
+    st = it.stats
+    if dense == 0:
+        assert len(seen) == st["steps"] - len(ts), (method, len(seen), st)
+    if method == "auto":
+        assert st["switched"] == 1 and times.min() < st["switched_at"] < times.max(), st
+    got = np.array([(a, b) for _, a, b in seen])
+    if stiff:
+        ref = np.column_stack([times, times - (1 - np.exp(-1e4 * times)) / 1e4])
+    else:
+        from scipy.integrate import solve_ivp
+        ref = solve_ivp(vdp_rhs(1.0), (0.0, ts[-1]), x0, method="DOP853", rtol=1e-12, atol=1e-14,
+                        dense_output=True).sol(times).T
+    err = np.abs(got - ref).max(axis=0) / np.abs(ref).max(axis=0)
+    assert err.max() < 1e-5, (method, err)

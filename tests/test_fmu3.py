@@ -513,6 +513,19 @@ def _asan_library(sources, out):
     return (out, runtime) if r.returncode == 0 else None
 
 
+def fmu_library(d, md, tmp_path, build):
+    """The library of the FMU unpacked in d and the environment to load it in: as shipped, or ("sanitized") its
+    sources/ built with AddressSanitizer and UBSan (skipped without gcc's libasan)."""
+    lib, env = d / "binaries" / "x86_64-linux" / f"{md.coSimulation.modelIdentifier}.so", dict(os.environ)
+    if build == "sanitized":
+        asan = _asan_library(d / "sources", tmp_path / "asan.so")
+        if asan is None:
+            pytest.skip("no AddressSanitizer runtime (gcc's libasan)")
+        lib = asan[0]
+        env.update(LD_PRELOAD=asan[1], ASAN_OPTIONS="detect_leaks=0:abort_on_error=1")
+    return lib, env
+
+
 @pytest.mark.parametrize("build", ["shipped", "sanitized"])
 def test_hostile_calls_are_errors_with_messages(built, tmp_path, build):
     """Each hostile call in a child process: fmi3Error (fmi3Discard for a step with a NaN input) with a message
@@ -530,13 +543,7 @@ def test_hostile_calls_are_errors_with_messages(built, tmp_path, build):
     par = next(v.valueReference for v in engine_vars if v.causality == "parameter" and v.type == "Float64"
                and v.variability == "tunable")
     method = next(v.valueReference for v in engine_vars if v.name == "integrator.method")
-    lib, env = d / "binaries" / "x86_64-linux" / f"{md.coSimulation.modelIdentifier}.so", dict(os.environ)
-    if build == "sanitized":
-        asan = _asan_library(d / "sources", tmp_path / "asan.so")
-        if asan is None:
-            pytest.skip("no AddressSanitizer runtime (gcc's libasan)")
-        lib = asan[0]
-        env.update(LD_PRELOAD=asan[1], ASAN_OPTIONS="detect_leaks=0:abort_on_error=1")
+    lib, env = fmu_library(d, md, tmp_path, build)
     script = tmp_path / "child.py"
     script.write_text(CHILD)
     r = subprocess.run([sys.executable, str(script), str(lib), str(d / "resources") + os.sep, md.guid, str(nout),

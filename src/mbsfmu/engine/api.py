@@ -5,6 +5,7 @@ import ctypes
 c_int, c_double, c_size_t, c_char_p, c_void_p = ctypes.c_int, ctypes.c_double, ctypes.c_size_t, ctypes.c_char_p, ctypes.c_void_p
 P_double = ctypes.POINTER(ctypes.c_double)
 LOGGER = ctypes.CFUNCTYPE(None, c_void_p, c_int, c_char_p)
+STEP_OBSERVER = ctypes.CFUNCTYPE(None, c_void_p, c_double, P_double)
 
 SIGNATURES = {
     "mbs_model_load": (c_void_p, [c_char_p, c_size_t, c_char_p, c_size_t]),
@@ -28,6 +29,7 @@ SIGNATURES = {
     "mbs_initialize": (c_int, [c_void_p, c_double]),
     "mbs_do_step": (c_int, [c_void_p, c_double, c_double]),
     "mbs_run": (c_int, [c_void_p, c_void_p, c_int, c_void_p]),
+    "mbs_set_step_observer": (c_int, [c_void_p, STEP_OBSERVER, c_void_p]),
     "mbs_time": (c_double, [c_void_p]),
     "mbs_state": (P_double, [c_void_p]),
     "mbs_nominals": (P_double, [c_void_p]),

@@ -15,6 +15,7 @@ const char *mbs_phase_name(int phase) {
     case P_CONT: return "continuous-time mode";
     case P_TERMINATED: return "terminated";
     case P_ERROR: return "error";
+    case P_UPDATE: return "intermediate update mode (inside the intermediateUpdate callback)";
     default: return "fatal";
     }
 }

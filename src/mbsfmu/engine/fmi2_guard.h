@@ -15,7 +15,9 @@
 /* phases (co-simulation steps in P_STEP, model exchange moves between P_EVENT and P_CONT); a mask may also name
  * the interface (I_CS, I_ME) a call belongs to, without one it is both's */
 enum { P_INSTANTIATED = 1, P_INIT = 2, P_STEP = 4, P_EVENT = 8, P_CONT = 16, P_TERMINATED = 32, P_ERROR = 64,
-       P_FATAL = 128, I_CS = 256, I_ME = 512 };
+       P_FATAL = 128, I_CS = 256, I_ME = 512,
+       P_UPDATE = 1024 };  /* FMI 3.0's intermediate update mode: inside the host's callback during fmi3DoStep */
+/* P_UPDATE is in no mask but the calls' that name it: every other call is refused inside the callback */
 #define P_ANY (P_INSTANTIATED | P_INIT | P_STEP | P_EVENT | P_CONT | P_TERMINATED | P_ERROR)
 #define P_RUNNING (P_STEP | P_EVENT | P_CONT)  /* initialized, not terminated */
 

@@ -11,7 +11,11 @@
  * Variables: FMI 3.0's (mbs_model_var3: runs of rows of the engine's variable table as arrays, every other row a
  * scalar; fmu/variables.py: fmi3_variables numbers them for the modelDescription), Float64 arrays and scalars and
  * String scalars, plus the independent variable `time` after the last one (value reference = their count).
- * Values of arrays are flat, row after row. Co-simulation without event mode, intermediate update or early return.
+ * Values of arrays are flat, row after row. Co-simulation without event mode or early return; with an
+ * intermediateUpdate callback given at instantiation, fmi3DoStep calls it after every accepted internal step of the
+ * engine's integrator and at the step's end (the engine's step observer, mbs_set_step_observer), in intermediate
+ * update mode (P_UPDATE): fmi3GetFloat64 of the outputs (intermediateUpdate="true" in the modelDescription) and
+ * of time reads that point, every other call gets fmi3Error.
  * Model exchange: the continuous states are the engine's [y; ẏ] (quaternions as the engine keeps them: the host
  * integrates their four components, nothing renormalizes them); no event indicators, no time events.
  *
@@ -39,6 +43,7 @@ typedef struct {
     MbsFmiHead h;
     fmi3InstanceEnvironment env;
     fmi3LogMessageCallback log;
+    fmi3IntermediateUpdateCallback intermediate_update;  /* the host's, or NULL */
     size_t nrows;              /* the rows of the engine's variable table: room in rows[] */
     unsigned rows[];           /* the rows of the variables of one call (expand) */
 } Fmu;
@@ -113,7 +118,7 @@ const char *fmi3GetVersion(void) { return fmi3Version; }
 
 fmi3Status fmi3SetDebugLogging(fmi3Instance instance, fmi3Boolean loggingOn, size_t nCategories,
                                const fmi3String categories[]) {
-    CHECK(P_ANY, "fmi3SetDebugLogging");
+    CHECK(P_ANY | P_UPDATE, "fmi3SetDebugLogging");
     CORE(mbs_fmi_set_debug_logging(f, loggingOn != fmi3False, nCategories, categories, "fmi3SetDebugLogging"));
 }
 
@@ -187,6 +192,26 @@ static fmi3Instance instantiate(const char *fn, int iface, fmi3String instanceNa
     return f;
 }
 
+/* The engine's step observer: the host's intermediateUpdate at the internal point t (the engine shows it), in
+ * intermediate update mode. Only reading: no inputs set, the point is an accepted step, no early return. */
+static void intermediate_update(void *env, double t, const double *x) {
+    Fmu *u = (Fmu *)env;
+    fmi3Boolean early = fmi3False;
+    fmi3Float64 early_time = t;
+    int phase = u->h.phase;
+    (void)x;
+    u->h.phase = P_UPDATE;
+    u->intermediate_update(u->env, t, fmi3False, fmi3True, fmi3True, fmi3False, &early, &early_time);
+    u->h.phase = phase;
+}
+
+/* Readable in intermediate update mode: the variables marked intermediateUpdate="true" (fmu/common.py: the
+ * outputs, functions of the internal point (t, x)) and time. */
+static int intermediate(const MbsFmiHead *f, fmi3ValueReference vr) {
+    int rows, first = mbs_model_var3(f->model, vr, &rows), kind = first < 0 ? -1 : mbs_model_var_kind(f->model, first);
+    return vr == time_vr(f) || kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT || kind == MBS_V_VM;
+}
+
 fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String instantiationToken,
                                          fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
                                          fmi3Boolean eventModeUsed, fmi3Boolean earlyReturnAllowed,
@@ -195,12 +220,18 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                                          fmi3InstanceEnvironment instanceEnvironment,
                                          fmi3LogMessageCallback logMessage,
                                          fmi3IntermediateUpdateCallback intermediateUpdate) {
-    /* hasEventMode, providesIntermediateUpdate and early return are false: the FMU never uses them, whatever
-     * the host could handle */
+    /* hasEventMode and early return are false: the FMU never uses them, whatever the host could handle. Every
+     * intermediate variable may be read in the callback, whichever the host named. */
+    Fmu *f;
     (void)visible, (void)eventModeUsed, (void)earlyReturnAllowed, (void)requiredIntermediateVariables;
-    (void)nRequiredIntermediateVariables, (void)intermediateUpdate;
-    return instantiate("fmi3InstantiateCoSimulation", I_CS, instanceName, instantiationToken, resourcePath, loggingOn,
-                       instanceEnvironment, logMessage);
+    (void)nRequiredIntermediateVariables;
+    f = (Fmu *)instantiate("fmi3InstantiateCoSimulation", I_CS, instanceName, instantiationToken, resourcePath,
+                           loggingOn, instanceEnvironment, logMessage);
+    if (f && intermediateUpdate) {
+        f->intermediate_update = intermediateUpdate;
+        mbs_set_step_observer(f->h.sim, intermediate_update, f);
+    }
+    return f;
 }
 
 fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
@@ -226,6 +257,12 @@ fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3Stri
 }
 
 void fmi3FreeInstance(fmi3Instance instance) {
+    MbsFmiHead *f = (MbsFmiHead *)instance;
+    if (mbs_reg_find(&instances, f) && f->phase == P_UPDATE) {  /* the step in progress holds it */
+        mbs_fmi_logf(f, fmi3Error, "fmi3FreeInstance: not allowed in intermediate update mode (inside the "
+                     "intermediateUpdate callback); the instance stays");
+        return;
+    }
     mbs_fmi_free_instance(&instances, (MbsFmiHead *)instance, "fmi3FreeInstance");
 }
 
@@ -263,7 +300,14 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
                           fmi3Float64 values[], size_t nValues) {
     size_t i, want, at = 0;
     long n;
-    CHECK(P_ANY, "fmi3GetFloat64");
+    CHECK(P_ANY | P_UPDATE, "fmi3GetFloat64");
+    for (i = 0; f->phase == P_UPDATE && valueReferences && i < nValueReferences; i++)
+        if (!intermediate(f, valueReferences[i])) {
+            mbs_fmi_logf(f, fmi3Error, "fmi3GetFloat64: value reference %u is not an intermediate variable "
+                         "(intermediateUpdate=\"true\": the outputs and time) and cannot be read in intermediate "
+                         "update mode", valueReferences[i]);
+            return fmi3Error;
+        }
     if (mbs_fmi_bad_array(f, valueReferences, values, nValueReferences, "fmi3GetFloat64") ||
         expand(f, valueReferences, nValueReferences, 0, &want, "fmi3GetFloat64") < 0 ||
         bad_count(f, nValues, want, "fmi3GetFloat64"))

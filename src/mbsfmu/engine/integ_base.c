@@ -301,6 +301,7 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
         c->t = t_new;
         c->steps++;
         if (cls->accepted && cls->accepted(it)) return 1;
+        mbs_integ_observe(it, t_end);
         if (it->dense && t_new > t_end) {
             /* the stages of this step are still in scratch: build its continuous extension */
             if (cls->dense_coeffs(it, t, it->xold, it->x, h, it->Q)) return 1;
@@ -512,6 +513,15 @@ static int single_reset(MbsIntegrator *it, double t0, const double *x0)
 
 void mbs_integ_inputs_changed(MbsIntegrator *it) { it->cls->ops->inputs_changed(it); }
 
+void mbs_integ_set_observer(MbsIntegrator *it, MbsStepObserver fn, void *env)
+{
+    int k;
+    it->observe = fn;
+    it->observe_env = env;
+    for (k = 0; k < 2; k++) /* a composite's children take the steps */
+        if (it->sub[k]) mbs_integ_set_observer(it->sub[k], fn, env);
+}
+
 static void single_inputs_changed(MbsIntegrator *it)
 {
     /* with dense output restart from the visible (interpolated) state, so the new inputs act from t on;
@@ -545,6 +555,7 @@ static int single_advance(MbsIntegrator *it, double t_end)
         c->t = c->t_int;
         memcpy(it->x, it->x_int, (size_t)it->n * sizeof(double));
         c->has_ahead = c->has_seg = 0;
+        mbs_integ_observe(it, t_end); /* accepted in an earlier advance past its end: a point of this one */
     }
     return it->cls->advance ? it->cls->advance(it, t_end) : mbs_integ_adaptive(it, t_end);
 }

@@ -468,6 +468,7 @@ static int rk4_advance(MbsIntegrator *it, double t_end)
         memcpy(x, v->xs, (size_t)n * sizeof(double));
         c->t = t_new;
         c->steps++;
+        mbs_integ_observe(it, t_end);
     }
     c->h = nsub == 1 ? span : span / (double)nsub;
     c->has_h = 1;

@@ -329,8 +329,9 @@ static int commit(MbsIntegrator *it, double t_new, const GaStep *r)
     return r->nit > 2 && r->rate > JAC_RATE ? new_jacobian(it) : 0;
 }
 
-/* One fixed step of nominal size h to t_new; if Newton fails with a fresh Jacobian, split it in halves. */
-static int fixed_step(MbsIntegrator *it, double t_new, double h, int depth)
+/* One fixed step of nominal size h to t_new (inside an advance to t_end); if Newton fails with a fresh Jacobian,
+ * split it in halves. */
+static int fixed_step(MbsIntegrator *it, double t_new, double h, int depth, double t_end)
 {
     GenAlphaView *g = VW(it);
     double t = it->c->t;
@@ -353,9 +354,12 @@ static int fixed_step(MbsIntegrator *it, double t_new, double h, int depth)
             mbs_msg_add(it, " times)");
             return 1;
         }
-        return fixed_step(it, t + 0.5 * h, 0.5 * h, depth + 1) || fixed_step(it, t_new, 0.5 * h, depth + 1);
+        return fixed_step(it, t + 0.5 * h, 0.5 * h, depth + 1, t_end) ||
+               fixed_step(it, t_new, 0.5 * h, depth + 1, t_end);
     }
-    return commit(it, t_new, &g->end);
+    if (commit(it, t_new, &g->end)) return 1;
+    mbs_integ_observe(it, t_end);
+    return 0;
 }
 
 /* Fixed mode: equal substeps <= h; adaptive mode: the common driver with step doubling. */
@@ -367,7 +371,7 @@ static int advance(MbsIntegrator *it, double t_end)
     long nsub;
     if (mbs_integ_fixed_substeps(it, span, h_max, &nsub)) return 1;
     for (long i = 1; i <= nsub; ++i)
-        if (fixed_step(it, i == nsub ? t_end : t0 + span * i / nsub, span / nsub, 0)) return 1;
+        if (fixed_step(it, i == nsub ? t_end : t0 + span * i / nsub, span / nsub, 0, t_end)) return 1;
     it->c->h = span / nsub;
     it->c->has_h = 1;
     return 0;

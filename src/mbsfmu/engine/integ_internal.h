@@ -52,6 +52,7 @@
  * allocated after mbs_integ_new and nothing big is cleared per step.
  *
  * HELPERS a method calls: mbs_integ_f (ode->f, counted; on failure sets the ODE's message), mbs_err_norm,
+ * mbs_integ_observe (a fixed-step advance, after each accepted step),
  * mbs_integ_initial_step, mbs_integ_check_start, mbs_integ_trial_nonfinite, mbs_all_finite,
  * mbs_integ_fixed_substeps (rk4/gen_alpha), mbs_integ_normalize, mbs_pymin/mbs_pymax (Python's NaN
  * semantics), and the message builders mbs_msg_* (no stdio: messages are built by appending strings and
@@ -170,6 +171,8 @@ struct MbsIntegrator {
     void *view;            /* method's pointer struct (sz.view bytes) */
 
     MbsIntegrator *sub[2]; /* auto: dopri5 and radau5 children */
+    MbsStepObserver observe; /* NULL: none (mbs_integ_observe) */
+    void *observe_env;
     char msg[MBS_MSG_LEN];
     size_t msg_len;
 };
@@ -218,6 +221,13 @@ static inline int mbs_integ_fixed_substeps(MbsIntegrator *it, double span, doubl
     double ulps = 8.0 * DBL_EPSILON * (fabs(it->c->t) + span);
     if (span * (1.0 - 1e-12) - ulps <= h_max) { *nsub = 1; return 0; }
     return mbs_integ_fixed_substeps_many(it, span, h_max, ulps, nsub);
+}
+/* The accepted point (c->t, x) to the observer, if any, when it lies strictly before t_end (the advance's end is
+ * its caller's to report). Every accepted step passes here once: the adaptive driver, a resumed ahead point
+ * (single_advance) and the fixed-step loops (rk4, gen_alpha). */
+static inline void mbs_integ_observe(MbsIntegrator *it, double t_end)
+{
+    if (it->observe && it->c->t < t_end) it->observe(it->observe_env, it->c->t, it->x);
 }
 /* Normalize x with ode->normalize when present. */
 void mbs_integ_normalize(MbsIntegrator *it, double *x);

@@ -86,6 +86,14 @@ MBS_API int mbs_do_step(MbsInstance *s, double t, double h);
 /* States at the times ts[0..n-1] (ts[0] = now): rows [y; ẏ] into X (n × (npos+nvel)); the same steps as
  * n-1 do_steps, points inside one dense-output step interpolated together. */
 MBS_API int mbs_run(MbsInstance *s, const double *ts, int n, double *X);
+/* The step observer: inside mbs_do_step, fn(env, t, x) after every accepted internal step strictly inside the step
+ * and once at its end (every method; auto: both phases' steps; mbs_run: its internal points, and its time points where it steps
+ * point by point), in increasing t.
+ * During the call the instance shows that point (mbs_time, mbs_state, variables; outputs computed for it when
+ * read) and refuses every call that changes it (set, step, reset, state load: MBS_ERROR with a message); afterwards
+ * it is at the step's end. fn NULL: none (then a step costs one branch more). Nothing is allocated per step. */
+typedef void (*mbs_step_observer)(void *env, double t, const double *x);
+MBS_API int mbs_set_step_observer(MbsInstance *s, mbs_step_observer fn, void *env);
 MBS_API double mbs_time(const MbsInstance *s);
 MBS_API int mbs_initialized(const MbsInstance *s);  /* 1 after mbs_initialize (or a state loaded from then) */
 MBS_API const double *mbs_state(const MbsInstance *s);  /* [y; ẏ], npos + nvel */

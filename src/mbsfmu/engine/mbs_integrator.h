@@ -63,12 +63,18 @@ typedef struct {
 
 typedef struct MbsIntegrator MbsIntegrator;
 
+/* Called after every accepted internal step that ends strictly before the t_end of the advance in progress, with
+ * the normalized point (t, x) (the end itself is the caller's to report): each point once, in increasing t, for
+ * every method (auto: its children's steps). x is the integrator's: read it, never keep or change it. */
+typedef void (*MbsStepObserver)(void *env, double t, const double *x);
+
 /* NULL with a message in err on bad options (rtol <= 0, atol < 0, max_step <= 0 ...). ode is copied. */
 MbsIntegrator *mbs_integ_new(int method, const MbsOde *ode, const MbsIntegOptions *opt, char *err, size_t errlen);
 void mbs_integ_free(MbsIntegrator *it);
 int mbs_integ_method(const MbsIntegrator *it);
 int mbs_integ_reset(MbsIntegrator *it, double t0, const double *x0);  /* 0, or 1: non-finite start */
 void mbs_integ_inputs_changed(MbsIntegrator *it);                      /* f jumped at the current t */
+void mbs_integ_set_observer(MbsIntegrator *it, MbsStepObserver fn, void *env); /* fn NULL: none */
 /* Integrate to exactly t_end: 0, or 1 with t/x at the last good point and a message. */
 int mbs_integ_advance(MbsIntegrator *it, double t_end);
 /* rows x(ts[i]) (ts increasing, > t): the same steps as one advance per time, points inside one

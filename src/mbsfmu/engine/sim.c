@@ -44,6 +44,9 @@ struct MbsInstance {
     int rhs_ok;           /* an evaluation succeeded since initialization (M was regular once) */
     double time;
     MbsIntegrator *integ;
+    mbs_step_observer observe;  /* mbs_set_step_observer: NULL, or called at each internal point of a step */
+    void *observe_env;
+    int observing;        /* inside the observer: the instance shows the internal point, changes are refused */
     char msg[1024];
 };
 
@@ -77,6 +80,12 @@ static int say(MbsInstance *s, const char *fmt, ...)
 /* ------------------------------------------------------------------------------------------ domains
  * scene/domains.py declares them: Domain.contains and check() there, in_domain and rule_problem here, the
  * same rules with the same texts (tests/test_domains.py holds the two equal). */
+/* Calls that change the instance are refused while the step observer looks at an internal point (mbs_engine.h). */
+#define REFUSED_WHILE_OBSERVING(s, fn)                                                                          \
+    if ((s)->observing)                                                                                         \
+        return report((s), MBS_ERROR, "%s: not allowed while the step observer runs (the step is in progress at an " \
+                      "internal point; variables may be read)", (fn))
+
 static int in_domain(const double *d, double v)
 {
     const int flags = (int)d[2];
@@ -440,6 +449,7 @@ void mbs_instance_free(MbsInstance *s)
 
 int mbs_reset(MbsInstance *s)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_reset");
     const MbsModel *m = s->m;
     const double *di = m->D + m->hdr[H_D_INTEG];
     memcpy(s->D, m->D, (size_t)m->hdr[H_ND] * sizeof(double));
@@ -574,6 +584,7 @@ static int set_parameters(MbsInstance *s, const unsigned *vr, size_t n, const do
 
 int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *value, size_t *bad)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_set_reals");
     const MbsModel *m = s->m;
     size_t nparam = 0;
     char valid[96];
@@ -715,6 +726,7 @@ int mbs_get_reals(MbsInstance *s, const unsigned *vr, size_t n, double *value)
 
 int mbs_set_start(MbsInstance *s, int index, double value)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_set_start");
     char why[160];
     if (index < 0 || index >= s->n) return report(s, MBS_ERROR, "no state entry %d", index);
     if (s->initialized) return report(s, MBS_ERROR, "start values are set before initialization");
@@ -733,6 +745,7 @@ int mbs_set_start(MbsInstance *s, int index, double value)
 
 int mbs_set_string(MbsInstance *s, int vr, const char *value)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_set_string");
     if (mbs_model_var_kind(s->m, vr) != MBS_V_METHOD) return report(s, MBS_ERROR, "value reference %d is not a String parameter", vr);
     if (s->initialized) return report(s, MBS_ERROR, "integrator.method is a fixed parameter: set it before initialization");
     int k = value ? mbs_method_index(value) : -1;
@@ -753,6 +766,29 @@ int mbs_get_string(MbsInstance *s, int vr, const char **value)
 }
 
 /* ------------------------------------------------------------------------------------------ running */
+/* The integrator accepted an internal step at (t, x): the observer sees the instance there (outputs computed for
+ * that point when read), changes refused. mbs_do_step moves the instance to the step's end afterwards. */
+static void observe_point(void *ctx, double t, const double *x)
+{
+    MbsInstance *s = ctx;
+    if (x != s->x) memcpy(s->x, x, (size_t)s->n * sizeof(double));
+    s->time = t;
+    s->out_valid = s->der_valid = 0;
+    s->observing = 1;
+    s->observe(s->observe_env, t, s->x);
+    s->observing = 0;
+    s->out_valid = s->der_valid = 0;
+}
+
+int mbs_set_step_observer(MbsInstance *s, mbs_step_observer fn, void *env)
+{
+    REFUSED_WHILE_OBSERVING(s, "mbs_set_step_observer");
+    s->observe = fn;
+    s->observe_env = env;
+    if (s->integ) mbs_integ_set_observer(s->integ, fn ? observe_point : NULL, s);
+    return MBS_OK;
+}
+
 static MbsIntegrator *new_integrator(MbsInstance *s, int method, char *err, size_t len)
 {
     const MbsModel *m = s->m;
@@ -760,11 +796,14 @@ static MbsIntegrator *new_integrator(MbsInstance *s, int method, char *err, size
                   m->hdr[H_NQUAT] ? ode_retract : NULL};
     MbsIntegOptions opt = {s->rtol, s->atol, s->max_step > 0 ? s->max_step : INFINITY, s->step,
                            m->D[m->hdr[H_D_INTEG] + DI_RHO_INF], 0, -1};
-    return mbs_integ_new(method, &ode, &opt, err, len);
+    MbsIntegrator *it = mbs_integ_new(method, &ode, &opt, err, len);
+    if (it && s->observe) mbs_integ_set_observer(it, observe_point, s);
+    return it;
 }
 
 int mbs_initialize(MbsInstance *s, double t0)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_initialize");
     char err[512];
     if (!isfinite(t0)) return report(s, MBS_ERROR, "start time is not finite");
     int rc = initial_state(s);
@@ -817,6 +856,7 @@ static int failed(MbsInstance *s)
 
 int mbs_do_step(MbsInstance *s, double t, double h)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_do_step");
     s->out_valid = s->der_valid = 0;
     int rc = prepare(s, t);
     if (rc) return rc;
@@ -829,11 +869,13 @@ int mbs_do_step(MbsInstance *s, double t, double h)
     /* a coarse step may jump across b = ±90° without landing near it */
     if (cardan && gimbal(s, s->x, s->x_before, s->msg, sizeof s->msg))
         return report(s, MBS_DISCARD, "t = %.9g: %s", s->time, s->msg);
+    if (s->observe) observe_point(s, s->time, s->x);  /* the step's end: its last internal point, or interpolated */
     return MBS_OK;
 }
 
 int mbs_run(MbsInstance *s, const double *ts, int n, double *X)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_run");
     s->out_valid = s->der_valid = 0;
     if (n < 1) return report(s, MBS_ERROR, "no time points");
     int rc = prepare(s, ts[0]);
@@ -910,6 +952,7 @@ static const char *state_name(const MbsModel *m, int i)
 
 int mbs_set_time(MbsInstance *s, double t)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_set_time");
     if (!s->initialized) return report(s, MBS_ERROR, "the instance is not initialized");
     if (!isfinite(t)) return report(s, MBS_ERROR, "time %g is not finite; the time stays %.17g", t, s->time);
     if (t != s->time) s->time = t, s->out_valid = s->der_valid = 0;
@@ -918,6 +961,7 @@ int mbs_set_time(MbsInstance *s, double t)
 
 int mbs_set_state(MbsInstance *s, const double *x, size_t n)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_set_state");
     if (!s->initialized) return report(s, MBS_ERROR, "the instance is not initialized");
     if (!x || n != (size_t)s->n)
         return report(s, MBS_ERROR, "%zu continuous states given, the model has %d; states unchanged", x ? n : 0, s->n);
@@ -1104,6 +1148,7 @@ int mbs_state_save(const MbsInstance *s, void *buf, size_t len)
 
 int mbs_state_load(MbsInstance *s, const void *buf, size_t len)
 {
+    REFUSED_WHILE_OBSERVING(s, "mbs_state_load");
     const unsigned char *p = buf;
     uint64_t plen;
     Head h;

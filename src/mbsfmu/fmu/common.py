@@ -268,7 +268,7 @@ def _derivative_dependencies(der, base: int) -> dict:
 # FMI 3.0: what an FMU offers beyond the defaults (all false), per interface
 FMI3_DERIVATIVES = {"providesDirectionalDerivatives": "true", "providesAdjointDerivatives": "true"}
 FMI3_COSIMULATION = {"canHandleVariableCommunicationStepSize": "true", "canGetAndSetFMUState": "true",
-                     "canSerializeFMUState": "true", "providesIntermediateUpdate": "false", "hasEventMode": "false",
+                     "canSerializeFMUState": "true", "providesIntermediateUpdate": "true", "hasEventMode": "false",
                      **FMI3_DERIVATIVES}
 FMI3_MODEL_EXCHANGE = {"needsCompletedIntegratorStep": "false", "canGetAndSetFMUState": "true",
                        "canSerializeFMUState": "true", **FMI3_DERIVATIVES}
@@ -309,6 +309,8 @@ def model_description3(spec: dict, name: str, variables, version: str, token: st
             attr["unit"] = v.unit
         if v.causality in ("parameter", "input"):
             attr["start"] = " ".join(_fmt(0.0 if e.start is None else e.start) for e in vs)
+        if v.causality == "output":  # readable in the intermediateUpdate callback (engine/fmi3.c: intermediate)
+            attr["intermediateUpdate"] = "true"
         if v.nominal is not None:
             attr["nominal"] = _fmt(min(e.nominal for e in vs))
         if v.derivative_of is not None:
