@@ -1081,7 +1081,7 @@ int mbs_directional_derivative(MbsInstance *s, const unsigned *unknown, size_t n
                                size_t nknown, const double *seed, double *sensitivity)
 {
     int rc = check_all(s, unknown, nunknown, known, nknown, seed, nknown, sensitivity, nunknown, "directional");
-    if (!rc) rc = tangent(s, unknown, nunknown, known, nknown, seed);
+    if (!rc && nunknown) rc = tangent(s, unknown, nunknown, known, nknown, seed);  /* none asked: nothing to do */
     for (size_t i = 0; !rc && i < nunknown; i++) sensitivity[i] = tangent_of(s, unknown[i]);
     return rc;
 }
