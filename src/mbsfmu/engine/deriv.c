@@ -1,8 +1,8 @@
 /* Directional derivatives of ẋ, the output points and the stresses along seeds of the state and the inputs
  * (issue 27: FMI's directional and adjoint derivatives), by complex step through the evaluation itself: tree.c,
  * dynamics.c (and in deriv_elastic.c elastic.c) compiled again over a complex `real` (mbs_model.h, MBS_CX renames
- * their functions to mbs_cx_*). With x + i h dx, f(x + i h dx) = f(x) + i h f'(x) dx + O(h²): the imaginary part over h is the
- * derivative, with no difference taken, so exact to rounding (h so small that h² vanishes beside 1). Both
+ * their functions to mbs_cx_*). With x + i h dx, f(x + i h dx) = f(x) + i h f'(x) dx + O(h²): the imaginary part
+ * over h is the derivative, with no difference taken, so exact to rounding (h so small that h² vanishes). Both
  * evaluation paths and every joint, force element and elastic body are differentiated by the code that
  * evaluates them; nothing is written twice.
  */
@@ -34,10 +34,9 @@ size_t mbs_tangent_work_size(const MbsModel *m)
     return n;
 }
 
-static real *lift(real *to, const double *x, const double *dx, double h, size_t n)  /* x + i h dx */
+static void lift(real *to, const double *x, const double *dx, double h, size_t n)  /* x + i h dx */
 {
     for (size_t k = 0; k < n; k++) to[k] = CMPLX(x ? x[k] : 0.0, dx ? h * dx[k] : 0.0);
-    return to + n;
 }
 
 static double largest(const double *v, size_t n, double big)
@@ -54,7 +53,7 @@ int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work)
     double big = largest(t->dx, n, 0.0);
     big = largest(t->dq_in, f, big);
     big = largest(t->dfin, nin, big);
-    const double h = big > 0.0 ? H_TINY / big : 0.0;
+    const double h = big > 0.0 ? H_TINY / big : 1.0;  /* no seed at all: the imaginary parts stay 0 */
     real *D = work, *td = D + hd[H_ND], *x = td + ntd, *q_in = x + n, *w = q_in + f;
     real *k = w + (size_t)mbs_work_doubles(hd), *q = k + f, *xdot = q + f;
     lift(td, t->td, NULL, 0.0, ntd);
@@ -76,13 +75,13 @@ int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work)
             if (oi[1] >= 0) mbs_elastic_node_point(&e, oi[0], oi[1], r, r + 3, NULL); else
 #endif
             mbs_point(&e, oi[0], D + hd[H_D_OUT] + 3 * o, r, r + 3, NULL);
-            for (int c = 0; c < 6; c++) t->dout[6 * o + c] = h > 0.0 ? cimag(r[c]) / h : 0.0;
+            for (int c = 0; c < 6; c++) t->dout[6 * o + c] = cimag(r[c]) / h;
         }
 #ifdef MBS_WITH_ELASTIC
-    for (int s = 0; t->dvm && s < m->nstress; s++) t->dvm[s] = h > 0.0 ? cimag(mbs_elastic_von_mises(m, s, x)) / h : 0.0;
+    for (int s = 0; t->dvm && s < m->nstress; s++) t->dvm[s] = cimag(mbs_elastic_von_mises(m, s, x)) / h;
 #endif
     if (!t->dxdot) return 0;
     if (mbs_eval_rhs(&e)) return MBS_F_SINGULAR;
-    for (int c = 0; c < n; c++) t->dxdot[c] = h > 0.0 ? cimag(xdot[c]) / h : 0.0;
+    for (int c = 0; c < n; c++) t->dxdot[c] = cimag(xdot[c]) / h;
     return 0;
 }
