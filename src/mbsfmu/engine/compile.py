@@ -130,11 +130,11 @@ def compile_scene(spec, variables, guid="", model=None):
     value-reference order, each with its engine table row) and its Model if the caller has it. Returns bytes."""
     model = Model(spec) if model is None else model
     m, env = model, dict(model.env)
-    # on the dense path (elastic scenes, mbs_dense_path) the engine keeps per body dense Jacobian rows (6 f
+    # on the dense path (the smallest scenes, mbs_dense_path) the engine keeps per body dense Jacobian rows (6 f
     # doubles): refuse what it could not allocate (the recursive path's workspace, linear, is bounded by limits)
     carrier = carriers(m)
     ncarrier = sum(c == i for i, c in enumerate(carrier))
-    dense = m.has_elastic or (m.nvel <= L.MBS_DENSE_MAX_NVEL and len(m.bodies) - ncarrier <= ncarrier)
+    dense = m.nvel <= L.MBS_DENSE_MAX_NVEL and len(m.bodies) - ncarrier <= ncarrier
     need = 8 * len(m.bodies) * (26 + 6 * m.nvel) + 8 * m.nvel ** 2
     if dense and need > L.MBS_MAX_WORKSPACE:
         raise ValueError(f"scene too large for the engine: {len(m.bodies)} bodies with {m.nvel} velocity coordinates "
@@ -354,10 +354,13 @@ def carriers(model):
     carry themselves. The engine derives each carrier's composite mass and inertia at bind time (mbs_derive: the
     numbers may depend on parameters), so its recursion runs over the moving bodies only, as Pinocchio merges a
     URDF's fixed links; its kinematics skip them too, and find points on them through their carrier's frame."""
-    out = []
+    out, flexed = [], []  # flexed: an elastic body on the path to the root
     for i, b in enumerate(model.bodies):
         p = b.parent
-        welded = b.type.code == L.J_FIXED and not b.elastic and b.node is None and (p < 0 or not model.bodies[p].elastic)
+        flexed.append(bool(b.elastic) or (p >= 0 and flexed[p]))
+        # below an elastic body S is orthogonal only to first order (seed 004): a composite's parallel-axis terms,
+        # taken in its carrier's axes, would differ from the reference's in second order, so nothing there welds
+        welded = b.type.code == L.J_FIXED and not flexed[i] and b.node is None
         out.append((out[p] if p >= 0 else -1) if welded else i)
     return out
 

@@ -1,6 +1,6 @@
 /* Rigid-tree dynamics in time and memory linear in the bodies (issue 26): ÿ by the articulated-body algorithm
  * (Featherstone's FDab) and, for inspection, M by the composite-rigid-body algorithm and k, q by the recursive
- * Newton–Euler pass. The path of rigid scenes (mbs_dense_path); elastic ones keep tree.c's dense equations.
+ * Newton–Euler pass. The path of all but the smallest scenes (mbs_dense_path).
  *
  * The recursions run over the carriers only (IB_CARRIER, compile.py: carriers): a body welded to its rigid parent
  * (a fixed joint) moves with it, so its mass, centre of mass and inertia join its carrier's, as Pinocchio merges a
@@ -22,6 +22,7 @@
  *
  * and the body's equation is f = I Δa + P − F with Δa = Σ S ÿ over its path to the root: FDab with the bias
  * accelerations c = 0 and the bias in P (the form MuJoCo uses), which holds for every joint type and drive alike.
+ * An elastic body is a node with its modal coordinates besides its joint's (elastic.c: the recursive path).
  */
 #include <math.h>
 #include <string.h>
@@ -165,7 +166,8 @@ static void bias_forces(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const real *g = e->D + m->hdr[H_D_G];
-    const int gravity = m->hdr[H_HAS_GRAVITY];
+    const int gravity = m->hdr[H_HAS_GRAVITY], elastic = m->hdr[H_FEATURES] & F_ELASTIC;
+    (void)elastic;
     for (int i = 0; i < NB(m); i++) {
         if (!carries_itself(m, i)) continue;
         real *wk = mbs_body_work(e, i), *I = wk + AB_IA, *P = wk + AB_P, *F = wk + AB_F;
@@ -188,6 +190,21 @@ static void bias_forces(const MbsEval *e)
             for (int r = 0; r < 3; r++) F[3 + r] = I[6 * (3 + r) + 3 + r] * g[r];
         } else
             memset(F, 0, 6 * sizeof(real));
+#ifdef MBS_WITH_ELASTIC
+        if (!elastic) continue;
+        /* below an elastic body S is orthogonal only to first order (seed 004): the gyroscopic moment is
+         * S (ω_b × I ω_b), ω_b = Sᵀ ω (tree.c, tree.py), not ω × S I Sᵀ ω as in v ×* I v */
+        const real *S = wk + W_S;
+        real wb[3], Iwb[3], gb[3], gyr[3], SIwb[3], wx[3];
+        mtv(S, w, wb);
+        mv(wk + AB_IC, wb, Iwb);
+        cross(wb, Iwb, gb);
+        mv(S, gb, gyr);
+        mv(S, Iwb, SIwb);
+        cross(w, SIwb, wx);
+        for (int r = 0; r < 3; r++) P[r] += gyr[r] - wx[r];
+        if (mbs_body_i(m, i)->elastic >= 0) mbs_elastic_body(e, i, I, P, F);
+#endif
     }
 }
 
@@ -299,12 +316,18 @@ static int articulated_inertias(const MbsEval *e)
         const int nv = (int)wk[AB_NV];
         real p[6], d[3], *pw = parent < 0 ? NULL : mbs_body_work(e, parent);
         for (int r = 0; r < 6; r++) p[r] = wk[AB_P + r] - wk[AB_F + r];
+#ifdef MBS_WITH_ELASTIC
+        if (bi->elastic >= 0 && mbs_elastic_eliminate(e, i, IA, p)) return 1;
+#endif
         if (nv == 6) {
             real f_J[6];
             if (free_joint(e, bi, wk, p, f_J)) return 1;
             if (pw) {
                 offset(e, wk, parent, d);
                 add_force_at(d, f_J, pw + AB_P);
+#ifdef MBS_WITH_ELASTIC
+                if (bi->node >= 0) mbs_elastic_child(e, i, NULL, f_J);
+#endif
             }
             continue;
         }
@@ -349,6 +372,9 @@ static int articulated_inertias(const MbsEval *e)
         offset(e, wk, parent, d);
         add_inertia_at(d, IA, pw + AB_IA);
         add_force_at(d, p, pw + AB_P);
+#ifdef MBS_WITH_ELASTIC
+        if (bi->node >= 0) mbs_elastic_child(e, i, IA, p);
+#endif
     }
     return 0;
 }
@@ -374,6 +400,9 @@ static void accelerations(const MbsEval *e)
             offset(e, wk, parent, d);
             cross(d, pa, dxa);
             for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
+#ifdef MBS_WITH_ELASTIC
+            if (bi->node >= 0) mbs_elastic_node_acceleration(e, i, ydd, acc);
+#endif
         }
         if (nv == 6) {  /* free_joint: Δa = z, ÿ = S⁻¹ (Δa − Δa_p) */
             real da[6];
@@ -390,6 +419,9 @@ static void accelerations(const MbsEval *e)
             while (bi->vel[c] < 0) c++;
             ydd[bi->vel[c]] = x[k];
         }
+#ifdef MBS_WITH_ELASTIC
+        if (bi->elastic >= 0) mbs_elastic_accelerations(e, i, acc, ydd);
+#endif
     }
 }
 
@@ -401,12 +433,82 @@ int mbs_aba(const MbsEval *e)
     return 0;
 }
 
+#ifdef MBS_WITH_ELASTIC
+/* Inverse dynamics over the carriers (the inspection of elastic scenes): out += Sᵀ Σ f over each subtree and the
+ * modal rows, with per body f = I Δa (+ U q̈) for the accelerations ydd (what 0: M ydd), f = P (1: k) or F (2: q). */
+static void inverse(const MbsEval *e, const real *ydd, int what, real *out)
+{
+    const MbsModel *m = e->m;
+    for (int i = 0; i < NB(m); i++) {  /* root to leaves: Δa and each body's own f */
+        if (!carries_itself(m, i)) continue;
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        const int parent = carrier_parent(m, bi);
+        real *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, *f = wk + AB_W;
+        memset(acc, 0, 6 * sizeof(real));
+        if (what == 0) {
+            if (parent >= 0) {
+                const real *pa = mbs_body_work(e, parent) + AB_ACC;
+                real d[3], dxa[3];
+                offset(e, wk, parent, d);
+                cross(d, pa, dxa);
+                for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
+                if (bi->node >= 0) mbs_elastic_node_acceleration(e, i, ydd, acc);
+            }
+            for (int k = 0, c = 0; k < (int)wk[AB_NV]; k++, c++) {
+                while (bi->vel[c] < 0) c++;
+                for (int r = 0; r < 6; r++) acc[r] += wk[AB_S + 6 * k + r] * ydd[bi->vel[c]];
+            }
+            mat6v(wk + AB_IA, acc, f);
+        } else
+            memcpy(f, wk + (what == 1 ? AB_P : AB_F), 6 * sizeof(real));
+        if (bi->elastic >= 0) mbs_elastic_inverse(e, i, acc, ydd, what, f);
+    }
+    for (int i = NB(m) - 1; i >= 0; i--) {  /* leaves to root: Sᵀ f, f to the parent */
+        if (!carries_itself(m, i)) continue;
+        const MbsBodyI *bi = mbs_body_i(m, i);
+        const int parent = carrier_parent(m, bi);
+        const real *wk = mbs_body_work(e, i), *f = wk + AB_W;
+        for (int k = 0, c = 0; k < (int)wk[AB_NV]; k++, c++) {
+            while (bi->vel[c] < 0) c++;
+            out[bi->vel[c]] += dot6(wk + AB_S + 6 * k, f);
+        }
+        if (bi->elastic >= 0) mbs_elastic_modal_force(e, i, out);
+        if (parent < 0) continue;
+        real d[3];
+        offset(e, wk, parent, d);
+        add_force_at(d, f, mbs_body_work(e, parent) + AB_W);
+        if (bi->node >= 0) mbs_elastic_child(e, i, NULL, f);
+    }
+}
+
+/* M by columns (M e_j), k and q of an elastic scene: O(n·N), for inspection */
+static void equations_elastic(const MbsEval *e)
+{
+    const int f = NVEL(e->m);
+    real *ydd = e->xdot + NPOS(e->m);
+    forces(e);
+    memset(e->M, 0, (size_t)f * f * sizeof(real));
+    memset(e->k, 0, (size_t)f * sizeof(real));
+    memset(ydd, 0, (size_t)f * sizeof(real));
+    for (int j = 0; j < f; j++) {  /* M is symmetric: column j into row j */
+        ydd[j] = 1.0;
+        inverse(e, ydd, 0, e->M + (size_t)j * f);
+        ydd[j] = 0.0;
+    }
+    inverse(e, ydd, 1, e->k);
+    inverse(e, ydd, 2, e->q);
+}
+#endif
+
 /* M (composite inertias I_C = Σ I over the subtree: M_ab = S_bᵀ I_C S_a for b on a's path to the root),
  * k = Sᵀ Σ P and q = τ + Sᵀ Σ F over the subtree. O(n·depth): for inspection, not per step. */
 void mbs_crba_rnea(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m);
+#ifdef MBS_WITH_ELASTIC
+    if (m->hdr[H_FEATURES] & F_ELASTIC) { equations_elastic(e); return; }
+#endif
     forces(e);
     memset(e->M, 0, (size_t)f * f * sizeof(real));
     memset(e->k, 0, (size_t)f * sizeof(real));

@@ -69,10 +69,32 @@ static int max_modes(const MbsModel *m)
     return nmax;
 }
 
-size_t mbs_elastic_work_size(const MbsModel *m)
+/* the scratch of one body's equations (body_terms, project): its numbers from the start of the workspace */
+static size_t scratch_size(const MbsModel *m)
 {
     const size_t n = (size_t)max_modes(m), f = (size_t)NVEL(m);
-    return (2 * (size_t)m->elastic_i[EH_NE] + 6 * f + 9 * n * n + 24 * n + 64) * sizeof(real);
+    return 2 * (size_t)m->elastic_i[EH_NE] + 6 * f + 9 * n * n + 24 * n + 64;
+}
+
+size_t mbs_elastic_work_size(const MbsModel *m)
+{
+    size_t blocks = 0;
+    for (int e = 0; e < m->elastic_i[EH_NE]; e++) blocks += (size_t)row(m, e)->n * (row(m, e)->n + 9);
+    return (scratch_size(m) + blocks) * sizeof(real);
+}
+
+/* Per elastic body on the recursive path (dynamics.c), after the scratch: its coupling U = Ŝ M_re (6 × n, column
+ * after column; in the articulated pass W = U L⁻ᵀ), M_ee with what its children add (then its factor L), its k and q
+ * parts k_e, q_e and the modal bias β (then z = L⁻¹ β). */
+typedef struct { real *U, *L, *k_e, *q_e, *beta; } Block;
+static Block block(const MbsEval *e, int el)
+{
+    const MbsModel *m = e->m;
+    real *p = (real *)e->elastic_work + scratch_size(m);
+    for (int k = 0; k < el; k++) p += (size_t)row(m, k)->n * (row(m, k)->n + 9);
+    const size_t n = (size_t)row(m, el)->n;
+    Block b = {p, p + 6 * n, p + 6 * n + n * n, p + 7 * n + n * n, p + 8 * n + n * n};
+    return b;
 }
 
 /* ---- small helpers (row-major 3×3, 3-vectors) ---- */
@@ -173,7 +195,8 @@ void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, real *J_R)
     }
 }
 
-/* The frame a child joint sits on at node P of its elastic parent (tree.py: node_frame). J_R, J_T: full 3 × f. */
+/* The frame a child joint sits on at node P of its elastic parent (tree.py: node_frame). J_R, J_T: full 3 × f
+ * (NULL on the recursive path). */
 void mbs_elastic_node_frame(const MbsEval *e, int child, real *S_P, real *r, real *w, real *v, real *a,
                             real *al, real *J_R, real *J_T)
 {
@@ -184,7 +207,7 @@ void mbs_elastic_node_frame(const MbsEval *e, int child, real *S_P, real *r, rea
     const double *Psi = node_Psi(&in, P);
     const real *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0;
     real rho[3], th[3], thd[3], w_rel[3], E_th[9];
-    memcpy(J_T, wk + W_J + 3 * f, 3 * (size_t)f * sizeof(real));
+    if (J_T) memcpy(J_T, wk + W_J + 3 * f, 3 * (size_t)f * sizeof(real));
     node_motion(e, i, P, rho, r, v, a, J_T);
     mv3n(Psi, q, in.n, th);
     mv3n(Psi, qd, in.n, thd);
@@ -198,6 +221,7 @@ void mbs_elastic_node_frame(const MbsEval *e, int child, real *S_P, real *r, rea
     real wxw[3];
     cross(wp, w_rel, wxw);
     for (int k = 0; k < 3; k++) { w[k] = wp[k] + w_rel[k]; al[k] = wk[W_AL + k] + wxw[k]; }
+    if (!J_R) return;  /* the recursive path: no Jacobians */
     memcpy(J_R, wk + W_J, 3 * (size_t)f * sizeof(real));
     for (int c = 0; c < in.n; c++) {
         real ps[3] = {Psi[c], Psi[in.n + c], Psi[2 * in.n + c]}, s[3];
@@ -207,21 +231,31 @@ void mbs_elastic_node_frame(const MbsEval *e, int child, real *S_P, real *r, rea
 }
 
 /* ---- equations of one elastic body (ffrf.py: mass_matrix, quadratic_forces, gravity_forces, elastic_forces)
- * in R components, then projected with J_z into M, k, q ---- */
-static void body_equations(const MbsEval *e, int el)
+ * in R components (v_R, ω_R, q̈): M_zz = [M_rr M_re; M_er M_ee] with M_rr = [m E, −(m c)~; (m c)~, I] and
+ * M_re's column k [C_t e_k − (K_a q)_k e_x; C_r e_k]; k's rows [kr; ke] = M_zz z̄ + h, q's [gr; qe]. Then
+ * projected with J_z into M, k, q (dense path) or as the body's blocks in world axes (recursive path) ---- */
+typedef struct {
+    Inv in;
+    double mass;
+    real mc[3], I[9], kr[6], gr[6];
+    real *Cr, *Kaq, *ke, *qe;  /* C_r (3 × n), K_a q, ke, qe (n): in the scratch */
+} Terms;
+
+static void body_terms(const MbsEval *e, int el, Terms *T)
 {
     const MbsModel *m = e->m;
     const int f = NVEL(m), body = row(m, el)->body;
-    const Inv in = inv_of(m, el);
+    const Inv in = T->in = inv_of(m, el);
     const int n = in.n;
-    const real *wk = mbs_body_work(e, body), *S = wk + W_S, *JR = wk + W_J, *JT = JR + 3 * f;
-    const real *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0, *cols = (real *)e->elastic_work + 2 * el;
-    const int lo = (int)cols[0], hi = (int)cols[1];
-    real *Jf = (real *)e->elastic_work + 2 * m->elastic_i[EH_NE];  /* 6 × f: [Sᵀ J_T; Sᵀ J_R] */
+    const real *wk = mbs_body_work(e, body), *S = wk + W_S;
+    const real *q = e->x + in.q0, *qd = e->x + NPOS(m) + in.qd0;
+    real *Jf = (real *)e->elastic_work + 2 * m->elastic_i[EH_NE];  /* 6 × f: [Sᵀ J_T; Sᵀ J_R] (project) */
     real *Bq = Jf + 6 * f, *Cr = Bq + 9 * (size_t)n * n, *Gqd = Cr + 3 * n, *ke = Gqd + 3 * n, *qe = ke + n;
     real *Kaq = qe + n, *Kq = Kaq + n, *tmp = Kq + n;
-    real w[3], aR[3], alR[3], mc[3], Ctqd[3], Aq[9], Aqd[9], Ssym[9], W[9], I[9];
-    const double mass = in.m[0];
+    real *mc = T->mc, *I = T->I, *kr = T->kr, *gr = T->gr;
+    T->Cr = Cr; T->Kaq = Kaq; T->ke = ke; T->qe = qe;
+    real w[3], aR[3], alR[3], Ctqd[3], Aq[9], Aqd[9], Ssym[9], W[9];
+    const double mass = T->mass = in.m[0];
     mtv(S, wk + W_W, w);
     mtv(S, wk + W_A, aR);
     mtv(S, wk + W_AL, alR);
@@ -259,7 +293,7 @@ static void body_equations(const MbsEval *e, int el)
         }
 
     /* frame rows: kr = M_rr z̄_r + h_r; gravity gr */
-    real kr[6], gr[6], t1[3], t2[3], t3[3];
+    real t1[3], t2[3], t3[3];
     cross(w, mc, t1);
     cross(w, t1, t2);                 /* ω̃ω̃ m·c */
     cross(w, Ctqd, t3);
@@ -314,9 +348,21 @@ static void body_equations(const MbsEval *e, int el)
         }
     }
 
-    /* projection: M += J_zᵀ M_zz J_z, k += J_zᵀ [kr; ke], q += J_zᵀ [gr; qe] */
+}
+
+/* the dense path: M += J_zᵀ M_zz J_z, k += J_zᵀ [kr; ke], q += J_zᵀ [gr; qe] */
+static void project(const MbsEval *e, int el, const Terms *T)
+{
+    const MbsModel *m = e->m;
+    const int f = NVEL(m), n = T->in.n, e0 = T->in.qd0;
+    const Inv in = T->in;
+    const real *wk = mbs_body_work(e, row(m, el)->body), *S = wk + W_S, *JR = wk + W_J, *JT = JR + 3 * f;
+    const real *cols = (real *)e->elastic_work + 2 * el, *mc = T->mc, *I = T->I, *kr = T->kr, *gr = T->gr;
+    const real *Cr = T->Cr, *Kaq = T->Kaq, *ke = T->ke, *qe = T->qe;
+    const int lo = (int)cols[0], hi = (int)cols[1];
+    const double mass = T->mass;
+    real *Jf = (real *)e->elastic_work + 2 * m->elastic_i[EH_NE];
     real *M = e->M, *kk = e->k, *qq = e->q;
-    const int e0 = in.qd0;
     for (int c = lo; c < hi; c++) {
         real jt[3] = {JT[c], JT[f + c], JT[2 * f + c]}, jr[3] = {JR[c], JR[f + c], JR[2 * f + c]};
         mtv(S, jt, Jf + 6 * c);
@@ -356,7 +402,212 @@ static void body_equations(const MbsEval *e, int el)
 
 void mbs_elastic_equations(const MbsEval *e)
 {
-    for (int el = 0; el < e->m->elastic_i[EH_NE]; el++) body_equations(e, el);
+    for (int el = 0; el < e->m->elastic_i[EH_NE]; el++) {
+        Terms T;
+        body_terms(e, el, &T);
+        project(e, el, &T);
+    }
+}
+
+/* ---- the recursive path (dynamics.c): an elastic body in the articulated-body algorithm, a node with n more
+ * coordinates. In world axes about its origin o, (ω, v) order, Ŝ = diag(S, S):
+ *
+ *   f = I_e Δa + U q̈ + P − F,   Uᵀ Δa + M_ee q̈ + β = 0,
+ *   I_e = Ŝ M_rr Ŝᵀ, U = Ŝ M_re, P = Ŝ kr, F = Ŝ gr, β = ke − qe − τ (τ: inputs and forces at its nodes on q).
+ *
+ * A child c at node P moves with Δa_c = X Δa + Y q̈ (X: the shift from o to o_c; Y = [S Ψ_P; S Φ_P − d × S Ψ_P],
+ * d = o_c − r_P) and adds Xᵀ I_c Y to U, Yᵀ I_c Y to M_ee, Yᵀ p_c to β. Eliminating q̈ leaves its joint the frame's
+ * I_e − U M_ee⁻¹ Uᵀ and p − U M_ee⁻¹ β; on the way down q̈ = −M_ee⁻¹ (β + Uᵀ Δa). Ŝ, not a rotation, because at a
+ * node S is orthogonal only to first order (seed 004): the projection equals the dense path's J_zᵀ M_zz J_z. ---- */
+
+static real *scratch(const MbsEval *e) { return (real *)e->elastic_work + 2 * e->m->elastic_i[EH_NE] + 6 * NVEL(e->m); }
+
+static void sandwich(const real *S, const real *X, real *out)  /* S X Sᵀ */
+{
+    real SX[9];
+    mm(S, X, SX);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) out[3 * r + c] = SX[3 * r] * S[3 * c] + SX[3 * r + 1] * S[3 * c + 1] + SX[3 * r + 2] * S[3 * c + 2];
+}
+
+/* the body's I_e, P, F added to IA (6 × 6), P, F; U, M_ee, ke, qe and β = ke − qe into its block */
+void mbs_elastic_body(const MbsEval *e, int body, real *IA, real *P, real *F)
+{
+    const int el = mbs_body_i(e->m, body)->elastic;
+    Terms T;
+    body_terms(e, el, &T);
+    const Inv in = T.in;
+    const int n = in.n;
+    const real *S = mbs_body_work(e, body) + W_S;
+    const Block b = block(e, el);
+    const real mx[9] = {0, -T.mc[2], T.mc[1], T.mc[2], 0, -T.mc[0], -T.mc[1], T.mc[0], 0};
+    real A[9], B[9], SSt[9], E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    sandwich(S, T.I, A);
+    sandwich(S, mx, B);
+    sandwich(S, E, SSt);
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++) {
+            IA[6 * r + c] += A[3 * r + c];
+            IA[6 * r + 3 + c] += B[3 * r + c];
+            IA[6 * (3 + r) + c] -= B[3 * r + c];
+            IA[6 * (3 + r) + 3 + c] += T.mass * SSt[3 * r + c];
+        }
+    real x[3];
+    mv(S, T.kr + 3, x); for (int r = 0; r < 3; r++) P[r] += x[r];
+    mv(S, T.kr, x);     for (int r = 0; r < 3; r++) P[3 + r] += x[r];
+    mv(S, T.gr + 3, x); for (int r = 0; r < 3; r++) F[r] += x[r];
+    mv(S, T.gr, x);     for (int r = 0; r < 3; r++) F[3 + r] += x[r];
+    for (int k = 0; k < n; k++) {
+        const real cr[3] = {T.Cr[k], T.Cr[n + k], T.Cr[2 * n + k]};
+        const real ct[3] = {in.C_t[k] - T.Kaq[k], in.C_t[n + k], in.C_t[2 * n + k]};
+        mv(S, cr, b.U + 6 * k);
+        mv(S, ct, b.U + 6 * k + 3);
+        b.k_e[k] = T.ke[k];
+        b.q_e[k] = T.qe[k];
+        b.beta[k] = T.ke[k] - T.qe[k];
+    }
+    for (size_t k = 0; k < (size_t)n * n; k++) b.L[k] = in.M_ee[k];
+}
+
+/* Y of child c at node P of its elastic parent: n columns of 6, the motion at o_c per unit q̈ of the parent */
+static void node_columns(const MbsEval *e, int child, real *Y)
+{
+    const MbsModel *m = e->m;
+    const MbsBodyI *bc = mbs_body_i(m, child);
+    const Inv in = inv_of(m, mbs_body_i(m, bc->parent)->elastic);
+    const int n = in.n;
+    const real *wi = mbs_body_work(e, bc->parent), *S = wi + W_S, *q = e->x + in.q0;
+    const real *oc = mbs_body_work(e, child) + W_O;
+    const double *Phi = node_Phi(&in, bc->node), *Psi = node_Psi(&in, bc->node), *R = node_R(&in, bc->node);
+    real rR[3], rho[3], d[3];
+    mv3n(Phi, q, n, rR);
+    for (int k = 0; k < 3; k++) rR[k] += R[k];
+    mv(S, rR, rho);
+    for (int k = 0; k < 3; k++) d[k] = oc[k] - wi[W_O + k] - rho[k];
+    for (int k = 0; k < n; k++) {
+        const real ps[3] = {Psi[k], Psi[n + k], Psi[2 * n + k]}, ph[3] = {Phi[k], Phi[n + k], Phi[2 * n + k]};
+        real *y = Y + 6 * k, dxw[3];
+        mv(S, ps, y);
+        mv(S, ph, y + 3);
+        cross(d, y, dxw);
+        for (int r = 0; r < 3; r++) y[3 + r] -= dxw[r];
+    }
+}
+
+/* child c at a node of its elastic parent, articulated (I_c; NULL: a free joint, which passes only its force p_c):
+ * the parent's U += Xᵀ I_c Y, M_ee += Yᵀ I_c Y (lower triangle), β += Yᵀ p_c */
+void mbs_elastic_child(const MbsEval *e, int child, const real *I_c, const real *p_c)
+{
+    const MbsModel *m = e->m;
+    const int i = mbs_body_i(m, child)->parent, el = mbs_body_i(m, i)->elastic, n = row(m, el)->n;
+    const Block b = block(e, el);
+    real *Y = scratch(e), *G = Y + 6 * (size_t)n, d[3];
+    node_columns(e, child, Y);
+    for (int k = 0; k < n; k++) b.beta[k] += dot(Y + 6 * k, p_c, 6);
+    if (!I_c) return;
+    const real *oc = mbs_body_work(e, child) + W_O, *oi = mbs_body_work(e, i) + W_O;
+    for (int r = 0; r < 3; r++) d[r] = oc[r] - oi[r];
+    for (int k = 0; k < n; k++) {
+        real *g = G + 6 * k, *u = b.U + 6 * k, dxF[3];
+        for (int r = 0; r < 6; r++) g[r] = dot(I_c + 6 * r, Y + 6 * k, 6);
+        cross(d, g + 3, dxF);  /* the force I_c Y_k at o_c moved to o */
+        for (int r = 0; r < 3; r++) { u[r] += g[r] + dxF[r]; u[3 + r] += g[3 + r]; }
+    }
+    for (int k = 0; k < n; k++)
+        for (int l = 0; l <= k; l++) b.L[(size_t)n * k + l] += dot(Y + 6 * k, G + 6 * l, 6);
+}
+
+/* before the body's own joint: q̈ eliminated, with M_ee = L Lᵀ, W = U L⁻ᵀ, z = L⁻¹ (β − τ) (W, z in place of U,
+ * β): I_A −= W Wᵀ, p −= W z. 1 if M_ee with its children is not positive definite. */
+int mbs_elastic_eliminate(const MbsEval *e, int body, real *IA, real *p)
+{
+    const MbsModel *m = e->m;
+    const int el = mbs_body_i(m, body)->elastic, n = row(m, el)->n;
+    const real *tau = e->q + row(m, el)->qd;
+    const Block b = block(e, el);
+    real *W = b.U, *z = b.beta, *L = b.L;
+    if (mbs_cholesky(n, L)) return 1;
+    for (int k = 0; k < n; k++) {
+        z[k] -= tau[k];
+        for (int j = 0; j < k; j++) {
+            for (int r = 0; r < 6; r++) W[6 * k + r] -= L[(size_t)n * k + j] * W[6 * j + r];
+            z[k] -= L[(size_t)n * k + j] * z[j];
+        }
+        for (int r = 0; r < 6; r++) W[6 * k + r] /= L[(size_t)n * k + k];
+        z[k] /= L[(size_t)n * k + k];
+    }
+    for (int r = 0; r < 6; r++) {
+        for (int k = 0; k < n; k++) p[r] -= W[6 * k + r] * z[k];
+        for (int c = r; c < 6; c++) {
+            real x = IA[6 * r + c];
+            for (int k = 0; k < n; k++) x -= W[6 * k + r] * W[6 * k + c];
+            IA[6 * r + c] = IA[6 * c + r] = x;
+        }
+    }
+    return 0;
+}
+
+/* after the body's Δa (acc): q̈ = −L⁻ᵀ (z + Wᵀ Δa) into ydd */
+void mbs_elastic_accelerations(const MbsEval *e, int body, const real *acc, real *ydd)
+{
+    const MbsModel *m = e->m;
+    const int el = mbs_body_i(m, body)->elastic, n = row(m, el)->n;
+    const Block b = block(e, el);
+    real *x = ydd + row(m, el)->qd;
+    for (int k = 0; k < n; k++) x[k] = -(b.beta[k] + dot(b.U + 6 * k, acc, 6));
+    for (int k = n - 1; k >= 0; k--) {
+        for (int j = k + 1; j < n; j++) x[k] -= b.L[(size_t)n * j + k] * x[j];
+        x[k] /= b.L[(size_t)n * k + k];
+    }
+}
+
+/* a child at a node: acc (its parent's Δa moved to o_c) += Y q̈ of the parent */
+void mbs_elastic_node_acceleration(const MbsEval *e, int child, const real *ydd, real *acc)
+{
+    const MbsModel *m = e->m;
+    const int el = mbs_body_i(m, mbs_body_i(m, child)->parent)->elastic, n = row(m, el)->n;
+    const real *qdd = ydd + row(m, el)->qd;
+    real *Y = scratch(e);
+    node_columns(e, child, Y);
+    for (int k = 0; k < n; k++)
+        for (int r = 0; r < 6; r++) acc[r] += Y[6 * k + r] * qdd[k];
+}
+
+/* the part on the body's q of a force F (torque: a moment) at its node P, (S Φ_P)ᵀ F or (S Ψ_P)ᵀ F, into e->q
+ * (the frame's part is the caller's) */
+void mbs_elastic_node_force(const MbsEval *e, int body, int node, const real *F, int torque, double sign)
+{
+    const MbsModel *m = e->m;
+    const Inv in = inv_of(m, mbs_body_i(m, body)->elastic);
+    const int n = in.n;
+    const double *C = torque ? node_Psi(&in, node) : node_Phi(&in, node);
+    real SF[3], *q = e->q + in.qd0;
+    mtv(mbs_body_work(e, body) + W_S, F, SF);
+    for (int k = 0; k < n; k++) q[k] += sign * (C[k] * SF[0] + C[n + k] * SF[1] + C[2 * n + k] * SF[2]);
+}
+
+/* inverse dynamics (inspection, dynamics.c: equations): the body's f += U q̈, its β = Uᵀ Δa + M_ee q̈ (what = 0),
+ * ke (1) or qe (2); mbs_elastic_child(e, c, NULL, f_c) adds the children's Yᵀ f_c, mbs_elastic_modal_force reads β */
+void mbs_elastic_inverse(const MbsEval *e, int body, const real *acc, const real *ydd, int what, real *f)
+{
+    const MbsModel *m = e->m;
+    const int el = mbs_body_i(m, body)->elastic, n = row(m, el)->n;
+    const Block b = block(e, el);
+    const real *qdd = ydd + row(m, el)->qd;
+    for (int k = 0; k < n; k++) {
+        if (what) { b.beta[k] = what == 1 ? b.k_e[k] : b.q_e[k]; continue; }
+        b.beta[k] = dot(b.U + 6 * k, acc, 6);
+        for (int l = 0; l < n; l++) b.beta[k] += b.L[(size_t)n * k + l] * qdd[l];
+        for (int r = 0; r < 6; r++) f[r] += b.U[6 * k + r] * qdd[k];
+    }
+}
+
+void mbs_elastic_modal_force(const MbsEval *e, int body, real *out)
+{
+    const MbsModel *m = e->m;
+    const int el = mbs_body_i(m, body)->elastic;
+    const Block b = block(e, el);
+    for (int k = 0; k < row(m, el)->n; k++) out[row(m, el)->qd + k] += b.beta[k];
 }
 
 #ifndef MBS_CX  /* load and bind time: the double build only */

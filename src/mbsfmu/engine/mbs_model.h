@@ -44,6 +44,14 @@ typedef double _Complex real;
 #define mbs_elastic_node_point mbs_cx_elastic_node_point
 #define mbs_elastic_node_J_R mbs_cx_elastic_node_J_R
 #define mbs_elastic_equations mbs_cx_elastic_equations
+#define mbs_elastic_body mbs_cx_elastic_body
+#define mbs_elastic_child mbs_cx_elastic_child
+#define mbs_elastic_eliminate mbs_cx_elastic_eliminate
+#define mbs_elastic_accelerations mbs_cx_elastic_accelerations
+#define mbs_elastic_node_acceleration mbs_cx_elastic_node_acceleration
+#define mbs_elastic_node_force mbs_cx_elastic_node_force
+#define mbs_elastic_inverse mbs_cx_elastic_inverse
+#define mbs_elastic_modal_force mbs_cx_elastic_modal_force
 #define mbs_elastic_von_mises mbs_cx_elastic_von_mises
 #else
 typedef double real;
@@ -181,8 +189,7 @@ typedef struct {
  * articulated-body algorithm (dynamics.c: linear). */
 static inline int mbs_dense_path(const int32_t *hdr)
 {
-    return (hdr[H_FEATURES] & F_ELASTIC) ||
-           (hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL && hdr[H_NB] - hdr[H_NCARRIER] <= hdr[H_NCARRIER]);
+    return hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL && hdr[H_NB] - hdr[H_NCARRIER] <= hdr[H_NCARRIER];
 }
 /* doubles of an instance's evaluation workspace: per body, scratch (two 3 × f Jacobians) and M on the dense path */
 static inline double mbs_work_doubles(const int32_t *hdr)
@@ -249,7 +256,16 @@ void mbs_elastic_node_frame(const MbsEval *e, int child, real *S_P, real *r, rea
                             real *a, real *al, real *J_R, real *J_T);
 void mbs_elastic_node_point(const MbsEval *e, int body, int node, real *r, real *v, real *J_T);
 void mbs_elastic_node_J_R(const MbsEval *e, int body, int node, real *J_R);
-void mbs_elastic_equations(const MbsEval *e);               /* adds to M, k, q */
+void mbs_elastic_equations(const MbsEval *e);               /* adds to M, k, q (dense path) */
+/* the recursive path (dynamics.c; elastic.c says what each does) */
+void mbs_elastic_body(const MbsEval *e, int body, real *IA, real *P, real *F);
+void mbs_elastic_child(const MbsEval *e, int child, const real *I_c, const real *p_c);
+int mbs_elastic_eliminate(const MbsEval *e, int body, real *IA, real *p);
+void mbs_elastic_accelerations(const MbsEval *e, int body, const real *acc, real *ydd);
+void mbs_elastic_node_acceleration(const MbsEval *e, int child, const real *ydd, real *acc);
+void mbs_elastic_node_force(const MbsEval *e, int body, int node, const real *F, int torque, double sign);
+void mbs_elastic_inverse(const MbsEval *e, int body, const real *acc, const real *ydd, int what, real *f);
+void mbs_elastic_modal_force(const MbsEval *e, int body, real *out);
 int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen);
 /* at bind: structural parameters (they fed the beam generator) must keep their compiled values */
 int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen);

@@ -99,10 +99,15 @@ static int check_owners(const MbsModel *m, char *err, size_t errlen)
         for (int k = 0; k < bi->nvel && bad < 0; k++)
             if (bi->vel[k] >= 0 && owned[bi->vel[k]]++) bad = bi->vel[k];
     }
+    for (int el = 0; m->elastic_i && el < m->elastic_i[EH_NE] && bad < 0; el++) {  /* (validated rows) */
+        const int32_t *r = m->elastic_i + EH + EI * el;
+        for (int k = 0; k < r[EI_N] && bad < 0; k++)
+            if (owned[r[EI_QD] + k]++) bad = r[EI_QD] + k;
+    }
     for (int c = 0; c < nv && bad < 0; c++)
         if (!owned[c]) bad = c;
     free(owned);
-    if (bad >= 0) BAD("corrupt body table (velocity coordinate %d is not moved by exactly one joint)", bad);
+    if (bad >= 0) BAD("corrupt body table (velocity coordinate %d is not moved by exactly one joint or elastic body)", bad);
     return 0;
 }
 
@@ -146,7 +151,7 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
         BAD("corrupt header (%d Cardan joints, the body table has %lld)", (int)H[H_NCARDAN], (long long)cardan);
     if (H[H_NCARRIER] != carriers)
         BAD("corrupt header (%d carriers, the body table has %lld)", (int)H[H_NCARRIER], (long long)carriers);
-    return mbs_dense_path(H) ? 0 : check_owners(m, err, errlen);
+    return 0;
 }
 
 /* Force elements: type, the coordinates or bodies they act on, their value slot; nodes only with elastic bodies. */
@@ -314,6 +319,7 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
 #ifdef MBS_WITH_ELASTIC
     if ((H[H_FEATURES] & F_ELASTIC) && mbs_elastic_validate(m, err, errlen)) goto fail;
 #endif
+    if (!m->dense && check_owners(m, err, errlen)) goto fail;  /* the recursive path reads each coordinate once */
     return m;
 fail:
     free((void *)m->read);

@@ -168,7 +168,8 @@ static void attachment(const MbsEval *e, int i, real *S_J, real *rho, const real
 #ifdef MBS_WITH_ELASTIC
     if (bi->node >= 0) {  /* at a node of an elastic parent: it moves with r_IP, S_IP (seed 004) */
         real S_P[9], *nb_ = node_buf;
-        mbs_elastic_node_frame(e, i, S_P, nb_, nb_ + 3, nb_ + 6, nb_ + 9, nb_ + 12, J_R, J_R + 3 * f);
+        mbs_elastic_node_frame(e, i, S_P, nb_, nb_ + 3, nb_ + 6, nb_ + 9, nb_ + 12, m->dense ? J_R : NULL,
+                               m->dense ? J_R + 3 * f : NULL);
         *o_p = nb_; *w_p = nb_ + 3; *v_p = nb_ + 6; *a_p = nb_ + 9; *al_p = nb_ + 12;
         mm(S_P, bd->R0, S_J);
         memset(rho, 0, 3 * sizeof(real));
@@ -424,12 +425,18 @@ static void force_point(const MbsEval *e, int i, int node, const real *at, real 
     mbs_point(e, i, at, x, v, J);
 }
 
-/* A force F (sign ±1) at a point with Jacobian J on body i: q += sign JᵀF (dense path), or onto the body's
- * spatial force at x (recursive path; x NULL: F is a torque). */
-static void apply(const MbsEval *e, int i, const real *J, const real *x, const real *F, double sign)
+/* A force F (sign ±1) at a point with Jacobian J on body i, or at its node (-1: none): q += sign JᵀF (dense path),
+ * or onto the body's spatial force at x and at a node onto its modal coordinates (recursive path; x NULL: F is a
+ * torque). */
+static void apply(const MbsEval *e, int i, int node, const real *J, const real *x, const real *F, double sign)
 {
-    if (e->m->dense) mbs_add_JtF(e, i, J, F, sign, e->q);
-    else mbs_body_force(e, i, x, F, sign);
+    if (e->m->dense) { mbs_add_JtF(e, i, J, F, sign, e->q); return; }
+    mbs_body_force(e, i, x, F, sign);
+#ifdef MBS_WITH_ELASTIC
+    if (node >= 0) mbs_elastic_node_force(e, i, node, F, !x, sign);
+#else
+    (void)node;
+#endif
 }
 
 /* q (generalized forces) from the force elements and the generalized-force inputs (tree.py: applied_forces); on
@@ -461,8 +468,8 @@ void mbs_applied_forces(const MbsEval *e)
             real e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
             real mag = fd->k * (l - fd->l) + fd->d * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
             real F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
-            if (fi->a >= 0) apply(e, fi->a, Ja, xa, F, 1.0);
-            if (fi->b >= 0) apply(e, fi->b, Jb, xb, F, -1.0);
+            if (fi->a >= 0) apply(e, fi->a, fi->node_a, Ja, xa, F, 1.0);
+            if (fi->b >= 0) apply(e, fi->b, fi->node_b, Jb, xb, F, -1.0);
             break;
         }
         case FE_FORCE:
@@ -475,12 +482,12 @@ void mbs_applied_forces(const MbsEval *e)
             else memcpy(vec, src, sizeof vec);
             if (fi->type == FE_TORQUE) {
 #ifdef MBS_WITH_ELASTIC
-                if (fi->node_a >= 0) { mbs_elastic_node_J_R(e, i, fi->node_a, Ja); mbs_add_JtF(e, i, Ja, vec, 1.0, q); break; }
+                if (fi->node_a >= 0 && m->dense) { mbs_elastic_node_J_R(e, i, fi->node_a, Ja); mbs_add_JtF(e, i, Ja, vec, 1.0, q); break; }
 #endif
-                apply(e, i, wk + W_J, NULL, vec, 1.0);
+                apply(e, i, fi->node_a, wk + W_J, NULL, vec, 1.0);
             } else {
                 force_point(e, i, fi->node_a, fd->at_a, xp, vp, Ja);
-                apply(e, i, Ja, xp, vec, 1.0);
+                apply(e, i, fi->node_a, Ja, xp, vec, 1.0);
             }
             break;
         }
