@@ -130,16 +130,8 @@ def compile_scene(spec, variables, guid="", model=None):
     value-reference order, each with its engine table row) and its Model if the caller has it. Returns bytes."""
     model = Model(spec) if model is None else model
     m, env = model, dict(model.env)
-    # on the dense path (the smallest scenes, mbs_dense_path) the engine keeps per body dense Jacobian rows (6 f
-    # doubles): refuse what it could not allocate (the recursive path's workspace, linear, is bounded by limits)
     carrier = carriers(m)
     ncarrier = sum(c == i for i, c in enumerate(carrier))
-    dense = m.nvel <= L.MBS_DENSE_MAX_NVEL and len(m.bodies) - ncarrier <= ncarrier
-    need = 8 * len(m.bodies) * (26 + 6 * m.nvel) + 8 * m.nvel ** 2
-    if dense and need > L.MBS_MAX_WORKSPACE:
-        raise ValueError(f"scene too large for the engine: {len(m.bodies)} bodies with {m.nvel} velocity coordinates "
-                         f"need {need / 2**30:.1f} GiB of workspace (limit {L.MBS_MAX_WORKSPACE / 2**30:.0f} GiB); the "
-                         "engine's dense per-body Jacobians suit tens to a few hundred coordinates")
     params = [p["name"] for p in spec["parameters"]]
     P = _Programs(params)
     R = _Rules(P.bound)
@@ -350,7 +342,7 @@ def compile_scene(spec, variables, guid="", model=None):
 
 def carriers(model):
     """The body that carries each body on the recursive path (IB_CARRIER): a body welded to its parent (a fixed
-    joint on a rigid parent, not at an elastic node) moves with it and joins its carrier (-1: the world), the rest
+    joint with no elastic body on its path to the root) moves with it and joins its carrier (-1: the world), the rest
     carry themselves. The engine derives each carrier's composite mass and inertia at bind time (mbs_derive: the
     numbers may depend on parameters), so its recursion runs over the moving bodies only, as Pinocchio merges a
     URDF's fixed links; its kinematics skip them too, and find points on them through their carrier's frame."""

@@ -99,7 +99,8 @@ static int check_owners(const MbsModel *m, char *err, size_t errlen)
         for (int k = 0; k < bi->nvel && bad < 0; k++)
             if (bi->vel[k] >= 0 && owned[bi->vel[k]]++) bad = bi->vel[k];
     }
-    for (int el = 0; m->elastic_i && el < m->elastic_i[EH_NE] && bad < 0; el++) {  /* (validated rows) */
+    const int ne = (m->hdr[H_FEATURES] & F_ELASTIC) ? m->elastic_i[EH_NE] : 0;  /* (rows validated) */
+    for (int el = 0; el < ne && bad < 0; el++) {
         const int32_t *r = m->elastic_i + EH + EI * el;
         for (int k = 0; k < r[EI_N] && bad < 0; k++)
             if (owned[r[EI_QD] + k]++) bad = r[EI_QD] + k;
