@@ -1,8 +1,9 @@
 """Elastic bodies in the C engine (engine/elastic.c) against the numpy reference of seed 004
 (equations/tree.py + bodies/tree.py + bodies/ffrf.py): M, k, q and node kinematics at random states, on the
-shipped elastic scenes and on random nodal data that exercise every path (Ψ, node inertias, damping, a child
-joint at a node, an elastic body at a node of another, springs/forces/torques/outputs at nodes, drives,
-gravity); the compiled data refused when corrupt; structural parameters fixed."""
+shipped elastic scenes (the dense path) and on random nodal data that exercise every part (Ψ, node inertias,
+damping, a child joint at a node, an elastic body at a node of another, springs/forces/torques/outputs at nodes,
+drives, gravity) on the recursive path (elastic bodies as nodes of the articulated-body algorithm); the compiled
+data refused when corrupt; structural parameters fixed."""
 
 import json
 import struct
@@ -14,7 +15,7 @@ import pytest
 import mbsfmu
 from mbsfmu.bodies.tree import node_point
 from mbsfmu.engine import EngineError, Instance
-from mbsfmu.engine.layout import S_ELASTIC_D, S_ELASTIC_I
+from mbsfmu.engine.layout import MBS_DENSE_MAX_NVEL, S_ELASTIC_D, S_ELASTIC_I
 from mbsfmu.simulation import Simulation, compiled
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -142,6 +143,24 @@ def random_scene(seed):
 @pytest.mark.parametrize("seed", range(6))
 def test_random_nodal_scene(seed):
     compare(random_scene(seed), seed)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_accelerations_on_the_recursive_path(seed):
+    """ÿ of the engine's right-hand side, where the elastic bodies are nodes of the articulated-body algorithm
+    (dynamics.c with elastic.c's recursive path), against M⁻¹ (q − k) of the reference, at large and small
+    deflections (the random scenes have more coordinates than the dense path takes)."""
+    spec = random_scene(seed)
+    ev, sim = mbsfmu.compile(spec), Simulation(spec)
+    assert sim.engine.nvel > MBS_DENSE_MAX_NVEL
+    rng = np.random.default_rng(seed)
+    for scale in (0.3, 1e-3):
+        y, yd = random_state(ev, rng, scale)
+        t = rng.uniform(0.0, 3.0)
+        M, k, q = ev.equations(y, yd, t)
+        ydd = np.linalg.solve(M, q - k)
+        got = sim.f(t, np.r_[y, yd])[len(y):]
+        assert np.abs(got - ydd).max() < 1e-12 * np.linalg.cond(M) * np.abs(ydd).max()
 
 
 def test_realistic_deflections():
