@@ -422,12 +422,13 @@ void mbs_elastic_equations(const MbsEval *e)
 
 static real *scratch(const MbsEval *e) { return (real *)e->elastic_work + 2 * e->m->elastic_i[EH_NE] + 6 * NVEL(e->m); }
 
-static void sandwich(const real *S, const real *X, real *out)  /* S X Sᵀ */
+static void sandwich(const real *S, const real *X, real *out)  /* S X Sᵀ for a symmetric X */
 {
     real SX[9];
     mm(S, X, SX);
     for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++) out[3 * r + c] = SX[3 * r] * S[3 * c] + SX[3 * r + 1] * S[3 * c + 1] + SX[3 * r + 2] * S[3 * c + 2];
+        for (int c = r; c < 3; c++)
+            out[3 * r + c] = out[3 * c + r] = SX[3 * r] * S[3 * c] + SX[3 * r + 1] * S[3 * c + 1] + SX[3 * r + 2] * S[3 * c + 2];
 }
 
 /* the body's I_e, P, F added to IA (6 × 6), P, F; U, M_ee, ke, qe and β = ke − qe into its block */
@@ -440,17 +441,20 @@ void mbs_elastic_body(const MbsEval *e, int body, real *IA, real *P, real *F)
     const int n = in.n;
     const real *S = mbs_body_work(e, body) + W_S;
     const Block b = block(e, el);
-    const real mx[9] = {0, -T.mc[2], T.mc[1], T.mc[2], 0, -T.mc[0], -T.mc[1], T.mc[0], 0};
-    real A[9], B[9], SSt[9], E[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    /* S I Sᵀ, S (m c)~ Sᵀ = (cof(S) m c)~ (cof: the cofactors; S itself for a rotation), m S Sᵀ */
+    const real *mc = T.mc, cof[9] = {S[4] * S[8] - S[5] * S[7], S[5] * S[6] - S[3] * S[8], S[3] * S[7] - S[4] * S[6],
+                                     S[2] * S[7] - S[1] * S[8], S[0] * S[8] - S[2] * S[6], S[1] * S[6] - S[0] * S[7],
+                                     S[1] * S[5] - S[2] * S[4], S[2] * S[3] - S[0] * S[5], S[0] * S[4] - S[1] * S[3]};
+    real A[9], h[3];
     sandwich(S, T.I, A);
-    sandwich(S, mx, B);
-    sandwich(S, E, SSt);
+    mv(cof, mc, h);
+    const real B[9] = {0, -h[2], h[1], h[2], 0, -h[0], -h[1], h[0], 0};
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++) {
             IA[6 * r + c] += A[3 * r + c];
             IA[6 * r + 3 + c] += B[3 * r + c];
             IA[6 * (3 + r) + c] -= B[3 * r + c];
-            IA[6 * (3 + r) + 3 + c] += T.mass * SSt[3 * r + c];
+            IA[6 * (3 + r) + 3 + c] += T.mass * (S[3 * r] * S[3 * c] + S[3 * r + 1] * S[3 * c + 1] + S[3 * r + 2] * S[3 * c + 2]);
         }
     real x[3];
     mv(S, T.kr + 3, x); for (int r = 0; r < 3; r++) P[r] += x[r];
@@ -525,24 +529,29 @@ int mbs_elastic_eliminate(const MbsEval *e, int body, real *IA, real *p)
     const int el = mbs_body_i(m, body)->elastic, n = row(m, el)->n;
     const real *tau = e->q + row(m, el)->qd;
     const Block b = block(e, el);
-    real *W = b.U, *z = b.beta, *L = b.L;
-    if (mbs_cholesky(n, L)) return 1;
-    for (int k = 0; k < n; k++) {
-        z[k] -= tau[k];
+    real *restrict W = b.U, *restrict z = b.beta;
+    const real *restrict L = b.L;
+    if (mbs_cholesky(n, b.L)) return 1;
+    real WWt[21] = {0}, Wz[6] = {0};  /* the upper triangle of W Wᵀ, row after row; W z */
+    for (int k = 0; k < n; k++) {  /* row k of L⁻¹ [Uᵀ β − τ], accumulated into W Wᵀ and W z as it is found */
+        const real *Lk = L + (size_t)n * k;
+        real w[6], zk = z[k] - tau[k];
+        for (int r = 0; r < 6; r++) w[r] = W[6 * k + r];
         for (int j = 0; j < k; j++) {
-            for (int r = 0; r < 6; r++) W[6 * k + r] -= L[(size_t)n * k + j] * W[6 * j + r];
-            z[k] -= L[(size_t)n * k + j] * z[j];
+            for (int r = 0; r < 6; r++) w[r] -= Lk[j] * W[6 * j + r];
+            zk -= Lk[j] * z[j];
         }
-        for (int r = 0; r < 6; r++) W[6 * k + r] /= L[(size_t)n * k + k];
-        z[k] /= L[(size_t)n * k + k];
+        const real il = 1.0 / Lk[k];
+        for (int r = 0; r < 6; r++) W[6 * k + r] = w[r] *= il;
+        z[k] = zk *= il;
+        for (int r = 0, t = 0; r < 6; r++) {
+            Wz[r] += w[r] * zk;
+            for (int c = r; c < 6; c++) WWt[t++] += w[r] * w[c];
+        }
     }
-    for (int r = 0; r < 6; r++) {
-        for (int k = 0; k < n; k++) p[r] -= W[6 * k + r] * z[k];
-        for (int c = r; c < 6; c++) {
-            real x = IA[6 * r + c];
-            for (int k = 0; k < n; k++) x -= W[6 * k + r] * W[6 * k + c];
-            IA[6 * r + c] = IA[6 * c + r] = x;
-        }
+    for (int r = 0, t = 0; r < 6; r++) {
+        p[r] -= Wz[r];
+        for (int c = r; c < 6; c++, t++) IA[6 * r + c] = IA[6 * c + r] = IA[6 * r + c] - WWt[t];
     }
     return 0;
 }
