@@ -125,13 +125,16 @@ class _Rules:
         return np.array(rows, dtype=np.int32).reshape(-1, 3), np.frombuffer(b"".join(names), np.uint8)
 
 
-def compile_scene(spec, variables, guid="", model=None):
+def compile_scene(spec, variables, guid="", model=None, dense=None):
     """The compiled scene of a normalized spec, with the FMU variables (fmu.variables.variables(spec): in
-    value-reference order, each with its engine table row) and its Model if the caller has it. Returns bytes."""
+    value-reference order, each with its engine table row) and its Model if the caller has it; dense: the
+    evaluation path (None: dense_path's choice; tests and benchmarks hold the two paths against each other).
+    Returns bytes."""
     model = Model(spec) if model is None else model
     m, env = model, dict(model.env)
     carrier = carriers(m)
     ncarrier = sum(c == i for i, c in enumerate(carrier))
+    dense = dense_path(m, carrier) if dense is None else dense
     params = [p["name"] for p in spec["parameters"]]
     P = _Programs(params)
     R = _Rules(P.bound)
@@ -322,7 +325,7 @@ def compile_scene(spec, variables, guid="", model=None):
                   NDRV=len(drives), NVEC=len(inputs) + len(timed), NINPUT=len(inputs), NPARAM=len(params),
                   NVARS=len(vars_), NOUT=len(m.outputs), NPROG=len(prog), NCODE=len(P.code),
                   HAS_GRAVITY=int(m.has_gravity), METHOD=L.METHODS.index(integ["method"]), NCARDAN=int(ncardan),
-                  NCARRIER=ncarrier,
+                  NCARRIER=ncarrier, DENSE=int(dense),
                   FEATURES=features, MAXSTACK=L.MBS_MAXSTACK, D_PARAM=0, D_CONST=len(params), D_BODY=offsets["body"],
                   D_FORCE=offsets["force"], D_G=offsets["g"], D_X0=offsets["x0"], D_NOMINAL=offsets["nominal"], D_OUT=offsets["out"],
                   D_INTEG=offsets["integ"], ND=nd)
@@ -338,6 +341,25 @@ def compile_scene(spec, variables, guid="", model=None):
     if arrays:  # only then: a scene without arrays compiles as before
         sections.append((L.S_ARRAYS, np.array(arrays, dtype=np.int32)))
     return _pack(sections, guid)
+
+
+def dense_path(model, carrier):
+    """The evaluation path (H_DENSE), whichever is the faster: the dense equations (per-body Jacobian rows, M
+    assembled and factored: cubic in the coordinates) for scenes of at most MBS_DENSE_MAX_NVEL velocity coordinates
+    besides their largest elastic body's, or of twice that in all with elastic bodies, and no more welded bodies
+    than carriers; else the articulated-body algorithm (linear in the bodies). Measured in instructions per
+    right-hand side with its kinematics (callgrind, recursive/dense): revolute chains of 1, 2, 4 bodies
+    3.0k/2.8k, 6.2k/5.6k, 12.6k/12.1k, of 6 and 16 bodies 19.0k/20.3k, 51.0k/92.7k; the free body 8.1k/6.6k; the
+    6-dof arm (7 bodies, 1 welded) 25.4k/22.6k; of example-robot-data: UR arms (10 bodies, 4 welded) 27.9k/26.4k,
+    kinova (6 dof, 7 welded) 30.7k/39.4k, iris_simple (a free body with 5 welded) 12.7k/24.4k. Elastic, as
+    ratios: beams of n modes on L revolute joints (L × n) 1 × 8, 1 × 12 1.25, 1.19; 2 × 4 1.24; 3 × 2 1.25;
+    4 × 2 1.09; 3 × 4 1.02; 2 × 8 0.98; 6 × 2 0.80; 4 × 4 0.81; 3 × 8 0.74; 6 × 12 0.26; 12 rigid links and a
+    beam of 4 modes 0.80, 6 and 12 modes 0.99; the random nodal trees of tests/test_engine_elastic.py (13 to 15
+    coordinates, two elastic bodies) 0.78 to 0.81."""
+    modes = max((len(b.elastic["coordinates"]) for b in model.bodies if b.elastic), default=0)
+    ncarrier = sum(c == i for i, c in enumerate(carrier))
+    few = model.nvel - modes <= L.MBS_DENSE_MAX_NVEL or (modes > 0 and model.nvel <= 2 * L.MBS_DENSE_MAX_NVEL)
+    return few and len(model.bodies) - ncarrier <= ncarrier
 
 
 def carriers(model):

@@ -21,23 +21,13 @@
 #define MBS_VALUE(...) MBS_VALUE_(__VA_ARGS__, ~)
 #define MBS_VALUE_(name, value, ...) name = (value),
 
-#define MBS_FORMAT_VERSION 4 /* version of the compiled-scene layout this engine reads (2: H_D_NOMINAL; 3: H_NCARRIER, IB_CARRIER; 4: S_ARRAYS) */
+#define MBS_FORMAT_VERSION 5 /* version of the compiled-scene layout this engine reads (2: H_D_NOMINAL; 3: H_NCARRIER, IB_CARRIER; 4: S_ARRAYS; 5: H_DENSE) */
 #define MBS_MAXSTACK 64
 /* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py refuses a
  * larger scene first, with its size) */
 #define MBS_MAX_WORKSPACE 1073741824
-/* elastic scenes and rigid ones of at most MBS_DENSE_MAX_NVEL velocity coordinates and no more welded bodies than
- * carriers (IB_CARRIER) take the dense path (per-body Jacobians, M factored: cubic in the coordinates, linear in all
- * bodies), other rigid scenes the recursive one (articulated bodies: linear in the carriers), where each is the
- * faster: mbs_dense_path. Measured (instructions per right-hand side with its kinematics, callgrind,
- * dense/recursive): revolute chains of 1, 2, 4 bodies 2.8k/3.0k, 5.6k/6.2k, 12.1k/12.6k, of 6 and 16 bodies
- * 20.3k/19.0k, 92.7k/51.0k; the free body 6.6k/8.1k; the 6-dof arm (7 bodies, 1 welded) 22.6k/25.4k; of
- * example-robot-data: UR arms (10 bodies, 4 welded) 26.4k/27.9k, the double pendulums (3-4 bodies, 1-2 welded)
- * 7.6k-8.6k/8.2k-9.1k, finger_edu (3 dof, 3 welded) 15.1k/14.2k, kinova (6 dof, 7 welded) 39.4k/30.7k, iris_simple
- * (a free body with 5 welded) 24.4k/12.7k. The shipped scenes all stay on the dense path, bit for bit. Since the
- * recursive path skips welded bodies and solves free joints without D (dynamics.c: free_joint), it is the faster
- * for some of these too (C loop µs, dense/recursive): hector's free body 0.34/0.29, finger_edu 0.67/0.58, the
- * double pendulum not (0.34/0.36); moving the threshold would move shipped scenes off their bit-for-bit results */
+/* the dense path for scenes of at most this many velocity coordinates besides their largest elastic body's
+ * (compile.py: dense_path, which has the measurements) */
 #define MBS_DENSE_MAX_NVEL 6
 
 /* "MBSC", int32 format version, char guid[64], int32 nsec, then nsec rows {int32 id, int32 kind (0 int32,
@@ -68,7 +58,7 @@ enum { MBS_SECTIONS(MBS_CODE) S_NSECTIONS };
 /* header scalars (S_HEADER); H_D_*: offsets into D */
 #define MBS_HEADER(X) \
     X(H_NB) X(H_NPOS) X(H_NVEL) X(H_NFORCE) X(H_NQUAT) X(H_NPLAIN) X(H_NDRV) X(H_NVEC) X(H_NINPUT) X(H_NPARAM) \
-    X(H_NVARS) X(H_NOUT) X(H_NPROG) X(H_NCODE) X(H_HAS_GRAVITY) X(H_METHOD) X(H_NCARDAN) X(H_NCARRIER) X(H_FEATURES) \
+    X(H_NVARS) X(H_NOUT) X(H_NPROG) X(H_NCODE) X(H_HAS_GRAVITY) X(H_METHOD) X(H_NCARDAN) X(H_NCARRIER) X(H_FEATURES) X(H_DENSE) \
     X(H_MAXSTACK) X(H_D_PARAM) X(H_D_CONST) X(H_D_BODY) X(H_D_FORCE) X(H_D_G) X(H_D_X0) X(H_D_NOMINAL) \
     X(H_D_OUT) X(H_D_INTEG) \
     X(H_ND)

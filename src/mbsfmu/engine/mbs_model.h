@@ -183,14 +183,11 @@ typedef struct {
 #define AB_ATC 200        /* (mbs_welded), else the parent's: written at bind time (mbs_composites) */
 #define AB_SIZE 203
 
-/* The evaluation path, chosen from the scene's header in this one place (compile.py's workspace check follows it):
- * elastic scenes keep the dense path (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic
- * in the size), and so do the smallest rigid ones, for which it is the faster; the other rigid scenes take the
- * articulated-body algorithm (dynamics.c: linear). */
-static inline int mbs_dense_path(const int32_t *hdr)
-{
-    return hdr[H_NVEL] <= MBS_DENSE_MAX_NVEL && hdr[H_NB] - hdr[H_NCARRIER] <= hdr[H_NCARRIER];
-}
+/* The evaluation path, chosen by the compiler (compile.py: dense_path) and read from the header here: the dense
+ * equations (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic in the coordinates) for
+ * the smallest scenes, where they are the faster; the articulated-body algorithm (dynamics.c: linear in the
+ * bodies) for the others. Either evaluates every scene. */
+static inline int mbs_dense_path(const int32_t *hdr) { return hdr[H_DENSE] == 1; }
 /* doubles of an instance's evaluation workspace: per body, scratch (two 3 × f Jacobians) and M on the dense path */
 static inline double mbs_work_doubles(const int32_t *hdr)
 {

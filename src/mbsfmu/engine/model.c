@@ -66,6 +66,7 @@ static int check_header(const int32_t *H, char *err, size_t errlen)
         BAD("corrupt header (%d force inputs, %d vector slots, %lld force elements: inputs <= slots <= elements)",
             (int)H[H_NINPUT], (int)H[H_NVEC], (long long)nf);
     if (H[H_FEATURES] & ~(F_EXPR | F_ELASTIC)) BAD("corrupt header (unknown feature bits %#x)", (unsigned)H[H_FEATURES]);
+    if (H[H_DENSE] > 1) BAD("corrupt header (evaluation path %d, valid 0 recursive, 1 dense)", (int)H[H_DENSE]);
 #ifndef MBS_WITH_ELASTIC
     if (H[H_FEATURES] & F_ELASTIC)
         BAD("the scene has elastic bodies but this engine was built without them (rebuild the FMU)");
