@@ -251,3 +251,15 @@ def test_truncated_elastic_data_and_bad_node_refused():
         Instance(_patch(blob, S_BODY_I, payload * IB + IB_NODE, 9))
     with pytest.raises(EngineError, match="corrupt"):
         Instance(_patch(blob, S_OUT_I, 3 * 1 + 1, 9))
+
+
+def test_the_paths_benchmark_writes_its_report(tmp_path):
+    """bench/elastic_paths.py (reports/elastic_paths.md): each case on both paths in the C loop, the report written."""
+    from mbsfmu.bench import elastic_paths
+    from mbsfmu.fmu.native import compiler
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    elastic_paths.main(["--out", str(tmp_path), "--quick", "--rounds", "2", "--seconds", "0.02"])
+    text = (tmp_path / "elastic_paths.md").read_text()
+    assert "| flexible_pendulum | 4 | dense |" in text and "| arm 1×8 | 9 | dense |" in text
+    assert (tmp_path / "elastic_paths.png").stat().st_size
