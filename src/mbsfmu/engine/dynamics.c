@@ -192,8 +192,10 @@ static void bias_forces(const MbsEval *e)
             memset(F, 0, 6 * sizeof(real));
 #ifdef MBS_WITH_ELASTIC
         if (!elastic) continue;
-        /* below an elastic body S is orthogonal only to first order (seed 004): the gyroscopic moment is
-         * S (ω_b × I ω_b), ω_b = Sᵀ ω (tree.c, tree.py), not ω × S I Sᵀ ω as in v ×* I v */
+        if (mbs_body_i(m, i)->elastic >= 0) mbs_elastic_body(e, i, I, P, F);
+        if (!m->flexed[i]) continue;
+        /* at or below an elastic body's node S is orthogonal only to first order (seed 004): the gyroscopic moment
+         * is S (ω_b × I ω_b), ω_b = Sᵀ ω (tree.c, tree.py), not ω × S I Sᵀ ω as in v ×* I v */
         const real *S = wk + W_S;
         real wb[3], Iwb[3], gb[3], gyr[3], SIwb[3], wx[3];
         mtv(S, w, wb);
@@ -203,7 +205,6 @@ static void bias_forces(const MbsEval *e)
         mv(S, Iwb, SIwb);
         cross(w, SIwb, wx);
         for (int r = 0; r < 3; r++) P[r] += gyr[r] - wx[r];
-        if (mbs_body_i(m, i)->elastic >= 0) mbs_elastic_body(e, i, I, P, F);
 #endif
     }
 }

@@ -473,21 +473,31 @@ void mbs_elastic_body(const MbsEval *e, int body, real *IA, real *P, real *F)
     for (size_t k = 0; k < (size_t)n * n; k++) b.L[k] = in.M_ee[k];
 }
 
-/* Y of child c at node P of its elastic parent: n columns of 6, the motion at o_c per unit q̈ of the parent */
-static void node_columns(const MbsEval *e, int child, real *Y)
+/* the elastic parent of child c (at its node P) and d = o_c − r_P */
+static Inv node_offset(const MbsEval *e, int child, real *d)
 {
     const MbsModel *m = e->m;
     const MbsBodyI *bc = mbs_body_i(m, child);
     const Inv in = inv_of(m, mbs_body_i(m, bc->parent)->elastic);
-    const int n = in.n;
-    const real *wi = mbs_body_work(e, bc->parent), *S = wi + W_S, *q = e->x + in.q0;
-    const real *oc = mbs_body_work(e, child) + W_O;
-    const double *Phi = node_Phi(&in, bc->node), *Psi = node_Psi(&in, bc->node), *R = node_R(&in, bc->node);
-    real rR[3], rho[3], d[3];
-    mv3n(Phi, q, n, rR);
+    const real *wi = mbs_body_work(e, bc->parent), *oc = mbs_body_work(e, child) + W_O;
+    const double *R = node_R(&in, bc->node);
+    real rR[3], rho[3];
+    mv3n(node_Phi(&in, bc->node), e->x + in.q0, in.n, rR);
     for (int k = 0; k < 3; k++) rR[k] += R[k];
-    mv(S, rR, rho);
+    mv(wi + W_S, rR, rho);
     for (int k = 0; k < 3; k++) d[k] = oc[k] - wi[W_O + k] - rho[k];
+    return in;
+}
+
+/* Y of child c at node P of its elastic parent: n columns of 6, the motion at o_c per unit q̈ of the parent */
+static void node_columns(const MbsEval *e, int child, real *Y)
+{
+    const int P = mbs_body_i(e->m, child)->node;
+    real d[3];
+    const Inv in = node_offset(e, child, d);
+    const int n = in.n;
+    const real *S = mbs_body_work(e, mbs_body_i(e->m, child)->parent) + W_S;
+    const double *Phi = node_Phi(&in, P), *Psi = node_Psi(&in, P);
     for (int k = 0; k < n; k++) {
         const real ps[3] = {Psi[k], Psi[n + k], Psi[2 * n + k]}, ph[3] = {Phi[k], Phi[n + k], Phi[2 * n + k]};
         real *y = Y + 6 * k, dxw[3];
@@ -570,16 +580,19 @@ void mbs_elastic_accelerations(const MbsEval *e, int body, const real *acc, real
     }
 }
 
-/* a child at a node: acc (its parent's Δa moved to o_c) += Y q̈ of the parent */
+/* a child at a node: acc (its parent's Δa moved to o_c) += Y q̈ of the parent: (S Ψ_P q̈, S Φ_P q̈ − d × S Ψ_P q̈) */
 void mbs_elastic_node_acceleration(const MbsEval *e, int child, const real *ydd, real *acc)
 {
-    const MbsModel *m = e->m;
-    const int el = mbs_body_i(m, mbs_body_i(m, child)->parent)->elastic, n = row(m, el)->n;
-    const real *qdd = ydd + row(m, el)->qd;
-    real *Y = scratch(e);
-    node_columns(e, child, Y);
-    for (int k = 0; k < n; k++)
-        for (int r = 0; r < 6; r++) acc[r] += Y[6 * k + r] * qdd[k];
+    const int P = mbs_body_i(e->m, child)->node;
+    real d[3], a[3], al[3], w[3], v[3], dxw[3];
+    const Inv in = node_offset(e, child, d);
+    const real *S = mbs_body_work(e, mbs_body_i(e->m, child)->parent) + W_S, *qdd = ydd + in.qd0;
+    mv3n(node_Psi(&in, P), qdd, in.n, al);
+    mv3n(node_Phi(&in, P), qdd, in.n, a);
+    mv(S, al, w);
+    mv(S, a, v);
+    cross(d, w, dxw);
+    for (int r = 0; r < 3; r++) { acc[r] += w[r]; acc[3 + r] += v[r] - dxw[r]; }
 }
 
 /* the part on the body's q of a force F (torque: a moment) at its node P, (S Φ_P)ᵀ F or (S Ψ_P)ᵀ F, into e->q

@@ -77,6 +77,8 @@ struct MbsModel {
     int nrules, n_rule_names;
     int32_t *first3;                   /* FMI 3.0 variable k: rows first3[k] .. first3[k + 1] - 1 (S_ARRAYS) */
     int nvars3;
+    unsigned char *flexed;             /* per body: at a node of an elastic body or below one (S orthogonal only to
+                                        * first order there, seed 004); NULL in rigid scenes */
     int dense;                         /* evaluation path (mbs_dense_path): 1 dense Jacobians (tree.c), 0 recursive (dynamics.c) */
     int stride;                        /* doubles of one body's workspace on that path */
     void *blob;                        /* owned copy of the compiled scene */

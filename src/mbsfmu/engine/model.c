@@ -322,10 +322,18 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     if ((H[H_FEATURES] & F_ELASTIC) && mbs_elastic_validate(m, err, errlen)) goto fail;
 #endif
     if (!m->dense && check_owners(m, err, errlen)) goto fail;  /* the recursive path reads each coordinate once */
+    if (H[H_FEATURES] & F_ELASTIC) {
+        if (!(m->flexed = malloc((size_t)nb + 1))) FAIL("out of memory");
+        for (int i = 0; i < nb; i++) {  /* (parents first: check_bodies) */
+            const MbsBodyI *bi = mbs_body_i(m, i);
+            m->flexed[i] = bi->node >= 0 || (bi->parent >= 0 && m->flexed[bi->parent]);
+        }
+    }
     return m;
 fail:
     free((void *)m->read);
     free(m->first3);
+    free(m->flexed);
     free(m->coord_name);
     free(b);
     free(m);
@@ -346,6 +354,7 @@ void mbs_model_free(MbsModel *m)
     if (!m) return;
     free((void *)m->read);
     free(m->first3);
+    free(m->flexed);
     free(m->coord_name);
     free(m->blob);
     free(m);
