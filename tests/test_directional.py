@@ -20,7 +20,7 @@ from mbsfmu.engine import EngineError, Instance
 from mbsfmu.engine import layout as L
 from mbsfmu.simulation import compiled
 from test_engine_aba import random_tree
-from test_engine_elastic import random_scene
+from test_engine_elastic import on_dense_path, random_scene
 
 REPO = Path(__file__).resolve().parent.parent
 MODELS = [p.stem for p in sorted((REPO / "models").glob("*.yaml"))]
@@ -111,7 +111,7 @@ def test_random_trees_of_every_joint_type_on_the_recursive_path(seed):
     rng = np.random.default_rng(seed)
     spec = mbsfmu.loads(random_tree(rng, 12)).spec
     case = Case(spec, seed)
-    assert case.inst.nvel > L.MBS_DENSE_MAX_NVEL and case.inputs
+    assert not on_dense_path(spec) and case.inputs
     assert_jacobians_agree(case.jacobian(), [case.central_differences(step) for step in POSITION_STEPS])
 
 
@@ -119,8 +119,9 @@ def test_random_trees_of_every_joint_type_on_the_recursive_path(seed):
 def test_elastic_bodies_on_the_recursive_path(seed):
     """Elastic bodies as nodes of the articulated-body algorithm (a joint at a node, an elastic body at a node of
     another, forces, torques, springs and outputs at nodes), differentiated as it runs."""
-    case = Case(random_scene(seed), seed)
-    assert case.inst.nvel > L.MBS_DENSE_MAX_NVEL
+    spec = random_scene(seed)
+    assert not on_dense_path(spec)
+    case = Case(spec, seed)
     assert_jacobians_agree(case.jacobian(), [case.central_differences(step) for step in POSITION_STEPS])
 
 

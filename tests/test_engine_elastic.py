@@ -15,7 +15,9 @@ import pytest
 import mbsfmu
 from mbsfmu.bodies.tree import node_point
 from mbsfmu.engine import EngineError, Instance
-from mbsfmu.engine.layout import MBS_DENSE_MAX_NVEL, S_ELASTIC_D, S_ELASTIC_I
+from mbsfmu.engine.compile import carriers, dense_path
+from mbsfmu.equations.model import Model
+from mbsfmu.engine.layout import S_ELASTIC_D, S_ELASTIC_I
 from mbsfmu.simulation import Simulation, compiled
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -23,9 +25,15 @@ SHIPPED = ["flexible_pendulum", "spinup_beam", "robot_arm_elastic"]
 RTOL = 1e-12
 
 
-def engine(spec):
-    blob, _, model = compiled(spec)
-    return Instance(blob), model
+def engine(spec, dense=None):
+    """The engine instance of a scene on the path the compiler picks (dense None) or on the one asked for."""
+    from mbsfmu.engine.compile import compile_scene
+    from mbsfmu.fmu.variables import variables
+    if dense is None:
+        blob, _, model = compiled(spec)
+        return Instance(blob), model
+    model = Model(spec)
+    return Instance(compile_scene(spec, variables(spec, model), model=model, dense=dense)), model
 
 
 def random_state(ev, rng, scale=1.0):
@@ -39,15 +47,21 @@ def random_state(ev, rng, scale=1.0):
     return y, yd
 
 
+def on_dense_path(spec):
+    """The compiler's choice of evaluation path for the scene (compile.py: dense_path)."""
+    model = Model(spec)
+    return dense_path(model, carriers(model))
+
+
 def assert_close(ours, ref, what):
     scale = max(np.abs(ref).max(), 1e-300)
     err = np.abs(ours - ref).max() / scale
     assert err < RTOL, f"{what}: relative difference {err:.2e}"
 
 
-def compare(spec, seed, states=4, scale=0.3):
+def compare(spec, seed, states=4, scale=0.3, dense=None):
     """Engine against the reference for M, k, q and every output point (nodes included)."""
-    inst, model = engine(spec)
+    inst, model = engine(spec, dense)
     ev = mbsfmu.compile(spec)
     rng = np.random.default_rng(seed)
     for _ in range(states):
@@ -140,9 +154,11 @@ def random_scene(seed):
     return mbsfmu.loads(json.dumps(scene)).spec
 
 
+@pytest.mark.parametrize("dense", (False, True), ids=("recursive", "dense"))
 @pytest.mark.parametrize("seed", range(6))
-def test_random_nodal_scene(seed):
-    compare(random_scene(seed), seed)
+def test_random_nodal_scene(seed, dense):
+    """On either evaluation path (the compiler picks the recursive one for these scenes)."""
+    compare(random_scene(seed), seed, dense=dense)
 
 
 @pytest.mark.parametrize("seed", range(8))
@@ -152,7 +168,7 @@ def test_accelerations_on_the_recursive_path(seed):
     deflections (the random scenes have more coordinates than the dense path takes)."""
     spec = random_scene(seed)
     ev, sim = mbsfmu.compile(spec), Simulation(spec)
-    assert sim.engine.nvel > MBS_DENSE_MAX_NVEL
+    assert not on_dense_path(spec)
     rng = np.random.default_rng(seed)
     for scale in (0.3, 1e-3):
         y, yd = random_state(ev, rng, scale)

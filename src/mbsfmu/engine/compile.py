@@ -343,22 +343,28 @@ def compile_scene(spec, variables, guid="", model=None, dense=None):
     return _pack(sections, guid)
 
 
+# the dense path: scenes of at most DENSE_MAX_NVEL velocity coordinates besides their largest elastic body's, or
+# elastic ones of at most DENSE_MAX_ELASTIC in all with at most DENSE_MAX_NVEL moved by joints (dense_path)
+DENSE_MAX_NVEL = 6
+DENSE_MAX_ELASTIC = 20
+
+
 def dense_path(model, carrier):
     """The evaluation path (H_DENSE), whichever is the faster: the dense equations (per-body Jacobian rows, M
-    assembled and factored: cubic in the coordinates) for scenes of at most MBS_DENSE_MAX_NVEL velocity coordinates
-    besides their largest elastic body's, or of twice that in all with elastic bodies, and no more welded bodies
-    than carriers; else the articulated-body algorithm (linear in the bodies). Measured in instructions per
-    right-hand side with its kinematics (callgrind, recursive/dense): revolute chains of 1, 2, 4 bodies
-    3.0k/2.8k, 6.2k/5.6k, 12.6k/12.1k, of 6 and 16 bodies 19.0k/20.3k, 51.0k/92.7k; the free body 8.1k/6.6k; the
-    6-dof arm (7 bodies, 1 welded) 25.4k/22.6k; of example-robot-data: UR arms (10 bodies, 4 welded) 27.9k/26.4k,
-    kinova (6 dof, 7 welded) 30.7k/39.4k, iris_simple (a free body with 5 welded) 12.7k/24.4k. Elastic, as
-    ratios: beams of n modes on L revolute joints (L × n) 1 × 8, 1 × 12 1.25, 1.19; 2 × 4 1.24; 3 × 2 1.25;
-    4 × 2 1.09; 3 × 4 1.02; 2 × 8 0.98; 6 × 2 0.80; 4 × 4 0.81; 3 × 8 0.74; 6 × 12 0.26; 12 rigid links and a
-    beam of 4 modes 0.80, 6 and 12 modes 0.99; the random nodal trees of tests/test_engine_elastic.py (13 to 15
-    coordinates, two elastic bodies) 0.78 to 0.81."""
-    modes = max((len(b.elastic["coordinates"]) for b in model.bodies if b.elastic), default=0)
-    ncarrier = sum(c == i for i, c in enumerate(carrier))
-    few = model.nvel - modes <= L.MBS_DENSE_MAX_NVEL or (modes > 0 and model.nvel <= 2 * L.MBS_DENSE_MAX_NVEL)
+    assembled and factored: cubic in the coordinates) for the smallest scenes (DENSE_MAX_NVEL, DENSE_MAX_ELASTIC)
+    with no more welded bodies than carriers; else the articulated-body algorithm (linear in the bodies).
+    Measured, rigid, in instructions per right-hand side with its kinematics (callgrind, recursive/dense):
+    revolute chains of 1, 2, 4 bodies 3.0k/2.8k, 6.2k/5.6k, 12.6k/12.1k, of 6 and 16 bodies 19.0k/20.3k,
+    51.0k/92.7k; the free body 8.1k/6.6k; the 6-dof arm (7 bodies, 1 welded) 25.4k/22.6k; of example-robot-data:
+    UR arms (10 bodies, 4 welded) 27.9k/26.4k, kinova (6 dof, 7 welded) 30.7k/39.4k, iris_simple (a free body with
+    5 welded) 12.7k/24.4k. Elastic, in time (reports/elastic_paths.md, recursive/dense): the shipped models
+    (4–5 coordinates) 1.5–1.7; beams of n modes on L revolute joints (L × n) 1 × 20 1.17, 3 × 4 1.24, 2 × 8 1.14,
+    4 × 4 1.04, 3 × 8 0.92, 6 × 6 0.55, 10 × 2 0.68; 6 rigid links and a beam of 12 modes 1.07, 12 and 4
+    modes 0.83; the random nodal trees of tests/test_engine_elastic.py (13–15 coordinates, 8–9 of joints) 0.8 in
+    instructions."""
+    modes = [len(b.elastic["coordinates"]) for b in model.bodies if b.elastic]
+    f, ncarrier = model.nvel, sum(c == i for i, c in enumerate(carrier))
+    few = f - max(modes, default=0) <= DENSE_MAX_NVEL or (f <= DENSE_MAX_ELASTIC and f - sum(modes) <= DENSE_MAX_NVEL)
     return few and len(model.bodies) - ncarrier <= ncarrier
 
 

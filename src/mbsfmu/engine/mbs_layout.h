@@ -26,9 +26,6 @@
 /* bytes of per-instance workspace a scene may need (dense per-body Jacobians and M; compile.py refuses a
  * larger scene first, with its size) */
 #define MBS_MAX_WORKSPACE 1073741824
-/* the dense path for scenes of at most this many velocity coordinates besides their largest elastic body's
- * (compile.py: dense_path, which has the measurements) */
-#define MBS_DENSE_MAX_NVEL 6
 
 /* "MBSC", int32 format version, char guid[64], int32 nsec, then nsec rows {int32 id, int32 kind (0 int32,
  * 1 double, 2 bytes), int64 byte offset, int64 count}, then the data (8-aligned). Section ids, with kind: */
