@@ -9,7 +9,7 @@
     size in a fresh process, so that its peak resident set (RSS) is the size's: the engine's while compiling the
     loaded scene, creating the instance and calling the right-hand side, before any peer is loaded. Sizes the
     engine refuses (its workspace) are listed as refused. Peers: Pinocchio up to PIN_MAX_CHAIN bodies (its Data
-    grows as N³) and MuJoCo's mj_forward (`mujoco_model`; its compiler stops at depth 1024).
+    grows as N³) and MuJoCo's mj_forward (`mujoco_model`) up to MUJOCO_MAX_CHAIN.
 
 Timing: the right-hand side ẋ = f(t, x) through ctypes (`mbs_rhs`) into a preallocated array, against
 `pin.aba(model, data, q, v, tau)` on preallocated arrays: both called the same way from Python, in alternating
@@ -59,6 +59,8 @@ PIN_MAX_CHAIN = 300
 STATES = 64
 # MuJoCo's share of them: one MjData each (28 MB at N = 1000)
 MUJOCO_STATES = 4
+# MuJoCo's compiled chain grows as N² (its dense M): no MuJoCo beyond this size (10,000 bodies: 5 GB, minutes)
+MUJOCO_MAX_CHAIN = 3000
 
 
 # ------------------------------------------------------------------------------------------------ scenes
@@ -314,7 +316,7 @@ def chain_child(n, rounds, seconds):
     pair = Pair(scene)
     if n <= PIN_MAX_CHAIN:
         row["pin_data_mb"] = pair.add_pinocchio()
-    why = pair.add_mujoco()
+    why = pair.add_mujoco() if n <= MUJOCO_MAX_CHAIN else f"more than MUJOCO_MAX_CHAIN = {MUJOCO_MAX_CHAIN} bodies"
     if why:
         row["mujoco_refused"] = why
     row.update(time_pair(pair, rounds, seconds))
