@@ -236,6 +236,13 @@ def test_cardan_count_is_the_body_tables(name, value):
     _refused(_header(blob, "NCARDAN", value), "Cardan")
 
 
+@pytest.mark.parametrize("value", [2, 2 ** 31 - 1])
+def test_the_evaluation_path_is_one_of_two(value):
+    """H_DENSE names the dense (1) or the recursive (0) path; anything else is refused at load."""
+    blob, _ = _compiled("cart_pole")
+    _refused(_header(blob, "DENSE", value), "evaluation path")
+
+
 @pytest.mark.parametrize("field, value", [("NDRV", 30_000_000), ("NVEC", 30_000_000), ("NINPUT", 30_000_000),
                                           ("NDRV", 2 ** 31 - 1), ("NQUAT", 2 ** 31 - 1), ("NOUT", 2 ** 31 - 1),
                                           ("NB", 2 ** 31 - 1), ("NVEL", 2 ** 31 - 1), ("NVARS", 2 ** 31 - 1)])
