@@ -114,9 +114,10 @@ def inertia_of(rng):
     return sum(mi * (ri @ ri * np.eye(3) - np.outer(ri, ri)) for mi, ri in zip(m, r)).tolist()
 
 
-def random_scene(seed):
-    """A free base, an elastic body on a revolute joint, a hinged child at one of its nodes, a second elastic
-    body at another node (stacked node frames), and forces, torques, springs and outputs at nodes."""
+def random_scene(seed, arm_joint=None):
+    """A free base, an elastic body on a revolute joint, a hinged child at one of its nodes (arm_joint: another
+    joint there), a second elastic body at another node (stacked node frames), and forces, torques, springs and
+    outputs at nodes."""
     rng = np.random.default_rng(seed)
     v = lambda: rng.normal(size=3).tolist()  # noqa: E731
     n1, n2, N1, N2 = int(rng.integers(1, 6)), int(rng.integers(1, 4)), int(rng.integers(2, 6)), int(rng.integers(2, 5))
@@ -130,7 +131,8 @@ def random_scene(seed):
                                                  "rotation": {"axis": v(), "angle": 0.4}},
                      "elastic": {"nodal": nodal(rng, N1, n1)}},
             "arm": {"parent": "flex", "joint": {"type": "revolute", "axis": v(), "node": int(rng.integers(0, N1)),
-                                                "coordinates": ["b"]},
+                                                "coordinates": ["b"]} if arm_joint is None else
+                           {**arm_joint, "node": int(rng.integers(0, N1)), "rotation": {"axis": v(), "angle": 0.7}},
                     "mass": 0.7, "center_of_mass": v(), "inertia": inertia_of(rng)},
             "flex2": {"parent": "flex", "joint": {"type": "fixed", "node": -1, "rotation": {"axis": v(), "angle": -0.8}},
                       "elastic": {"nodal": nodal(rng, N2, n2, psi=bool(seed % 2), inertia=not seed % 3)}},
@@ -177,6 +179,28 @@ def test_accelerations_on_the_recursive_path(seed):
         ydd = np.linalg.solve(M, q - k)
         got = sim.f(t, np.r_[y, yd])[len(y):]
         assert np.abs(got - ydd).max() < 1e-12 * np.linalg.cond(M) * np.abs(ydd).max()
+
+
+ARM_JOINTS = [{"type": "prismatic", "axis": [0.3, -1, 0.5]}, {"type": "cylindrical", "axis": [1, 0.2, -0.4]},
+              {"type": "universal", "axes": [[1, 0, 0.3], [0.2, 1, 0]]}, {"type": "planar", "axes": [[0, 0.6, 0.8], [0, -0.8, 0.6]]},
+              {"type": "spherical", "parameterization": "quaternion"}, {"type": "spherical", "parameterization": "cardan"},
+              {"type": "free", "parameterization": "quaternion"}, {"type": "free", "parameterization": "cardan"},
+              {"type": "fixed"}]
+
+
+@pytest.mark.parametrize("joint", ARM_JOINTS, ids=lambda j: j["type"] + j.get("parameterization", ""))
+def test_every_joint_type_at_a_node_on_the_recursive_path(joint):
+    """The child at a node of the elastic body on every joint type (the free joint's own articulated-body step
+    passes its parent only a force): M, k, q, the nodes and ÿ equal the reference's."""
+    spec = random_scene(3, arm_joint=joint)
+    assert not on_dense_path(spec)
+    compare(spec, 3, states=2)
+    ev, sim = mbsfmu.compile(spec), Simulation(spec)
+    y, yd = random_state(ev, np.random.default_rng(0), 0.3)
+    M, k, q = ev.equations(y, yd, 0.4)
+    ydd = np.linalg.solve(M, q - k)
+    got = sim.f(0.4, np.r_[y, yd])[len(y):]
+    assert np.abs(got - ydd).max() < 1e-12 * np.linalg.cond(M) * np.abs(ydd).max()
 
 
 def test_realistic_deflections():
