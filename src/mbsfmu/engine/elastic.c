@@ -78,9 +78,7 @@ static size_t scratch_size(const MbsModel *m)
 
 size_t mbs_elastic_work_size(const MbsModel *m)
 {
-    size_t blocks = 0;
-    for (int e = 0; e < m->elastic_i[EH_NE]; e++) blocks += (size_t)row(m, e)->n * (row(m, e)->n + 9);
-    return (scratch_size(m) + blocks) * sizeof(real);
+    return (scratch_size(m) + m->elastic_block[m->elastic_i[EH_NE]]) * sizeof(real);
 }
 
 /* Per elastic body on the recursive path (dynamics.c), after the scratch: its coupling U = Ŝ M_re (6 × n, column
@@ -90,8 +88,7 @@ typedef struct { real *U, *L, *k_e, *q_e, *beta; } Block;
 static Block block(const MbsEval *e, int el)
 {
     const MbsModel *m = e->m;
-    real *p = (real *)e->elastic_work + scratch_size(m);
-    for (int k = 0; k < el; k++) p += (size_t)row(m, k)->n * (row(m, k)->n + 9);
+    real *p = (real *)e->elastic_work + scratch_size(m) + m->elastic_block[el];
     const size_t n = (size_t)row(m, el)->n;
     Block b = {p, p + 6 * n, p + 6 * n + n * n, p + 7 * n + n * n, p + 8 * n + n * n};
     return b;

@@ -79,6 +79,8 @@ struct MbsModel {
     int nvars3;
     unsigned char *flexed;             /* per body: at a node of an elastic body or below one (S orthogonal only to
                                         * first order there, seed 004); NULL in rigid scenes */
+    size_t *elastic_block;             /* per elastic body and one more: where its block starts in elastic.c's
+                                        * workspace after the scratch (Block); NULL in rigid scenes */
     int dense;                         /* evaluation path (mbs_dense_path): 1 dense Jacobians (tree.c), 0 recursive (dynamics.c) */
     int stride;                        /* doubles of one body's workspace on that path */
     void *blob;                        /* owned copy of the compiled scene */

@@ -323,10 +323,18 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
 #endif
     if (!m->dense && check_owners(m, err, errlen)) goto fail;  /* the recursive path reads each coordinate once */
     if (H[H_FEATURES] & F_ELASTIC) {
-        if (!(m->flexed = malloc((size_t)nb + 1))) FAIL("out of memory");
+        const int ne = m->elastic_i[EH_NE];
+        m->flexed = malloc((size_t)nb + 1);
+        m->elastic_block = malloc(((size_t)ne + 1) * sizeof *m->elastic_block);
+        if (!m->flexed || !m->elastic_block) FAIL("out of memory");
         for (int i = 0; i < nb; i++) {  /* (parents first: check_bodies) */
             const MbsBodyI *bi = mbs_body_i(m, i);
             m->flexed[i] = bi->node >= 0 || (bi->parent >= 0 && m->flexed[bi->parent]);
+        }
+        m->elastic_block[0] = 0;
+        for (int el = 0; el < ne; el++) {  /* (rows validated: 1 ≤ n ≤ MAX_MODES) */
+            const size_t n = (size_t)m->elastic_i[EH + EI * el + EI_N];
+            m->elastic_block[el + 1] = m->elastic_block[el] + n * (n + 9);
         }
     }
     return m;
@@ -334,6 +342,7 @@ fail:
     free((void *)m->read);
     free(m->first3);
     free(m->flexed);
+    free(m->elastic_block);
     free(m->coord_name);
     free(b);
     free(m);
@@ -355,6 +364,7 @@ void mbs_model_free(MbsModel *m)
     free((void *)m->read);
     free(m->first3);
     free(m->flexed);
+    free(m->elastic_block);
     free(m->coord_name);
     free(m->blob);
     free(m);
