@@ -380,12 +380,31 @@ static int articulated_inertias(const MbsEval *e)
     return 0;
 }
 
+/* Δa_p: the parent's Δa moved to body i's origin, (α, a − d × α), and at an elastic parent's node its modal part
+ * (the parent's q̈ in ydd); zero at the root */
+static void parent_acceleration(const MbsEval *e, int i, int parent, const real *ydd, real *acc)
+{
+    if (parent < 0) {
+        memset(acc, 0, 6 * sizeof(real));
+        return;
+    }
+    const real *pa = mbs_body_work(e, parent) + AB_ACC;
+    real d[3], dxa[3];
+    offset(e, mbs_body_work(e, i), parent, d);
+    cross(d, pa, dxa);
+    for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
+#ifdef MBS_WITH_ELASTIC
+    if (mbs_body_i(e->m, i)->node >= 0) mbs_elastic_node_acceleration(e, i, ydd, acc);
+#else
+    (void)ydd;
+#endif
+}
+
 /* Root to leaves: ÿ = L⁻ᵀ (z − Wᵀ Δa_p) into e->xdot, Δa = Δa_p + S ÿ (Δa_p: the parent's, moved to o). */
 static void accelerations(const MbsEval *e)
 {
     const MbsModel *m = e->m;
     real *ydd = e->xdot + NPOS(m);
-    static const real Z[6] = {0, 0, 0, 0, 0, 0};
     for (int i = 0; i < NB(m); i++) {
         if (!carries_itself(m, i)) continue;
         const MbsBodyI *bi = mbs_body_i(m, i);
@@ -393,18 +412,7 @@ static void accelerations(const MbsEval *e)
         real *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, x[6];
         const real *L = wk + AB_L, *S = wk + AB_S, *ap = acc;
         const int nv = (int)wk[AB_NV];
-        if (parent < 0)
-            memcpy(acc, Z, sizeof Z);
-        else {  /* (α, a − d × α) */
-            const real *pa = mbs_body_work(e, parent) + AB_ACC;
-            real d[3], dxa[3];
-            offset(e, wk, parent, d);
-            cross(d, pa, dxa);
-            for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
-#ifdef MBS_WITH_ELASTIC
-            if (bi->node >= 0) mbs_elastic_node_acceleration(e, i, ydd, acc);
-#endif
-        }
+        parent_acceleration(e, i, parent, ydd, acc);
         if (nv == 6) {  /* free_joint: Δa = z, ÿ = S⁻¹ (Δa − Δa_p) */
             real da[6];
             for (int r = 0; r < 6; r++) { da[r] = wk[AB_Z + r] - acc[r]; acc[r] = wk[AB_Z + r]; }
@@ -445,23 +453,17 @@ static void inverse(const MbsEval *e, const real *ydd, int what, real *out)
         const MbsBodyI *bi = mbs_body_i(m, i);
         const int parent = carrier_parent(m, bi);
         real *wk = mbs_body_work(e, i), *acc = wk + AB_ACC, *f = wk + AB_W;
-        memset(acc, 0, 6 * sizeof(real));
         if (what == 0) {
-            if (parent >= 0) {
-                const real *pa = mbs_body_work(e, parent) + AB_ACC;
-                real d[3], dxa[3];
-                offset(e, wk, parent, d);
-                cross(d, pa, dxa);
-                for (int r = 0; r < 3; r++) { acc[r] = pa[r]; acc[3 + r] = pa[3 + r] - dxa[r]; }
-                if (bi->node >= 0) mbs_elastic_node_acceleration(e, i, ydd, acc);
-            }
+            parent_acceleration(e, i, parent, ydd, acc);
             for (int k = 0, c = 0; k < (int)wk[AB_NV]; k++, c++) {
                 while (bi->vel[c] < 0) c++;
                 for (int r = 0; r < 6; r++) acc[r] += wk[AB_S + 6 * k + r] * ydd[bi->vel[c]];
             }
             mat6v(wk + AB_IA, acc, f);
-        } else
+        } else {
+            memset(acc, 0, 6 * sizeof(real));
             memcpy(f, wk + (what == 1 ? AB_P : AB_F), 6 * sizeof(real));
+        }
         if (bi->elastic >= 0) mbs_elastic_inverse(e, i, acc, ydd, what, f);
     }
     for (int i = NB(m) - 1; i >= 0; i--) {  /* leaves to root: Sᵀ f, f to the parent */
