@@ -160,6 +160,40 @@ bodies:
     assert sim.time == 0.0
 
 
+def test_the_right_hand_side_from_python_takes_arrays_as_they_are_and_refuses_what_would_overrun():
+    """Instance.rhs (fastcall.c where it is built, else ctypes): ẋ bit-identical to the ctypes call on every shipped
+    model; lists and other dtypes converted; short or read-only arrays refused before the engine reads or writes
+    them; a singular M raised with the engine's message, on both calls."""
+    import mbsfmu.engine as E
+    for path in sorted(glob.glob(str(REPO / "models" / "*.yaml"))):
+        sim = Simulation(mbsfmu.load(path).spec)
+        sim.initialize(0.0)
+        x = np.array(sim.engine.state()) + 0.01
+        a, b = np.empty(sim.engine.n), np.empty(sim.engine.n)
+        assert sim.engine.rhs(0.3, x, a) is a
+        sim.engine._rhs_slow(0.3, x, b)
+        assert np.array_equal(a, b)
+        assert np.array_equal(sim.engine.rhs(0.3, list(x)), b) and np.array_equal(sim.f(0.3, x.astype(np.float32)),
+                                                                                   sim.engine.rhs(0.3, x.astype(np.float32), b))
+    n, out = sim.engine.n, np.empty(sim.engine.n)
+    for bad_x, bad_out in ((x[:-1], out), (x, out[:-1]), (x, np.empty((n, 2))[:, 0]), (x, np.empty(n, np.float32))):
+        with pytest.raises(ValueError, match="float64"):
+            sim.engine.rhs(0.0, bad_x, bad_out)
+    frozen = np.empty(n)
+    frozen.flags.writeable = False
+    with pytest.raises(ValueError, match="writable"):
+        sim.engine.rhs(0.0, x, frozen)
+    assert E._fastcall(), "fastcall.c builds wherever the tests run (gcc and the Python headers)"
+    scene = mbsfmu.loads("mbsfmu: 1\nname: massless\nbodies:\n  arm: {parent: world, joint: {type: revolute, axis: "
+                         "[0, 0, 1]}, mass: 1, inertia: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}")
+    scene.spec["bodies"][0].update(mass=0.0, inertia=[[0.0] * 3 for _ in range(3)])
+    sim = Simulation(scene.spec)
+    sim.initialize(0.0)
+    for call in (sim.engine.rhs, sim.engine._rhs_slow):
+        with pytest.raises(EngineError, match="singular"):
+            call(0.0, np.zeros(2), np.empty(2))
+
+
 def test_wrong_calls_are_refused_with_a_message():
     sim = Simulation(mbsfmu.load(REPO / "models" / "pendulum.yaml").spec)
     with pytest.raises(KeyError):

@@ -135,11 +135,9 @@ def _tag():
     return h.hexdigest()[:16]
 
 
-def library_path():
-    """The in-process engine library (compiled into the cache on first use; atomic for concurrent processes)."""
-    import sysconfig
+def _cached(name, build):
+    """The file `name` in the cache, made by build(path) on first use (atomic for concurrent processes)."""
     import tempfile
-    name = f"libmbsfmu_engine_{_tag()}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}.1"
     for cache in (Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu"),
                   Path(tempfile.gettempdir()) / f"mbsfmu-{os.getuid() if hasattr(os, 'getuid') else 0}"):
         try:
@@ -149,7 +147,7 @@ def library_path():
                 fd, tmp = tempfile.mkstemp(suffix=".so", dir=cache)
                 os.close(fd)
                 try:
-                    compile_shared(tmp)
+                    build(tmp)
                     os.replace(tmp, out)
                 finally:
                     if os.path.exists(tmp):
@@ -158,6 +156,35 @@ def library_path():
         except PermissionError:
             continue
     raise EngineUnavailable("no writable cache directory for the compiled engine (set $MBSFMU_CACHE)")
+
+
+def library_path():
+    """The in-process engine library (compiled into the cache on first use)."""
+    import sysconfig
+    return _cached(f"libmbsfmu_engine_{_tag()}{sysconfig.get_config_var('SHLIB_SUFFIX') or '.so'}.1", compile_shared)
+
+
+def fastcall_path():
+    """The CPython extension of Instance.rhs (fastcall.c), compiled for this interpreter into the cache on first use;
+    None where it cannot be (no Python headers, no compiler): Instance.rhs then calls through ctypes."""
+    import hashlib
+    import subprocess
+    import sysconfig
+    include = sysconfig.get_paths().get("include")
+    src = HERE / "fastcall.c"
+    if not include or not (Path(include) / "Python.h").exists():
+        return None
+    tag = hashlib.sha256(src.read_bytes() + include.encode() + sys.version.encode()).hexdigest()[:16]
+
+    def build(out):
+        r = subprocess.run([compiler(), *CFLAGS, "-shared", f"-I{include}", "-o", str(out), str(src)],
+                           capture_output=True, text=True)
+        if r.returncode:
+            raise EngineUnavailable(f"compiling fastcall.c failed: {r.stderr.strip()[:2000]}")
+    try:
+        return _cached(f"_mbsfmu_fastcall_{tag}{sysconfig.get_config_var('EXT_SUFFIX') or '.so'}", build)
+    except EngineUnavailable:
+        return None
 
 
 if __name__ == "__main__":  # python -m mbsfmu.engine.build: compile into the cache now (at install)
