@@ -189,3 +189,4 @@ def fastcall_path():
 
 if __name__ == "__main__":  # python -m mbsfmu.engine.build: compile into the cache now (at install)
     print(library_path())
+    print(fastcall_path() or "fastcall.c: not built (no Python headers); Instance.rhs calls through ctypes")
