@@ -238,27 +238,31 @@ static void add_force_at(const real *d, const real *f, real *out)
     for (int r = 0; r < 3; r++) { out[r] += f[r] + dxF[r]; out[3 + r] += f[3 + r]; }
 }
 
-/* out += Tᵀ I T: the inertia I = [A B; Bᵀ C] about o + d moved to o, [A − B d̃ − (B d̃)ᵀ − d̃ C d̃, B + d̃ C; ., C] */
+/* out += Tᵀ I T: the inertia I = [A B; Bᵀ C] about o + d moved to o, [A − B d̃ − (B d̃)ᵀ − d̃ C d̃, B + d̃ C; ., C],
+ * by cross products: row r of B d̃ is b_r × d, column c of d̃ C is d × c_c (C symmetric: its rows), row r of
+ * d̃ C d̃ is (row r of d̃ C) × d; A's and C's blocks symmetric, one triangle computed */
 static void add_inertia_at(const real *d, const real *I, real *out)
 {
-    const real dt[9] = {0, -d[2], d[1], d[2], 0, -d[0], -d[1], d[0], 0};
-    real A[9], B[9], C[9], Bd[9], dC[9], dCd[9];
+    real Bd[9], dC[9], dCd[9];
+    for (int r = 0; r < 3; r++) {
+        cross(I + 6 * r + 3, d, Bd + 3 * r);               /* b_r × d */
+        real dc[3];
+        cross(d, I + 6 * (3 + r) + 3, dc);                 /* d × c_r: column r of d̃ C */
+        for (int k = 0; k < 3; k++) dC[3 * k + r] = dc[k];
+    }
+    for (int r = 0; r < 3; r++) cross(dC + 3 * r, d, dCd + 3 * r);
     for (int r = 0; r < 3; r++)
         for (int c = 0; c < 3; c++) {
-            A[3 * r + c] = I[6 * r + c];
-            B[3 * r + c] = I[6 * r + 3 + c];
-            C[3 * r + c] = I[6 * (3 + r) + 3 + c];
-        }
-    mm(B, dt, Bd);
-    mm(dt, C, dC);
-    mm(dC, dt, dCd);
-    for (int r = 0; r < 3; r++)
-        for (int c = 0; c < 3; c++) {
-            const real b = B[3 * r + c] + dC[3 * r + c];
-            out[6 * r + c] += A[3 * r + c] - Bd[3 * r + c] - Bd[3 * c + r] - dCd[3 * r + c];
+            const real b = I[6 * r + 3 + c] + dC[3 * r + c];
             out[6 * r + 3 + c] += b;
             out[6 * (3 + c) + r] += b;
-            out[6 * (3 + r) + 3 + c] += C[3 * r + c];
+            if (c < r) continue;
+            const real x = I[6 * r + c] - Bd[3 * r + c] - Bd[3 * c + r] - dCd[3 * r + c];
+            out[6 * r + c] += x;
+            if (c != r) out[6 * c + r] += x;
+            const real y = I[6 * (3 + r) + 3 + c];
+            out[6 * (3 + r) + 3 + c] += y;
+            if (c != r) out[6 * (3 + c) + 3 + r] += y;
         }
 }
 
