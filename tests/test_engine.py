@@ -183,7 +183,9 @@ def test_the_right_hand_side_from_python_takes_arrays_as_they_are_and_refuses_wh
     frozen.flags.writeable = False
     with pytest.raises(ValueError, match="writable"):
         sim.engine.rhs(0.0, x, frozen)
-    assert E._fastcall(), "fastcall.c builds wherever the tests run (gcc and the Python headers)"
+    import sysconfig
+    if (Path(sysconfig.get_paths()["include"]) / "Python.h").exists():  # else Instance.rhs is the ctypes call
+        assert E._fastcall(), "fastcall.c builds wherever there are the Python headers"
     scene = mbsfmu.loads("mbsfmu: 1\nname: massless\nbodies:\n  arm: {parent: world, joint: {type: revolute, axis: "
                          "[0, 0, 1]}, mass: 1, inertia: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}")
     scene.spec["bodies"][0].update(mass=0.0, inertia=[[0.0] * 3 for _ in range(3)])
