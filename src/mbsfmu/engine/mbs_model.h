@@ -239,7 +239,7 @@ void mbs_mass_matrix_and_bias(const MbsEval *e);
 void mbs_applied_forces(const MbsEval *e);
 int mbs_eval_rhs(const MbsEval *e);                   /* 0, or MBS_F_SINGULAR */
 int mbs_cholesky_solve(int n, real *M, real *r);
-/* dynamics.c: the recursive path (rigid scenes, !m->dense) */
+/* dynamics.c: the recursive path (!m->dense) */
 void mbs_composites(const MbsModel *m, const real *D, real *work);  /* at bind: the carriers' inertias */
 int mbs_aba(const MbsEval *e);                        /* ÿ into e->xdot: 0, or MBS_F_SINGULAR */
 void mbs_crba_rnea(const MbsEval *e);                 /* M, k, q (inspection: mbs_equations) */
