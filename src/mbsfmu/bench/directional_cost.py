@@ -62,19 +62,9 @@ def run(models, chains, seconds, progress=True):
 
 
 def plot(rows, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(9, 4))
-    x = np.arange(len(rows))
-    ax.bar(x - 0.2, [r["rhs_us"] for r in rows], 0.4, label="right-hand side (mbs_rhs)")
-    ax.bar(x + 0.2, [r["column_us"] for r in rows], 0.4, label="directional derivative column")
-    ax.set_yscale("log")
-    ax.set_xticks(x, [r["case"] for r in rows], rotation=45, ha="right")
-    ax.set_ylabel("µs per call (best batch, C loop)")
-    ax.legend()
-    fig.tight_layout()
-    output.save_figure(fig, path, dpi=100)
+    output.paired_bars([r["case"] for r in rows], (("right-hand side (mbs_rhs)", [r["rhs_us"] for r in rows]),
+                                                   ("directional derivative column", [r["column_us"] for r in rows])),
+                       "µs per call (best batch, C loop)", path)
 
 
 def markdown(rows, command):

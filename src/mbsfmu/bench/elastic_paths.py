@@ -99,22 +99,10 @@ def run(case_list, rounds=5, seconds=0.2, progress=True):
 
 
 def plot(rows, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(figsize=(10, 4))
-    x = np.arange(len(rows))
-    ax.bar(x - 0.2, [r["dense_us"] for r in rows], 0.4, label="dense path")
-    ax.bar(x + 0.2, [r["recursive_us"] for r in rows], 0.4, label="recursive path (articulated bodies)")
-    for k, r in enumerate(rows):
-        ax.annotate("chosen", (k + (0.2 if r["chosen"] == "recursive" else -0.2), r[f"{r['chosen']}_us"]),
-                    ha="center", va="bottom", fontsize=6, rotation=90)
-    ax.set_yscale("log")
-    ax.set_xticks(x, [r["case"] for r in rows], rotation=45, ha="right")
-    ax.set_ylabel("µs per right-hand side (best batch, C loop)")
-    ax.legend()
-    fig.tight_layout()
-    output.save_figure(fig, path, dpi=100)
+    output.paired_bars([r["case"] for r in rows], (("dense path", [r["dense_us"] for r in rows]),
+                                                   ("recursive path (articulated bodies)", [r["recursive_us"] for r in rows])),
+                       "µs per right-hand side (best batch, C loop)", path,
+                       [(k, r["chosen"] == "recursive", "chosen") for k, r in enumerate(rows)])
 
 
 def markdown(rows, command):

@@ -39,6 +39,28 @@ def save_figure(fig, path, **kw):
     plt.close(fig)
 
 
+def paired_bars(names, pair, ylabel, path, marks=()):
+    """Two series of µs per case side by side on a log axis (pair: ((label, values), (label, values))), the
+    cases' names below, `marks` ((case index, which of the two, text), ...) over their bars; saved as path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    fig, ax = plt.subplots(figsize=(max(9, 0.5 * len(names)), 4))
+    x = np.arange(len(names))
+    for side, (label, values) in zip((-0.2, 0.2), pair):
+        ax.bar(x + side, values, 0.4, label=label)
+    for k, which, text in marks:
+        ax.annotate(text, (k + (0.2 if which else -0.2), pair[which][1][k]), ha="center", va="bottom", fontsize=6,
+                    rotation=90)
+    ax.set_yscale("log")
+    ax.set_xticks(x, names, rotation=45, ha="right")
+    ax.set_ylabel(ylabel)
+    ax.legend()
+    fig.tight_layout()
+    save_figure(fig, path, dpi=100)
+
+
 def case_reports(stem, prog, argv, out, cases, run_case, plot, csv_rows, columns, markdown):
     """The report of a benchmark over named cases: run_case(name, workdir) for each (in a temporary folder), its
     figure plot(result, <out>/<stem>.<name>.png), then <stem>.csv (csv_rows(result) with `columns`) and <stem>.md
