@@ -44,7 +44,10 @@ static PyObject *rhs(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
             const int status = engine_rhs(inst, t, x.buf, o.buf);
             PyBuffer_Release(&o);
             PyBuffer_Release(&x);
-            if (status == 0) return Py_NewRef(out);
+            if (status == 0) {
+                Py_INCREF(out);
+                return out;
+            }
         } else
             PyBuffer_Release(&x);
     }
