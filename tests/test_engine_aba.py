@@ -1,7 +1,7 @@
 """The engine's recursive path for rigid scenes (engine/dynamics.c, issue 26): ÿ by the articulated-body algorithm,
 M by the composite-rigid-body algorithm, k and q by the recursive Newton–Euler pass, held against the numpy
 reference of the seed equations (equations/tree.py: dense M, k, q, solved by LAPACK) on random trees of every
-joint type with branching, drives, every force element and input; and a 10,000-body chain within 200 MB."""
+joint type with branching, drives, every force element and input; and a 10,000-body chain in bounded memory."""
 
 import json
 import subprocess
