@@ -7,6 +7,7 @@ the only place where Python talks to the engine; it imports no numpy, so that an
 import ctypes
 import functools
 import os
+import weakref
 
 from ..errors import EngineUnavailable, IntegrationError
 
@@ -57,6 +58,11 @@ def _fastcall():
         except (ImportError, OSError, EngineUnavailable):
             pass
     return _fast
+
+
+def _weakly(method, *args):
+    """Call the method a WeakMethod refers to."""
+    return method()(*args)
 
 
 def _rhs_address(lib, _cache={}):
@@ -224,16 +230,15 @@ class Instance:
         first use: fastcall.c's call where it is built (0.07 µs from Python to the engine and back), which hands
         anything else to _rhs_slow (ctypes: 0.5 µs and more)."""
         fast = _fastcall()
-        if not fast:
-            return self._rhs_slow
-        return functools.partial(fast.rhs, _rhs_address(self.lib), self.ptr, self.n, self._rhs_slow)
+        slow = functools.partial(_weakly, weakref.WeakMethod(self._rhs_slow))  # no cycle: the instance frees on time
+        return functools.partial(fast.rhs, _rhs_address(self.lib), self.ptr, self.n, slow) if fast else slow
 
     def _rhs_slow(self, t, x, out=None):
         import numpy as np
         x = np.ascontiguousarray(x, dtype=float)
         if out is None:  # a new array, then the fast call again (which comes back here only with an out)
             out = np.empty(self.n)
-            if self.rhs is not self._rhs_slow:
+            if _fastcall():
                 return self.rhs(t, x, out)
         if x.size < self.n or not isinstance(out, np.ndarray) or out.dtype != np.float64 or out.size < self.n \
                 or not out.flags.c_contiguous or not out.flags.writeable:
