@@ -166,8 +166,8 @@ class Simulation:
         return self.engine.stats()
 
     def f(self, t, x):
-        """ẋ = [Z(y)·ẏ; M⁻¹(q − k)] with the current inputs (for peers such as scipy's solve_ivp)."""
-        return self.engine.rhs(t, x)
+        """ẋ = [Z(y)·ẏ; M⁻¹(q − k)] with the current inputs (for peers such as scipy's solve_ivp): a new array."""
+        return self.engine.rhs(t, x, np.empty(self.engine.n))
 
     def output_values(self, x, t=None):
         """{FMU output name: value} of the `outputs:` points and the von Mises stresses at state x."""
