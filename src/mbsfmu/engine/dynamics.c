@@ -31,12 +31,6 @@
 #include "mbs_model.h"
 #include "mbs_vec3.h"
 
-static void mat6v(const real *restrict A, const real *restrict x, real *restrict y)  /* y = A x, A 6 × 6 row-major */
-{
-    for (int r = 0; r < 6; r++)
-        y[r] = A[6 * r] * x[0] + A[6 * r + 1] * x[1] + A[6 * r + 2] * x[2] + A[6 * r + 3] * x[3] +
-               A[6 * r + 4] * x[4] + A[6 * r + 5] * x[5];
-}
 static real dot6(const real *a, const real *b)
 {
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5];
@@ -228,14 +222,6 @@ static void offset(const MbsEval *e, const real *wk, int parent, real *d)
 {
     const real *op = mbs_body_work(e, parent) + W_O;
     for (int r = 0; r < 3; r++) d[r] = wk[W_O + r] - op[r];
-}
-
-/* out += f moved from point o + d to o: (n + d × F, F) */
-static void add_force_at(const real *d, const real *f, real *out)
-{
-    real dxF[3];
-    cross(d, f + 3, dxF);
-    for (int r = 0; r < 3; r++) { out[r] += f[r] + dxF[r]; out[3 + r] += f[3 + r]; }
 }
 
 /* out += Tᵀ I T: the inertia I = [A B; Bᵀ C] about o + d moved to o, [A − B d̃ − (B d̃)ᵀ − d̃ C d̃, B + d̃ C; ., C],

@@ -519,10 +519,8 @@ void mbs_elastic_child(const MbsEval *e, int child, const real *I_c, const real 
     const real *oc = mbs_body_work(e, child) + W_O, *oi = mbs_body_work(e, i) + W_O;
     for (int r = 0; r < 3; r++) d[r] = oc[r] - oi[r];
     for (int k = 0; k < n; k++) {
-        real *g = G + 6 * k, *u = b.U + 6 * k, dxF[3];
-        for (int r = 0; r < 6; r++) g[r] = dot(I_c + 6 * r, Y + 6 * k, 6);
-        cross(d, g + 3, dxF);  /* the force I_c Y_k at o_c moved to o */
-        for (int r = 0; r < 3; r++) { u[r] += g[r] + dxF[r]; u[3 + r] += g[3 + r]; }
+        mat6v(I_c, Y + 6 * k, G + 6 * k);
+        add_force_at(d, G + 6 * k, b.U + 6 * k);  /* the force I_c Y_k at o_c moved to o */
     }
     for (int k = 0; k < n; k++)
         for (int l = 0; l <= k; l++) b.L[(size_t)n * k + l] += dot(Y + 6 * k, G + 6 * l, 6);

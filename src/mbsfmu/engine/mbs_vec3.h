@@ -28,6 +28,21 @@ static inline void mm(const real *A, const real *B, real *C)   /* C = A B */
             C[3 * r + c] = A[3 * r] * B[c] + A[3 * r + 1] * B[3 + c] + A[3 * r + 2] * B[6 + c];
 }
 
+/* spatial vectors (dynamics.c, elastic.c): y = A x for a 6 × 6 row-major A; a force f = (n, F) at point o + d added
+ * to out at o: (n + d × F, F) */
+static inline void mat6v(const real *restrict A, const real *restrict x, real *restrict y)
+{
+    for (int r = 0; r < 6; r++)
+        y[r] = A[6 * r] * x[0] + A[6 * r + 1] * x[1] + A[6 * r + 2] * x[2] + A[6 * r + 3] * x[3] +
+               A[6 * r + 4] * x[4] + A[6 * r + 5] * x[5];
+}
+static inline void add_force_at(const real *d, const real *f, real *out)
+{
+    real dxF[3];
+    cross(d, f + 3, dxF);
+    for (int r = 0; r < 3; r++) { out[r] += f[r] + dxF[r]; out[3 + r] += f[3 + r]; }
+}
+
 #ifdef MBS_CX
 #ifndef CMPLX  /* C11's; a C99 library may lack it */
 #define CMPLX(x, y) ((double)(x) + _Complex_I * (double)(y))
