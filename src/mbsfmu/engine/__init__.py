@@ -65,13 +65,6 @@ def _weakly(method, *args):
     return method()(*args)
 
 
-def _rhs_address(lib, _cache={}):
-    """The address of mbs_rhs in the loaded engine, for fastcall.c."""
-    if lib not in _cache:
-        _cache[lib] = ctypes.cast(lib.mbs_rhs, ctypes.c_void_p).value
-    return _cache[lib]
-
-
 class EngineError(ValueError):
     """A call the engine refused (wrong variable, bad setting, corrupt state bytes)."""
 
@@ -231,7 +224,10 @@ class Instance:
         anything else to _rhs_slow (ctypes: 0.5 µs and more)."""
         fast = _fastcall()
         slow = functools.partial(_weakly, weakref.WeakMethod(self._rhs_slow))  # no cycle: the instance frees on time
-        return functools.partial(fast.rhs, _rhs_address(self.lib), self.ptr, self.n, slow) if fast else slow
+        if not fast:
+            return slow
+        address = ctypes.cast(self.lib.mbs_rhs, ctypes.c_void_p).value  # mbs_rhs in the engine ctypes loaded
+        return functools.partial(fast.rhs, address, self.ptr, self.n, slow)
 
     def _rhs_slow(self, t, x, out=None):
         import numpy as np
