@@ -7,7 +7,9 @@ calls reach under these switches (`linked_sources`, read off the compiled object
 The integrators always stay, since `integrator.method` is a parameter.
 
 The library is compiled once per source version with the system C compiler (`$CC` or `cc`) into
-`$MBSFMU_CACHE` or `~/.cache/mbsfmu` (at install by `python -m mbsfmu.engine.build`, else on first use).
+`$MBSFMU_CACHE` or `~/.cache/mbsfmu` (at install by `python -m mbsfmu.engine.build`, else on first use): a
+directory of the user's that no one else can write, and a library there is loaded only if it is the one built
+(its sha256 recorded beside it), never one a name alone points to (_cache_dirs, _cached).
 Without a C compiler nothing can run in-process: `library_path()` raises EngineUnavailable saying so.
 """
 
@@ -135,27 +137,115 @@ def _tag():
     return h.hexdigest()[:16]
 
 
-def _cached(name, build):
-    """The file `name` in the cache, made by build(path) on first use (atomic for concurrent processes)."""
+def _unsafe(path, kind, follow=False):
+    """Why code loaded from path (a directory, or a file: `kind` stat.S_ISDIR or S_ISREG) could be someone
+    else's (None if it cannot): it must be this user's and writable by no one else, who could plant a library
+    there. `follow`: path may be a symbolic link (one the user set up)."""
+    import stat
+    try:
+        st = os.stat(path) if follow else os.lstat(path)
+    except OSError as e:
+        return (e.strerror or str(e)).lower()
+    if not kind(st.st_mode):
+        return "not a directory" if kind is stat.S_ISDIR else "not a regular file"
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return f"owned by uid {st.st_uid}, not by this user (uid {os.getuid()})"
+    if hasattr(os, "getuid") and st.st_mode & 0o022:
+        return f"writable by {'its group' if st.st_mode & 0o020 else 'others'} (mode {stat.S_IMODE(st.st_mode):o})"
+    return None
+
+
+def _private(d, follow=False):
+    """d created (mode 0o700) if missing; None if it is then a directory only this user can write, else why not."""
+    import stat
+    try:
+        d.parent.mkdir(parents=True, exist_ok=True)
+        os.mkdir(d, 0o700)
+    except FileExistsError:
+        pass
+    except OSError as e:
+        return (e.strerror or str(e)).lower()
+    return _unsafe(d, stat.S_ISDIR, follow)
+
+
+_SCRATCH = None  # this process's own cache (tempfile.mkdtemp) where no other is usable, removed at exit
+
+
+def _cache_dirs():
+    """Where the compiled engine may be, in order: $MBSFMU_CACHE alone (EngineUnavailable if it is not a private
+    directory), else ~/.cache/mbsfmu and $TMPDIR/mbsfmu-<uid> where private, and last a directory of this
+    process's own (an unguessable name: compiled again by every process)."""
+    global _SCRATCH
     import tempfile
-    for cache in (Path(os.environ.get("MBSFMU_CACHE") or Path.home() / ".cache" / "mbsfmu"),
-                  Path(tempfile.gettempdir()) / f"mbsfmu-{os.getuid() if hasattr(os, 'getuid') else 0}"):
+    if os.environ.get("MBSFMU_CACHE"):
+        d = Path(os.environ["MBSFMU_CACHE"]).expanduser()
+        why = _private(d, follow=True)
+        if why:
+            raise EngineUnavailable(f"$MBSFMU_CACHE ({d}) cannot hold the compiled engine: {why}; compiled code is "
+                                    "loaded only from a directory of yours that no one else can write (mkdir -m "
+                                    "700), or unset $MBSFMU_CACHE for ~/.cache/mbsfmu")
+        yield d
+        return
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    for d in (Path.home() / ".cache" / "mbsfmu", Path(tempfile.gettempdir()) / f"mbsfmu-{uid}"):
+        if _private(d) is None:
+            yield d
+    if _SCRATCH is None:
+        import atexit
+        import shutil
         try:
-            cache.mkdir(parents=True, exist_ok=True)
-            out = cache / name
-            if not out.exists():
-                fd, tmp = tempfile.mkstemp(suffix=".so", dir=cache)
-                os.close(fd)
-                try:
-                    build(tmp)
-                    os.replace(tmp, out)
-                finally:
-                    if os.path.exists(tmp):
-                        os.unlink(tmp)
+            _SCRATCH = Path(tempfile.mkdtemp(prefix="mbsfmu-"))  # mode 0o700
+        except OSError as e:
+            raise EngineUnavailable(f"no directory for the compiled engine ({e}): set $MBSFMU_CACHE") from None
+        atexit.register(shutil.rmtree, _SCRATCH, True)
+    yield _SCRATCH
+
+
+def _digest(path):
+    import hashlib
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+def _intact(out, sidecar):
+    """Whether out is the library this user built there: both files this user's alone (_unsafe), out's sha256
+    the one written into sidecar when it was built."""
+    import stat
+    try:
+        return not (_unsafe(out, stat.S_ISREG) or _unsafe(sidecar, stat.S_ISREG)) and \
+            sidecar.read_text().strip() == _digest(out)
+    except OSError:
+        return False
+
+
+def _cached(name, build):
+    """The file `name` in the first cache directory (_cache_dirs) that has it as built (_intact), else made there
+    by build(path), or in the next where one is not writable; anything else in its place, damaged or planted, is
+    built again. Atomic for concurrent processes (the compiler gives the same bytes for the same sources)."""
+    import tempfile
+    why = None
+    for cache in _cache_dirs():
+        out, sidecar = cache / name, cache / f"{name}.sha256"
+        if _intact(out, sidecar):
             return out
-        except PermissionError:
-            continue
-    raise EngineUnavailable("no writable cache directory for the compiled engine (set $MBSFMU_CACHE)")
+        tmp = tmp_sum = None
+        try:
+            fd, tmp = tempfile.mkstemp(suffix=".so", dir=cache)
+            os.close(fd)
+            build(tmp)
+            fd, tmp_sum = tempfile.mkstemp(suffix=".sha256", dir=cache)
+            os.write(fd, _digest(tmp).encode())
+            os.close(fd)
+            os.replace(tmp, out)
+            os.replace(tmp_sum, sidecar)
+            return out
+        except OSError as e:
+            why = f"cannot write the compiled engine into {cache}: {e.strerror or e}"
+        finally:
+            for t in (tmp, tmp_sum):
+                if t and os.path.exists(t):
+                    os.unlink(t)
+    raise EngineUnavailable(why)
 
 
 def library_path():
