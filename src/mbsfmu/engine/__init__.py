@@ -7,7 +7,6 @@ the only place where Python talks to the engine; it imports no numpy, so that an
 import ctypes
 import functools
 import os
-import weakref
 
 from ..errors import EngineUnavailable, IntegrationError
 
@@ -60,11 +59,6 @@ def _fastcall():
     return _fast
 
 
-def _weakly(method, *args):
-    """Call the method a WeakMethod refers to."""
-    return method()(*args)
-
-
 class EngineError(ValueError):
     """A call the engine refused (wrong variable, bad setting, corrupt state bytes)."""
 
@@ -102,28 +96,76 @@ def model_file(path):
     return _Model(None, path)
 
 
-class Instance:
-    """One running instance: variables by value reference, initialize, steps, state bytes, evaluation."""
+class _Engine:
+    """The engine's instance and what it needs while it lives (the compiled scene, the logger's callback): held
+    by its Instance and by every call bound to it (Instance.rhs), freed with the last of them, so that a bound call
+    never reaches a freed instance. It refers to neither (no reference cycle: it frees as soon as they drop it)."""
 
-    def __init__(self, blob, logger=None):
-        self.model = blob if isinstance(blob, _Model) else _Model(blob)
-        self.lib = lib = self.model.lib
-        self.npos, self.nvel = self.model.npos, self.model.nvel
-        self.n = self.npos + self.nvel
-        # keep the callback object alive as long as the instance
-        LOGGER = lib.mbs_instance_new.argtypes[1]
-        self._logger = LOGGER() if logger is None else \
+    __slots__ = ("lib", "model", "logger", "ptr", "n", "address")
+
+    def __init__(self, model, logger):
+        self.lib, self.model, self.n, self.address = model.lib, model, model.npos + model.nvel, None
+        LOGGER = self.lib.mbs_instance_new.argtypes[1]
+        self.logger = LOGGER() if logger is None else \
             LOGGER(lambda env, status, msg: logger(status, msg.decode(errors="replace")))
-        self.ptr = lib.mbs_instance_new(self.model.ptr, self._logger, None)
+        self.ptr = self.lib.mbs_instance_new(model.ptr, self.logger, None)
         if not self.ptr:
             raise MemoryError("engine instance")
-        self._value = ctypes.c_double()
-        self._str = ctypes.c_char_p()
 
     def __del__(self):
         if getattr(self, "ptr", None):
             self.lib.mbs_instance_free(self.ptr)
             self.ptr = None
+
+    def check(self, status, t=None):
+        """status, or the engine's message raised: EngineError, IntegrationError (at t, default the instance's)."""
+        if status >= ERROR:
+            raise EngineError(self.lib.mbs_message(self.ptr).decode(errors="replace"))
+        if status == DISCARD:
+            message = self.lib.mbs_message(self.ptr).decode(errors="replace")
+            raise IntegrationError(message.split(": ", 1)[-1] if message.startswith("t = ") else message,
+                                   self.lib.mbs_time(self.ptr) if t is None else t)
+        return status
+
+
+def _rhs_bound(engine):
+    """rhs(t, x, out=None) of the engine: fastcall.c's call where it is built (0.07 µs from Python to the engine and
+    back), which hands anything else to _rhs_slow (ctypes: 0.5 µs and more); either holds the engine."""
+    fast = _fastcall()
+    slow = functools.partial(_rhs_slow, engine)
+    if not fast:
+        return slow
+    if engine.address is None:  # mbs_rhs in the engine ctypes loaded, taken once per instance
+        engine.address = ctypes.cast(engine.lib.mbs_rhs, ctypes.c_void_p).value
+    return functools.partial(fast.rhs, engine.address, engine.ptr, engine.n, slow)
+
+
+def _rhs_slow(engine, t, x, out=None):
+    import numpy as np
+    x = np.ascontiguousarray(x, dtype=float)
+    if out is None:  # a new array, then the fast call again (which comes back here only with an out)
+        out = np.empty(engine.n)
+        if _fastcall():
+            return _rhs_bound(engine)(t, x, out)
+    if x.size < engine.n or not isinstance(out, np.ndarray) or out.dtype != np.float64 or out.size < engine.n \
+            or not out.flags.c_contiguous or not out.flags.writeable:
+        raise ValueError(f"x and out: {engine.n} float64 numbers each, out a writable contiguous array")
+    engine.check(engine.lib.mbs_rhs(engine.ptr, t, x.ctypes.data, out.ctypes.data), t)  # (out may be x: mbs_rhs)
+    return out
+
+
+class Instance:
+    """One running instance: variables by value reference, initialize, steps, state bytes, evaluation."""
+
+    def __init__(self, blob, logger=None):
+        self.model = blob if isinstance(blob, _Model) else _Model(blob)
+        self.lib = self.model.lib
+        self.npos, self.nvel = self.model.npos, self.model.nvel
+        self.n = self.npos + self.nvel
+        self._engine = _Engine(self.model, logger)
+        self.ptr = self._engine.ptr
+        self._value = ctypes.c_double()
+        self._str = ctypes.c_char_p()
 
     # -- status → exceptions
     @property
@@ -135,11 +177,7 @@ class Instance:
         return self.lib.mbs_time(self.ptr)
 
     def _check(self, status):
-        if status >= ERROR:
-            raise EngineError(self.message)
-        if status == DISCARD:
-            raise IntegrationError(self.message.split(": ", 1)[-1] if self.message.startswith("t = ") else self.message, self.time)
-        return status
+        return self._engine.check(status)
 
     # -- variables
     def set_real(self, vr, value):
@@ -219,28 +257,13 @@ class Instance:
 
     @functools.cached_property
     def rhs(self):
-        """rhs(t, x, out=None): ẋ = f(t, x) into `out` (float64 arrays of n numbers; a new array if None). Bound on
-        first use: fastcall.c's call where it is built (0.07 µs from Python to the engine and back), which hands
-        anything else to _rhs_slow (ctypes: 0.5 µs and more)."""
-        fast = _fastcall()
-        slow = functools.partial(_weakly, weakref.WeakMethod(self._rhs_slow))  # no cycle: the instance frees on time
-        if not fast:
-            return slow
-        address = ctypes.cast(self.lib.mbs_rhs, ctypes.c_void_p).value  # mbs_rhs in the engine ctypes loaded
-        return functools.partial(fast.rhs, address, self.ptr, self.n, slow)
+        """rhs(t, x, out=None): ẋ = f(t, x) into `out` (float64 arrays of n numbers; a new array if None; out may
+        be x). Bound on first use (_rhs_bound); the bound call keeps the engine's instance alive, whatever becomes
+        of this object."""
+        return _rhs_bound(self._engine)
 
     def _rhs_slow(self, t, x, out=None):
-        import numpy as np
-        x = np.ascontiguousarray(x, dtype=float)
-        if out is None:  # a new array, then the fast call again (which comes back here only with an out)
-            out = np.empty(self.n)
-            if _fastcall():
-                return self.rhs(t, x, out)
-        if x.size < self.n or not isinstance(out, np.ndarray) or out.dtype != np.float64 or out.size < self.n \
-                or not out.flags.c_contiguous or not out.flags.writeable:
-            raise ValueError(f"x and out: {self.n} float64 numbers each, out a writable contiguous array")
-        self._check(self.lib.mbs_rhs(self.ptr, t, x.ctypes.data, out.ctypes.data))
-        return out
+        return _rhs_slow(self._engine, t, x, out)
 
     def output_point(self, o, t, x):
         import numpy as np
