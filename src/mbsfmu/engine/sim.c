@@ -930,17 +930,6 @@ int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *
     return MBS_OK;
 }
 
-int mbs_rhs(MbsInstance *s, double t, const double *x, double *xdot)
-{
-    if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;
-    if (s->inputs_dirty && apply_inputs(s, MBS_ERROR, "not evaluated")) return MBS_ERROR;
-    int rc = ode_f(s, t, x, xdot);
-    return rc ? report(s, MBS_ERROR, "%s", s->msg) : MBS_OK;
-}
-
-/* ------------------------------------------------------------------------------------------ model exchange
- * The host integrates x = [y; ẏ]: it sets the time and the states, the engine gives ẋ (mbs_engine.h). */
-
 /* The name of state entry i: its y.* or yd.* variable's. */
 static const char *state_name(const MbsModel *m, int i)
 {
@@ -949,6 +938,46 @@ static const char *state_name(const MbsModel *m, int i)
         if (m->vars[2 * vr] == kind && m->vars[2 * vr + 1] == idx) return m->var_name[vr];
     return "?";
 }
+
+/* What the engine hands out (`what`: ẋ or a derivative, v[0..n), of the state entries, or of the variables vr)
+ * must be finite: a finite but extreme state still overflows inside (θ̇ = 1e200 squares to ∞), and NaN then is
+ * no answer. MBS_OK, else MBS_DISCARD naming the first entry that is not. (The integrators see ode_f's NaN
+ * themselves: a smaller step.) */
+static int finite_result(MbsInstance *s, const char *what, double t, const double *x, const double *v, size_t n,
+                         const unsigned *vr)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(v[i])) {
+            double big = 0.0;
+            for (int j = 0; j < s->n; j++) big = fmax(big, fabs(x[j]));
+            return report(s, MBS_DISCARD, "t = %.9g: %s %s is %g, not finite at this state (an intermediate "
+                          "overflowed, or an expression left its domain; largest |y|, |ẏ|: %.3g)", t, what,
+                          vr ? s->m->var_name[vr[i]] : state_name(s->m, (int)i), v[i], big);
+        }
+    return MBS_OK;
+}
+
+/* x and xdot share memory (rhs(t, x, out=x)): ẋ is then evaluated aside, since the evaluation reads x after it
+ * wrote parts of ẋ. */
+static int overlap(const double *x, const double *xdot, int n)
+{
+    const uintptr_t a = (uintptr_t)x, b = (uintptr_t)xdot, len = (uintptr_t)n * sizeof(double);
+    return a < b + len && b < a + len;
+}
+
+int mbs_rhs(MbsInstance *s, double t, const double *x, double *xdot)
+{
+    if (!s->initialized && !s->initial_valid && initial_state(s)) return MBS_ERROR;
+    if (s->inputs_dirty && apply_inputs(s, MBS_ERROR, "not evaluated")) return MBS_ERROR;
+    double *into = overlap(x, xdot, s->n) ? s->xdot : xdot;
+    if (ode_f(s, t, x, into)) return report(s, MBS_ERROR, "%s", s->msg);
+    int rc = finite_result(s, "the time derivative of", t, x, into, (size_t)s->n, NULL);
+    if (!rc && into != xdot) memmove(xdot, into, (size_t)s->n * sizeof *xdot);
+    return rc;
+}
+
+/* ------------------------------------------------------------------------------------------ model exchange
+ * The host integrates x = [y; ẏ]: it sets the time and the states, the engine gives ẋ (mbs_engine.h). */
 
 int mbs_set_time(MbsInstance *s, double t)
 {
@@ -985,6 +1014,7 @@ static int derivatives(MbsInstance *s)
     if (!rc) rc = pending(s, MBS_ERROR, "no derivatives");
     if (rc) return rc;
     if (ode_f(s, s->time, s->x, s->der)) return report(s, MBS_DISCARD, "t = %.9g: %s", s->time, s->msg);
+    if ((rc = finite_result(s, "the time derivative of", s->time, s->x, s->der, (size_t)s->n, NULL))) return rc;
     s->der_valid = 1;
     return MBS_OK;
 }
@@ -1083,7 +1113,7 @@ int mbs_directional_derivative(MbsInstance *s, const unsigned *unknown, size_t n
     int rc = check_all(s, unknown, nunknown, known, nknown, seed, nknown, sensitivity, nunknown, "directional");
     if (!rc && nunknown) rc = tangent(s, unknown, nunknown, known, nknown, seed);  /* none asked: nothing to do */
     for (size_t i = 0; !rc && i < nunknown; i++) sensitivity[i] = tangent_of(s, unknown[i]);
-    return rc;
+    return rc ? rc : finite_result(s, "the directional derivative of", s->time, s->x, sensitivity, nunknown, unknown);
 }
 
 /* sensitivityᵀ = seedᵀ J: one column of J per known (complex step is forward mode) */
@@ -1099,7 +1129,7 @@ int mbs_adjoint_derivative(MbsInstance *s, const unsigned *unknown, size_t nunkn
         sensitivity[j] = 0.0;
         for (size_t i = 0; i < nunknown; i++) sensitivity[j] += seed[i] * tangent_of(s, unknown[i]);
     }
-    return rc;
+    return rc ? rc : finite_result(s, "the adjoint derivative's entry of", s->time, s->x, sensitivity, nknown, known);
 }
 
 /* ------------------------------------------------------------------------------------------ state bytes
