@@ -78,19 +78,30 @@ static MbsFmuState *state_new(const void *owner, size_t len)
     return st;
 }
 
+typedef struct { MbsFmuState *st; const void *owner; size_t len; } Claim;
+
+/* A registry match, so under the registry's lock, where mbs_fmu_states_free_owned (FreeInstance of the state's
+ * last owner, maybe on another thread) reads owner: st, if still registered and of length len, now owner's. */
+static int claim(void *item, void *ctx)
+{
+    Claim *c = (Claim *)ctx;
+    if (item != c->st || c->st->len != c->len) return 0;
+    c->st->owner = c->owner;  /* a state passed in may have been another instance's */
+    return 1;
+}
+
 MbsFmuState *mbs_fmu_state_sized(MbsRegistry *states, MbsFmuState *st, const void *owner, size_t len)
 {
-    if (!st || st->len != len) {  /* new, or an old one of another size: replace */
-        MbsFmuState *fresh = state_new(owner, len);
-        if (!fresh || !mbs_reg_add(states, fresh)) {
-            free(fresh);
-            return NULL;
-        }
-        if (st && mbs_reg_drop(states, st)) free(st);
-        st = fresh;
+    Claim c = {st, owner, len};
+    MbsFmuState *fresh;
+    if (st && mbs_reg_first(states, claim, &c)) return st;
+    fresh = state_new(owner, len);  /* new, or an old one of another size (or freed meanwhile): replace */
+    if (!fresh || !mbs_reg_add(states, fresh)) {
+        free(fresh);
+        return NULL;
     }
-    st->owner = owner;  /* a state passed in may have been another instance's */
-    return st;
+    if (st && mbs_reg_drop(states, st)) free(st);
+    return fresh;
 }
 
 MbsFmuState *mbs_fmu_state_copy(MbsRegistry *states, const void *owner, const void *bytes, size_t len)

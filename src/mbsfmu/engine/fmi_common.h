@@ -33,8 +33,9 @@ typedef struct {
     unsigned char bytes[];     /* mbs_state_save's layout */
 } MbsFmuState;
 
-/* A state of `states` of len bytes owned by owner: st itself if it has that length, else a new one that replaces
- * st (st dropped and freed); NULL if out of memory (st untouched). */
+/* A state of `states` of len bytes owned by owner: st itself if it has that length (handed over under the
+ * registry's lock: its last owner may be freed on another thread), else a new one that replaces st (st dropped
+ * and freed); NULL if out of memory (st untouched). */
 MbsFmuState *mbs_fmu_state_sized(MbsRegistry *states, MbsFmuState *st, const void *owner, size_t len);
 /* A new state of `states` holding a copy of bytes; NULL if out of memory. */
 MbsFmuState *mbs_fmu_state_copy(MbsRegistry *states, const void *owner, const void *bytes, size_t len);
