@@ -196,6 +196,113 @@ def test_the_right_hand_side_from_python_takes_arrays_as_they_are_and_refuses_wh
             call(0.0, np.zeros(2), np.empty(2))
 
 
+# the shipped pendulum (models/pendulum.yaml): θ̈ = −g sin θ (m_rod L/2 + m_bob L) / I_O about the hinge
+PENDULUM = dict(L=0.8, m_rod=0.3, m_bob=1.0, r_bob=0.031, g=9.81)
+
+
+def _pendulum_acceleration(theta, L, m_rod, m_bob, r_bob, g):
+    inertia = m_rod * L ** 2 / 12 + m_rod * (L / 2) ** 2 + 0.4 * m_bob * r_bob ** 2 + m_bob * L ** 2
+    return -g * np.sin(theta) * (m_rod * L / 2 + m_bob * L) / inertia
+
+
+def _pendulum():
+    sim = Simulation(mbsfmu.load(REPO / "models" / "pendulum.yaml").spec)
+    sim.initialize(0.0)
+    return sim
+
+
+def test_out_sharing_memory_with_x_gives_the_answer_of_a_separate_out():
+    """rhs(t, x, out=x), a view of x as out, and an out shifted by one number inside x's buffer: the same ẋ as into
+    a separate array (the closed form of the pendulum; the double pendulum's with out apart), on the fast and the
+    ctypes call alike."""
+    sim = _pendulum()
+    for call in (sim.engine.rhs, sim.engine._rhs_slow):
+        x = np.array([0.3, 2.0])
+        assert call(0.0, x, x) is x
+        assert x[0] == 2.0 and x[1] == pytest.approx(_pendulum_acceleration(0.3, **PENDULUM), rel=1e-12)
+    sim = Simulation(mbsfmu.load(REPO / "models" / "double_pendulum.yaml").spec)
+    sim.initialize(0.0)
+    n, x0 = sim.engine.n, np.array(sim.engine.state()) + 0.1
+    expected = sim.engine.rhs(0.0, x0.copy(), np.empty(n))
+    for call in (sim.engine.rhs, sim.engine._rhs_slow):
+        x = x0.copy()
+        assert np.array_equal(call(0.0, x, x), expected)
+        x = x0.copy()
+        assert np.array_equal(call(0.0, x, x[:]), expected) and np.array_equal(x, expected)
+        buf = np.concatenate([x0, [0.0]])
+        assert np.array_equal(call(0.0, buf[:n], buf[1:]), expected) and np.array_equal(buf[1:], expected)
+
+
+def test_a_bound_rhs_outlives_its_simulation():
+    """Instance.rhs taken, the Simulation dropped and collected, its memory reused (and freed memory filled with
+    junk by malloc: MALLOC_PERTURB_): the call still gives the pendulum's closed form, with and without out (it
+    holds the engine's instance; before, it read freed memory and crashed). In a child process, so a crash fails
+    the test. Dropped with its bound call unused, an instance frees at once, not at a collection (no cycle)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    child = f"""
+import gc, json, weakref, numpy as np, mbsfmu
+from mbsfmu.simulation import Simulation
+def bound():
+    sim = Simulation(mbsfmu.load({str(REPO / "models" / "pendulum.yaml")!r}).spec)
+    sim.initialize(0.0)
+    return sim.engine.rhs, weakref.ref(sim.engine)
+gc.disable()
+_, engine = bound()
+freed_at_once = engine() is None
+f, engine = bound()
+gc.collect()
+junk = [np.full(1000, 7.0) for _ in range(1000)]
+print(json.dumps([freed_at_once, engine() is None, list(f(0.0, np.array([0.3, 2.0]), np.empty(2))),
+                  list(f(0.0, [0.3, 2.0]))]))
+"""
+    r = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=120,
+                       env=dict(os.environ, MALLOC_PERTURB_="165"))
+    assert r.returncode == 0, r.stderr[-2000:]
+    freed_at_once, collected, into_out, new_array = json.loads(r.stdout)
+    expected = [2.0, pytest.approx(_pendulum_acceleration(0.3, **PENDULUM), rel=1e-12)]
+    assert collected and into_out == expected and new_array == expected
+    # (the first instance: its bound call unused, dropped with it)
+    assert freed_at_once
+
+
+def test_non_finite_derivatives_are_refused_with_a_message():
+    """At a finite but extreme state (θ̇ = 1e200: θ̇² overflows inside) ẋ is not a number: rhs (both calls),
+    Simulation.f, model exchange's derivatives and the directional and adjoint derivatives raise naming the entry,
+    never return NaN; the same instance at an ordinary state gives the closed form after."""
+    from mbsfmu.engine import Instance
+    from mbsfmu.simulation import compiled
+    sim = _pendulum()
+    x = np.array([0.3, 1e200])
+    for call in (sim.engine.rhs, sim.engine._rhs_slow, lambda t, x, out=None: sim.f(t, x)):
+        with pytest.raises(IntegrationError, match=r"time derivative of yd\.theta is -?nan, not finite"):
+            call(0.0, x, np.empty(2))
+        out = x.copy()
+        with pytest.raises(IntegrationError, match="not finite"):
+            sim.engine.rhs(0.0, out, out)
+        assert np.array_equal(out, x)  # out = x: refused before anything is written
+    assert sim.f(0.0, [0.3, 2.0])[1] == pytest.approx(_pendulum_acceleration(0.3, **PENDULUM), rel=1e-12)
+    blob, _, _ = compiled(sim.spec, derivatives=True)
+    inst = Instance(blob)
+    inst.initialize(0.0)
+    names = inst.model.variable_names()
+    der, states = [names.index("der(yd.theta)")], [names.index("y.theta"), names.index("yd.theta")]
+    inst.set_state(x)
+    with pytest.raises(IntegrationError, match=r"time derivative of yd\.theta .* not finite"):
+        inst.derivatives()
+    with pytest.raises(IntegrationError, match=r"directional derivative of der\(yd\.theta\) .* not finite"):
+        inst.directional_derivative(der, states, [0.0, 1.0])
+    with pytest.raises(IntegrationError, match=r"adjoint derivative's entry of y\.theta .* not finite"):
+        inst.adjoint_derivative(der, states, [1.0])
+    inst.set_state([0.3, 2.0])
+    assert inst.derivatives()[1] == pytest.approx(_pendulum_acceleration(0.3, **PENDULUM), rel=1e-12)
+    # ∂θ̈/∂θ = −g cos θ (m_rod L/2 + m_bob L) / I_O
+    assert inst.directional_derivative(der, states, [1.0, 0.0])[0] == \
+        pytest.approx(_pendulum_acceleration(0.3, **PENDULUM) / np.tan(0.3), rel=1e-10)
+
+
 def test_wrong_calls_are_refused_with_a_message():
     sim = Simulation(mbsfmu.load(REPO / "models" / "pendulum.yaml").spec)
     with pytest.raises(KeyError):
