@@ -151,7 +151,8 @@ def _unsafe(path, kind, follow=False):
     if hasattr(os, "getuid") and st.st_uid != os.getuid():
         return f"owned by uid {st.st_uid}, not by this user (uid {os.getuid()})"
     if hasattr(os, "getuid") and st.st_mode & 0o022:
-        return f"writable by {'its group' if st.st_mode & 0o020 else 'others'} (mode {stat.S_IMODE(st.st_mode):o})"
+        who = " and ".join(w for bit, w in ((0o020, "its group"), (0o002, "others")) if st.st_mode & bit)
+        return f"writable by {who} (mode {stat.S_IMODE(st.st_mode):o})"
     return None
 
 
