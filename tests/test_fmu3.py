@@ -275,6 +275,62 @@ def test_directional_and_adjoint_derivatives_are_the_engines(built, m):
     me.freeInstance()
 
 
+def test_non_finite_derivatives_are_discard_with_a_message(built):
+    """The pendulum at θ̇ = 1e200 (finite; θ̇² overflows inside): fmi3GetContinuousStateDerivatives,
+    fmi3GetDirectionalDerivative, fmi2GetDerivatives and fmi2GetDirectionalDerivative answer Discard with a logged
+    message naming the entry (before: OK with NaN); the derivatives' buffer keeps what it held; at θ̇ = 2 again,
+    the closed form."""
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Model, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, calloc, free
+    from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
+    from fmpy.logging import addLoggerProxy
+    from test_engine import PENDULUM, _pendulum_acceleration
+    log = []
+    fmu3, fmu2 = built["pendulum"]
+    me, md = _fmu3(fmu3, FMU3Model, "extreme3")
+    me.instantiate(logMessage=lambda env, status, cat, msg: log.append((3, status, msg.decode())))
+    me.enterInitializationMode()
+    me.exitInitializationMode()
+    me.updateDiscreteStates()
+    me.enterContinuousTimeMode()
+    md2 = read_model_description(str(fmu2))
+    me2 = FMU2Model(guid=md2.guid, unzipDirectory=extract(str(fmu2)), modelIdentifier=md2.modelExchange.modelIdentifier,
+                    instanceName="extreme2")
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append((2, status, msg.decode())))
+    cb.allocateMemory, cb.freeMemory = fmi2CallbackAllocateMemoryTYPE(calloc), fmi2CallbackFreeMemoryTYPE(free)
+    addLoggerProxy(ctypes.byref(cb))
+    me2.instantiate(callbacks=cb)
+    me2.setupExperiment(startTime=0.0)
+    me2.enterInitializationMode()
+    me2.exitInitializationMode()
+    me2.newDiscreteStates()
+    me2.enterContinuousTimeMode()
+    vr3, vr2 = ({v.name: v.valueReference for v in m.modelVariables} for m in (md, md2))
+    calls = {3: (lambda dx: me.getContinuousStateDerivatives(_ptr(dx), 2), me.setContinuousStates,
+                 lambda: me.getDirectionalDerivative([vr3["der(yd.theta)"]], [vr3["y.theta"], vr3["yd.theta"]],
+                                                     [0.0, 1.0], 1)),
+             2: (lambda dx: me2.getDerivatives(_ptr(dx), 2), me2.setContinuousStates,
+                 lambda: me2.getDirectionalDerivative([vr2["der(yd.theta)"]], [vr2["y.theta"], vr2["yd.theta"]],
+                                                      [0.0, 1.0]))}
+    for version, (derivatives, set_states, directional) in calls.items():
+        set_states(_ptr(np.array([0.3, 1e200])), 2)
+        dx = np.full(2, 7.0)
+        for call in (lambda: derivatives(dx), directional):
+            k = len(log)
+            with pytest.raises(FMICallException) as e:
+                call()
+            assert e.value.status == 2, (version, e.value)  # fmi2Discard, fmi3Discard
+            assert [m for v, st, m in log[k:] if v == version and st == 2 and "yd.theta" in m and "not finite" in m]
+        assert dx.tolist() == [7.0, 7.0]
+        set_states(_ptr(np.array([0.3, 2.0])), 2)
+        derivatives(dx)
+        assert dx[0] == 2.0 and dx[1] == pytest.approx(_pendulum_acceleration(0.3, **PENDULUM), rel=1e-12)
+    for m in (me, me2):
+        m.terminate()
+        m.freeInstance()
+
+
 # ---- FMU state: get/set/serialize, bit for bit ------------------------------------------------------------
 def _cs_run(s, outs, t, n, h=0.01, nvalues=None):
     rows = []
