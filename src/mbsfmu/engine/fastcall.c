@@ -3,8 +3,9 @@
  * per array, more than a small robot's whole right-hand side. A CPython extension of one function, which calls
  * mbs_rhs at the address it is given, in the engine library ctypes loaded (one engine, one seam: the instances
  * stay ctypes'), after reading the arrays through the buffer protocol and checking them (float64, C-contiguous, n
- * numbers, `out` writable); whatever it does not take as it is goes to the Python call it is given. Built by
- * build.py (fastcall_path) where the Python headers are; without them Instance.rhs is that Python call. */
+ * numbers, `out` writable); whatever it does not take as it is goes to the Python call it is given. The instance
+ * address is valid as long as the call is: that Python call holds the instance (engine/__init__.py: _Engine).
+ * Built by build.py (fastcall_path) where the Python headers are; without them Instance.rhs is that Python call. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <string.h>
