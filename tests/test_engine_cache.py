@@ -74,6 +74,15 @@ def test_planted_library_in_a_directory_others_can_write_is_not_loaded(env, mode
     assert (path.parent.stat().st_mode & 0o777) == 0o700 and path.parent.stat().st_uid == UID
 
 
+def test_fallback_that_is_a_symbolic_link_is_not_followed(env):
+    """$TMPDIR/mbsfmu-<uid> a symbolic link (whoever made it can point it elsewhere between the check and the
+    load) to a private directory holding a library and its digest: not used."""
+    target = plant(env / "elsewhere", 0o700, digest=sha(b"planted"))
+    (env / "tmp" / f"mbsfmu-{UID}").symlink_to(target)
+    path = build.library_path()
+    assert path.read_bytes() == b"built" and path.parent not in (target, env / "tmp" / f"mbsfmu-{UID}")
+
+
 @pytest.mark.skipif(UID != 0, reason="planting as another user needs chown (root)")
 def test_planted_library_in_a_directory_of_another_user_is_not_loaded(env):
     plant(env / "tmp" / f"mbsfmu-{UID}", 0o755, owner=65534, digest=sha(b"planted"))

@@ -188,8 +188,9 @@ def _cache_dirs():
         yield d
         return
     uid = os.getuid() if hasattr(os, "getuid") else 0
-    for d in (Path.home() / ".cache" / "mbsfmu", Path(tempfile.gettempdir()) / f"mbsfmu-{uid}"):
-        if _private(d) is None:
+    # (in the shared temporary folder a symbolic link is refused: its owner could point it elsewhere later)
+    for d, follow in ((Path.home() / ".cache" / "mbsfmu", True), (Path(tempfile.gettempdir()) / f"mbsfmu-{uid}", False)):
+        if _private(d, follow) is None:
             yield d
     if _SCRATCH is None:
         import atexit
