@@ -189,7 +189,8 @@ def _cache_dirs():
         return
     uid = os.getuid() if hasattr(os, "getuid") else 0
     # (in the shared temporary folder a symbolic link is refused: its owner could point it elsewhere later)
-    for d, follow in ((Path.home() / ".cache" / "mbsfmu", True), (Path(tempfile.gettempdir()) / f"mbsfmu-{uid}", False)):
+    home, shared = Path.home() / ".cache" / "mbsfmu", Path(tempfile.gettempdir()) / f"mbsfmu-{uid}"
+    for d, follow in ((home, True), (shared, False)):
         if _private(d, follow) is None:
             yield d
     if _SCRATCH is None:
