@@ -237,7 +237,7 @@ def test_a_bound_rhs_outlives_its_simulation():
     """Instance.rhs taken, the Simulation dropped and collected, its memory reused (and freed memory filled with
     junk by malloc: MALLOC_PERTURB_): the call still gives the pendulum's closed form, with and without out (it
     holds the engine's instance; before, it read freed memory and crashed). In a child process, so a crash fails
-    the test. Dropped with its bound call unused, an instance frees at once, not at a collection (no cycle)."""
+    the test. The Instance itself frees as soon as it is dropped, not at a collection (no cycle through its call)."""
     import json
     import os
     import subprocess
@@ -264,8 +264,7 @@ print(json.dumps([freed_at_once, engine() is None, list(f(0.0, np.array([0.3, 2.
     freed_at_once, collected, into_out, new_array = json.loads(r.stdout)
     expected = [2.0, pytest.approx(_pendulum_acceleration(0.3, **PENDULUM), rel=1e-12)]
     assert collected and into_out == expected and new_array == expected
-    # (the first instance: its bound call unused, dropped with it)
-    assert freed_at_once
+    assert freed_at_once  # (with the collector off)
 
 
 def test_non_finite_derivatives_are_refused_with_a_message():
