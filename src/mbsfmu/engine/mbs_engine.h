@@ -105,7 +105,8 @@ MBS_API void mbs_stats(const MbsInstance *s, long out[6], double *switched_at);
 /* ---- model exchange: the host integrates the continuous states x = [y; ẏ] (npos + nvel entries) ----
  * After mbs_initialize, the host sets the time and x (finite numbers, else MBS_ERROR and nothing changes);
  * mbs_derivatives gives ẋ there with the inputs and parameters set (MBS_ERROR: an input or parameter the host
- * set is refused; MBS_DISCARD: ẋ is not defined at this state, e.g. a singular mass matrix). Quaternions are
+ * set is refused; MBS_DISCARD: ẋ is not defined or not finite at this state, e.g. a singular mass matrix, an
+ * intermediate overflowing at an extreme state). Quaternions are
  * states as the engine keeps them: ṗ = G(p)·ω keeps |p| only as well as the host integrates it (the engine
  * never changes x here; mbs_do_step normalizes after each step). Variables of kind MBS_V_DER read ẋ too. */
 MBS_API int mbs_set_time(MbsInstance *s, double t);
@@ -117,7 +118,7 @@ MBS_API int mbs_derivatives(MbsInstance *s, double *xdot, size_t n);
  * stresses) and states. Exact to rounding (complex step through the evaluation itself, deriv.c), one evaluation
  * per column. mbs_directional_derivative: sensitivity = J seed (seed per known, sensitivity per unknown);
  * mbs_adjoint_derivative: sensitivityᵀ = seedᵀ J (seed per unknown, sensitivity per known), one column per known. A value reference of another kind, a non-finite seed: MBS_ERROR;
- * a singular mass matrix: MBS_DISCARD. */
+ * a singular mass matrix, a derivative that is not finite: MBS_DISCARD. */
 MBS_API int mbs_directional_derivative(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known,
                                        size_t nknown, const double *seed, double *sensitivity);
 MBS_API int mbs_adjoint_derivative(MbsInstance *s, const unsigned *unknown, size_t nunknown, const unsigned *known,
@@ -132,6 +133,7 @@ MBS_API int mbs_state_load(MbsInstance *s, const void *buf, size_t len);
 
 /* ---- evaluation at a given state with the current inputs and parameters (tests, mbsfmu.compile) ---- */
 MBS_API int mbs_equations(MbsInstance *s, double t, const double *x, double *M, double *k, double *q);
+/* ẋ = f(t, x) into xdot, which may overlap x; a singular mass matrix: MBS_ERROR, ẋ not finite: MBS_DISCARD */
 MBS_API int mbs_rhs(MbsInstance *s, double t, const double *x, double *xdot);
 /* world position (3) and velocity (3) of output point o */
 MBS_API int mbs_output_point(MbsInstance *s, int o, const double *x, double t, double out[6]);
