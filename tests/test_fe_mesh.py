@@ -495,3 +495,25 @@ def test_fuzzed_mesh_files_raise_model_error_only(tmp_path):
         except ModelError as err:
             assert "\n" not in str(err)
         assert time.perf_counter() - t0 < 10.0
+
+
+def test_material_as_the_docs_write_it(tmp_path, monkeypatch):
+    """`material: {E: 2.1e11, ...}` (docs/scene-format.md): PyYAML reads 2.1e11 as text; the scene takes it as the
+    number, the same body as `E: 2.1e+11` (which YAML 1.1 reads as a float)."""
+    import mbsfmu
+    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+    p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    meshio.Mesh(p, [("tetra", t)]).write(tmp_path / "box.vtu")
+    bodies = []
+    for material in ("{E: 2.1e11, nu: 3e-1, rho: 7.85E3}", "{E: 2.1e+11, nu: 0.3, rho: 7850.0}"):
+        (tmp_path / "s.yaml").write_text(f"""mbsfmu: 1
+name: fe_material
+bodies:
+  part:
+    parent: world
+    joint: {{type: fixed}}
+    elastic:
+      fe: {{mesh: box.vtu, material: {material}, method: free, modes: 1, keep: [0]}}
+""")
+        bodies.append(mbsfmu.load(tmp_path / "s.yaml").spec["bodies"][0]["elastic"]["fe"])
+    assert bodies[0]["stiffness"] == bodies[1]["stiffness"] and bodies[0]["m"] == pytest.approx(RHO * 0.2 * 0.1 * 0.1)
