@@ -366,6 +366,65 @@ def test_reduction_is_cached_by_its_inputs(tmp_path, monkeypatch):
     assert len(list((tmp_path / "cache" / "fe").glob("*.npz"))) == 4
 
 
+@pytest.mark.parametrize("damage", ["truncated", "empty", "bit flip", "tampered", "other key", "wrong shape", "folder"])
+def test_a_damaged_or_tampered_cache_entry_is_computed_again(tmp_path, monkeypatch, damage):
+    """A cache entry is never trusted: a truncated, empty or bit-flipped file, one whose content was changed and
+    written again as a valid .npz (stiffness × 4), one made for another key, or of other shapes:
+    each is reduced again (results equal the fresh reduction, not the entry) and rewritten, then used."""
+    X, M, K = bar(p2=False, nx=3)
+    write_mm(tmp_path, X, M, K)
+    yaml = f"{{{MM}, interface: {{nodes: {np.flatnonzero(X[:, 0] == 0).tolist()}, reference: [0, 0, 0]}}, modes: 2}}"
+    fresh = scene(tmp_path, yaml).spec["bodies"][0]["elastic"]["fe"]
+    (entry,) = (tmp_path / "cache" / "fe").glob("*.npz")
+    data = entry.read_bytes()
+    with np.load(entry) as z:
+        arrays = {k: z[k] for k in z.files}
+    if damage == "truncated":
+        entry.write_bytes(data[: len(data) // 2])
+    elif damage == "empty":
+        entry.write_bytes(b"")
+    elif damage == "bit flip":   # in the stiffness values: the zip's CRC or the digest catches it
+        at = data.index(arrays["stiffness"].tobytes()) + 3
+        entry.write_bytes(data[:at] + bytes([data[at] ^ 0x10]) + data[at + 1:])
+    elif damage in ("tampered", "other key"):
+        if damage == "tampered":
+            arrays["stiffness"] = 4 * arrays["stiffness"]
+        else:   # a valid entry of another reduction (other modes) copied under this key
+            other = scene(tmp_path, yaml.replace("modes: 2", "modes: 1")).spec["bodies"][0]["elastic"]["fe"]
+            (other_entry,) = set((tmp_path / "cache" / "fe").glob("*.npz")) - {entry}
+            with np.load(other_entry) as z:
+                arrays = {k: z[k] for k in z.files}
+            assert len(other["frequencies"]) == 1
+        np.savez(entry, **arrays)
+    elif damage == "wrong shape":
+        np.savez(entry, **dict(arrays, stiffness=arrays["stiffness"][:1]))
+    else:
+        entry.unlink()
+        entry.mkdir()
+    again = scene(tmp_path, yaml).spec["bodies"][0]["elastic"]["fe"]
+    assert again == fresh
+    if damage != "folder":   # rewritten: the next load takes it from the cache
+        monkeypatch.setattr(cms, "reduce", lambda *a, **k: pytest.fail("reduced again"))
+        assert scene(tmp_path, yaml).spec["bodies"][0]["elastic"]["fe"] == fresh
+
+
+def test_a_cache_entry_gives_back_the_arrays_as_built(tmp_path):
+    """Every array of a reduced body comes back from the cache as built: values, shapes and dtypes (the integer
+    stress_nodes and stress_counts stay integers)."""
+    X, M, K = bar(p2=False, nx=3)
+    write_mm(tmp_path, X, M, K)
+    model = fe.FEModel(X, M, K, {}, "bar", stress=lambda U, at: np.ones((len(at), 6, U.shape[1])))
+    stress = [[1, 2], 5]
+
+    def build():
+        return cms.reduce(model, interface=np.flatnonzero(X[:, 0] == 0), reference=[0, 0, 0], modes=2, stress=stress)
+    fresh = cms.reduce_cached([tmp_path / "K.mtx"], {"stress": stress}, build)
+    cached = cms.reduce_cached([tmp_path / "K.mtx"], {"stress": stress}, lambda: pytest.fail("reduced again"))
+    assert sorted(cached) == sorted(fresh)
+    for k, v in fresh.items():
+        assert cached[k].dtype == v.dtype and cached[k].shape == v.shape and np.array_equal(cached[k], v), k
+
+
 # -- hostile input -----------------------------------------------------------------------------------------
 
 def _break(kind, folder, X, M, K):
