@@ -772,9 +772,7 @@ class _Checker:
             self.fail(node, "format", path + ".format", f"unknown format {_shown(fmt)}", _suggest(fmt, _FE_FORMATS))
         files = {k: self.fe_file(node, k, path) for k in ("mass", "stiffness", "nodes")}
         dof_map = node.get("dof_map", "node-major")
-        if dof_map not in ("node-major", "direction-major"):
-            if fmt == "abaqus":
-                self.fail(node, "dof_map", path + ".dof_map", "Abaqus files name their DOFs; no dof_map")
+        if dof_map not in ("node-major", "direction-major"):   # (Abaqus: for FORMAT=COORDINATE files, fe.py)
             files["dof_map"] = self.fe_file(node, "dof_map", path)
             dof_map = "file"
         return {"format": fmt, "dof_map": dof_map}, files
