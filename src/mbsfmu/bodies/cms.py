@@ -48,7 +48,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh, splu
 
 from ..errors import ModelError
-from ..scene import limits
+from ..scene import datafile, limits
 from . import fe
 from .nodal import MassMoments, NodalData, _symmetric_psd, damping_from_ratio
 
@@ -791,7 +791,6 @@ def _digest(key, arrays):
 
 def _cached_entry(path, key, names):
     """The reduced body of the cache entry at `path`, or None where it is not exactly what reduce_cached wrote."""
-    from ..scene import datafile
     try:
         z = datafile.read_npz(path, names + ("digest",))   # float arrays, bounded, never unpickled
         digest = z.pop("digest")

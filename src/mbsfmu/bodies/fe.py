@@ -332,8 +332,8 @@ def from_abaqus(mass, stiffness, inp, node_sets=None, dof_map="node-major"):
         sets[set_name] = np.unique(index[1][pos])
     sets.update(node_sets or {})
     if dof_map not in ("node-major", "direction-major"):
-        dof_map = read_dof_map(dof_map, len(X))
-        _check_dof_map(dof_map, len(X), Path(inp).name)
+        dof_map, path = read_dof_map(dof_map, len(X)), dof_map
+        _check_dof_map(dof_map, len(X), Path(path).name)
     M, K = read_abaqus_matrix(mass, index, dof_map), read_abaqus_matrix(stiffness, index, dof_map)
     source = ", ".join(Path(p).name for p in (mass, stiffness, inp))
     return check(FEModel(X, symmetric(M, Path(mass).name), symmetric(K, Path(stiffness).name), sets, source))

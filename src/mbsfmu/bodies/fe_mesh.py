@@ -50,16 +50,18 @@ def assemble_solid(mesh, E, nu, rho, element=None, *, base=".", allow_outside=Fa
     meshio.Mesh) with Young's modulus E, Poisson's ratio nu and density rho; `element` one of ELEMENTS or None."""
     _require_extra()
     E, nu, rho = _material(E, nu, rho)
-    if not isinstance(mesh, (str, os.PathLike)):
-        return _assemble(mesh, E, nu, rho, element, "<meshio.Mesh>", lambda k: f"solid cell {k} (0-based)")
-    path = datafile.resolve(base, str(mesh), allow_outside)
-    try:   # the file as the scene names it: messages reach the scene's line without their `file`
-        source = path.relative_to(Path(base).resolve()).as_posix()
-    except ValueError:
-        source = str(path)
-    try:
-        mesh = read_mesh(path)
-        return _assemble(mesh, E, nu, rho, element, source, lambda k: _file_element(path, mesh, k))
+    path, source = None, "<meshio.Mesh>"
+    if isinstance(mesh, (str, os.PathLike)):
+        path = datafile.resolve(base, str(mesh), allow_outside)
+        try:
+            source = path.relative_to(Path(base).resolve()).as_posix()
+        except ValueError:
+            source = str(path)
+    try:   # the file named in the message: a scene's error keeps its line and key, not a `file`
+        if path is not None:
+            mesh = read_mesh(path)
+        name_cell = (lambda k: _file_element(path, mesh, k)) if path else (lambda k: f"solid cell {k} (0-based)")
+        return _assemble(mesh, E, nu, rho, element, source, name_cell)
     except ModelError as err:
         raise ModelError(f"{source}: {err.message}", key=err.key, hint=err.hint) from None
 
