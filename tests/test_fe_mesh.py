@@ -281,9 +281,9 @@ def test_inverted_element_refused(tmp_path):
         t = t.copy()
         t[3, [0, 1]] = t[3, [1, 0]]
         return [("tetra", t)]
-    _write(tmp_path / "bad.msh", swap_first)   # binary gmsh 4.1: the element's place in the file
+    _write(tmp_path / "bad.msh", swap_first)   # binary gmsh 4.1, tags 1, 2, … in the cells' order
     _refused(lambda: assemble_solid("bad.msh", E, NU, RHO, base=tmp_path), "bad.msh", "inverted",
-             "element number 4 in the file's order", "counter-clockwise")
+             "the first is element 4 ", "counter-clockwise")
     p, t = box_hexes(0.2, 0.1, 0.1, 2, 1, 1)
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("hexahedron", t[:, [4, 5, 6, 7, 0, 1, 2, 3]])]), E, NU, RHO),
              "inverted")
@@ -302,7 +302,7 @@ def _tet_volume(p, nodes):
     return np.dot(b - a, np.cross(c - a, d - a)) / 6
 
 
-@pytest.mark.parametrize("fmt", ["gmsh22", "gmsh41", "abaqus", "vtu"])
+@pytest.mark.parametrize("fmt", ["gmsh22", "gmsh41", "gmsh41-binary", "abaqus", "vtu"])
 def test_inverted_element_named_as_its_file_names_it(tmp_path, fmt):
     """A scene's inverted element: the message names the mesh file (as fe.py names matrix files), the element's tag as the
     file writes it (gmsh element tag, Abaqus label; VTK: the cell index), and the node order that is expected.
@@ -313,14 +313,14 @@ def test_inverted_element_named_as_its_file_names_it(tmp_path, fmt):
     p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
     t[4, [1, 2]] = t[4, [2, 1]]
     tris = t[:3, :3]
-    name = {"gmsh22": "inverted.msh", "gmsh41": "inverted.msh", "abaqus": "inverted.inp", "vtu": "inverted.vtu"}[fmt]
+    name = {"abaqus": "inverted.inp", "vtu": "inverted.vtu"}.get(fmt, "inverted.msh")
     path = tmp_path / "meshes" / name
     if fmt == "gmsh22":   # written by hand: tags 500, 510, … (gmsh keeps whatever tags the mesher gave)
         rows = [f"{500 + 10 * i} 2 2 0 1 " + " ".join(map(str, c + 1)) for i, c in enumerate(tris)]
         rows += [f"{500 + 10 * (i + 3)} 4 2 0 1 " + " ".join(map(str, c + 1)) for i, c in enumerate(t)]
         path.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n%d\n%s\n$EndNodes\n$Elements\n%d\n%s\n$EndElements\n" % (
             len(p), "\n".join(f"{i + 1} {x} {y} {z}" for i, (x, y, z) in enumerate(p.tolist())), len(rows), "\n".join(rows)))
-    elif fmt == "gmsh41":   # (meshio writes one cell type without entity data; its tags count from 1)
+    elif fmt.startswith("gmsh41"):   # (meshio writes one cell type without entity data; its tags count from 1)
         meshio.Mesh(p, [("tetra", t)]).write(path, file_format="gmsh", binary=False)
     elif fmt == "abaqus":  # labels 1000, 1007, … as a part meshed among others has them
         lines = ["*NODE"] + [f"{i + 1}, {x}, {y}, {z}" for i, (x, y, z) in enumerate(p.tolist())]
@@ -338,6 +338,9 @@ def test_inverted_element_named_as_its_file_names_it(tmp_path, fmt):
                     and len(c[-4:]) == 4 and _tet_volume(p, np.array(c[-4:]) - 1) < 0]
         assert len(negative) == 1, negative
         expected = f"element {negative[0]}"
+    if fmt == "gmsh41-binary":   # the same mesh and tags, binary
+        meshio.Mesh(p, [("tetra", t)]).write(path, file_format="gmsh", binary=True)
+        assert b"\0" in path.read_bytes()
     (tmp_path / "s.yaml").write_text(f"""mbsfmu: 1
 name: inverted
 bodies:

@@ -299,18 +299,18 @@ def _file_element(path, mesh, k):
     try:
         with limits.open_regular(path) as f:
             tags = (_gmsh_tags if fmt == "gmsh" else _abaqus_labels)(f.read(limits.FE_MESH_BYTES).decode("latin-1"))
-    except (OSError, ValueError, IndexError):
+    except (OSError, ValueError, IndexError, KeyError, OverflowError):   # a file meshio read but we cannot
         tags = []
     if position < len(tags):
         return f"element {tags[position]}"
-    return f"element number {position + 1} in the file's order"   # (binary gmsh: tags not read)
+    return f"element number {position + 1} in the file's order"   # (binary gmsh 2.2: tags not read)
 
 
 def _gmsh_tags(text):
-    """The element tags of an ASCII gmsh file (2.2 or 4.1), in the file's order; [] for a binary file."""
+    """The element tags of a gmsh file (2.2 or 4.1; binary only 4.1, else []), in the file's order."""
     head = text.split("$MeshFormat", 1)[1].split()
     if head[1] != "0":
-        return []
+        return _gmsh41_binary_tags(text, head) if head[0].startswith("4") else []
     lines = text.split("$Elements", 1)[1].split("$EndElements", 1)[0].strip().splitlines()
     if head[0].startswith("2"):              # count, then: tag type ntags tags… nodes…
         return [int(line.split()[0]) for line in lines[1:] if line.strip()]
@@ -319,6 +319,25 @@ def _gmsh_tags(text):
         count = int(lines[i].split()[3])
         tags += [int(line.split()[0]) for line in lines[i + 1:i + 1 + count]]
         i += 1 + count
+    return tags
+
+
+def _gmsh41_binary_tags(text, head):
+    """Binary gmsh 4.1 $Elements: counts (4 size_t), then blocks of entity dim, tag, element type (3 int), count
+    (size_t) and count rows of the element tag and its nodes (size_t)."""
+    from meshio._common import num_nodes_per_cell
+    from meshio.gmsh.common import _gmsh_to_meshio_type
+    size = np.dtype(f"u{int(head[2])}")
+    data = text.split("$Elements\n", 1)[1].encode("latin-1")
+    blocks = int(np.frombuffer(data, size, 1)[0])
+    at, tags = 4 * size.itemsize, []
+    for _ in range(blocks):
+        kind = int(np.frombuffer(data, np.int32, 1, at + 8)[0])
+        count = int(np.frombuffer(data, size, 1, at + 12)[0])
+        width = 1 + num_nodes_per_cell[_gmsh_to_meshio_type[kind]]
+        rows = np.frombuffer(data, size, count * width, at + 12 + size.itemsize).reshape(count, width)
+        tags += rows[:, 0].tolist()
+        at += 12 + size.itemsize * (1 + count * width)
     return tags
 
 
