@@ -753,8 +753,8 @@ def _resolve(model, params):
 
 def reduce_cached(files, inputs, build):
     """build() (a reduced body), or its result from the cache: an .npz named by cache_key(files, inputs).  An entry
-    is used only if it reads back (bounded, no pickle: datafile.read_npz) with exactly the members, the digest of
-    its content under this key (_digest) and the shapes of a reduced body; any other is built and written again."""
+    is used only if it reads back (bounded, no pickle: datafile.read_npz) with every member, the digest of its
+    content under this key (_digest) and the shapes of a reduced body; any other is built and written again."""
     key = cache_key(files, inputs)
     path = cache_dir() / f"{key}.npz"
     names = CACHED + (STRESS if inputs.get("stress") else ())
