@@ -281,8 +281,9 @@ def test_inverted_element_refused(tmp_path):
         t = t.copy()
         t[3, [0, 1]] = t[3, [1, 0]]
         return [("tetra", t)]
-    _write(tmp_path / "bad.msh", swap_first)
-    _refused(lambda: assemble_solid("bad.msh", E, NU, RHO, base=tmp_path), "bad.msh", "inverted", "cell 3")
+    _write(tmp_path / "bad.msh", swap_first)   # binary gmsh 4.1, tags 1, 2, … in the cells' order
+    _refused(lambda: assemble_solid("bad.msh", E, NU, RHO, base=tmp_path), "bad.msh", "inverted",
+             "the first is element 4 ", "counter-clockwise")
     p, t = box_hexes(0.2, 0.1, 0.1, 2, 1, 1)
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("hexahedron", t[:, [4, 5, 6, 7, 0, 1, 2, 3]])]), E, NU, RHO),
              "inverted")
@@ -294,6 +295,64 @@ def test_inverted_element_refused(tmp_path):
     both = meshio.Mesh(np.vstack([big, tiny + 2]), [("tetra", np.vstack([bt, tt + len(big)]))])
     fe = assemble_solid(both, E, NU, RHO)
     assert np.ones(fe.M.shape[0])[0::3] @ fe.M[0::3, 0::3] @ np.ones(len(fe.nodes)) == pytest.approx(RHO * (1 + 1e-15))
+
+
+def _tet_volume(p, nodes):
+    a, b, c, d = p[np.asarray(nodes)]
+    return np.dot(b - a, np.cross(c - a, d - a)) / 6
+
+
+@pytest.mark.parametrize("fmt", ["gmsh22", "gmsh41", "gmsh41-binary", "abaqus", "vtu"])
+def test_inverted_element_named_as_its_file_names_it(tmp_path, fmt):
+    """A scene's inverted element: the message names the mesh file (as fe.py names matrix files), the element's tag as the
+    file writes it (gmsh element tag, Abaqus label; VTK: the cell index), and the node order that is expected.
+    The file holds surface cells before the solid ones and tags that are not the cells' indices; the test finds
+    the tag of the one element with a negative volume in the file's own text."""
+    import mbsfmu
+    (tmp_path / "meshes").mkdir()
+    p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    t[4, [1, 2]] = t[4, [2, 1]]
+    tris = t[:3, :3]
+    name = {"abaqus": "inverted.inp", "vtu": "inverted.vtu"}.get(fmt, "inverted.msh")
+    path = tmp_path / "meshes" / name
+    if fmt == "gmsh22":   # written by hand: tags 500, 510, … (gmsh keeps whatever tags the mesher gave)
+        rows = [f"{500 + 10 * i} 2 2 0 1 " + " ".join(map(str, c + 1)) for i, c in enumerate(tris)]
+        rows += [f"{500 + 10 * (i + 3)} 4 2 0 1 " + " ".join(map(str, c + 1)) for i, c in enumerate(t)]
+        path.write_text("$MeshFormat\n2.2 0 8\n$EndMeshFormat\n$Nodes\n%d\n%s\n$EndNodes\n$Elements\n%d\n%s\n$EndElements\n" % (
+            len(p), "\n".join(f"{i + 1} {x} {y} {z}" for i, (x, y, z) in enumerate(p.tolist())), len(rows), "\n".join(rows)))
+    elif fmt.startswith("gmsh41"):   # (meshio writes one cell type without entity data; its tags count from 1)
+        meshio.Mesh(p, [("tetra", t)]).write(path, file_format="gmsh", binary=False)
+    elif fmt == "abaqus":  # labels 1000, 1007, … as a part meshed among others has them
+        lines = ["*NODE"] + [f"{i + 1}, {x}, {y}, {z}" for i, (x, y, z) in enumerate(p.tolist())]
+        lines += ["*ELEMENT, TYPE=C3D4"] + [f"{1000 + 7 * i}, " + ", ".join(map(str, c + 1)) for i, c in enumerate(t)]
+        path.write_text("\n".join(lines) + "\n")
+    else:
+        meshio.Mesh(p, [("triangle", tris), ("tetra", t)]).write(path)
+    if fmt == "vtu":
+        expected = f"cell {3 + 4}"
+    else:   # the tag of the line whose nodes have a negative volume, read from the text
+        text = path.read_text()
+        body = text.split("$Elements")[1].split("$EndElements")[0] if fmt.startswith("gmsh") else text.split("*ELEMENT")[1]
+        cells = [[int(v) for v in line.replace(",", " ").split()] for line in body.strip().splitlines()[1:]]
+        negative = [c[0] for c in cells if len(c) >= 5 and (c[1] == 4 or fmt == "abaqus" or len(c) == 5)
+                    and len(c[-4:]) == 4 and _tet_volume(p, np.array(c[-4:]) - 1) < 0]
+        assert len(negative) == 1, negative
+        expected = f"element {negative[0]}"
+    if fmt == "gmsh41-binary":   # the same mesh and tags, binary
+        meshio.Mesh(p, [("tetra", t)]).write(path, file_format="gmsh", binary=True)
+        assert b"\0" in path.read_bytes()
+    (tmp_path / "s.yaml").write_text(f"""mbsfmu: 1
+name: inverted
+bodies:
+  part:
+    parent: world
+    joint: {{type: fixed}}
+    elastic:
+      fe: {{mesh: meshes/{name}, material: {{E: 2.1e+11, nu: 0.3, rho: 7850}}, method: free, modes: 1, keep: [0]}}
+""")
+    msg = _refused(lambda: mbsfmu.load(tmp_path / "s.yaml"), f"s.yaml:8: bodies.part.elastic.fe: {name}: 1 element(s) are inverted",
+                   "corners 1, 2, 3 counter-clockwise seen from corner 4")
+    assert msg.split("the first is ")[1].startswith(expected + " "), msg
 
 
 def test_empty_and_unknown_cells_refused(tmp_path):
@@ -495,3 +554,25 @@ def test_fuzzed_mesh_files_raise_model_error_only(tmp_path):
         except ModelError as err:
             assert "\n" not in str(err)
         assert time.perf_counter() - t0 < 10.0
+
+
+def test_material_as_the_docs_write_it(tmp_path, monkeypatch):
+    """`material: {E: 2.1e11, ...}` (docs/scene-format.md): PyYAML reads 2.1e11 as text; the scene takes it as the
+    number, the same body as `E: 2.1e+11` (which YAML 1.1 reads as a float)."""
+    import mbsfmu
+    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+    p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
+    meshio.Mesh(p, [("tetra", t)]).write(tmp_path / "box.vtu")
+    bodies = []
+    for material in ("{E: 2.1e11, nu: 3e-1, rho: 7.85E3}", "{E: 2.1e+11, nu: 0.3, rho: 7850.0}"):
+        (tmp_path / "s.yaml").write_text(f"""mbsfmu: 1
+name: fe_material
+bodies:
+  part:
+    parent: world
+    joint: {{type: fixed}}
+    elastic:
+      fe: {{mesh: box.vtu, material: {material}, method: free, modes: 1, keep: [0]}}
+""")
+        bodies.append(mbsfmu.load(tmp_path / "s.yaml").spec["bodies"][0]["elastic"]["fe"])
+    assert bodies[0]["stiffness"] == bodies[1]["stiffness"] and bodies[0]["m"] == pytest.approx(RHO * 0.2 * 0.1 * 0.1)

@@ -1,7 +1,8 @@
 """Elastic bodies from FE models (issue 24): readers, Craig–Bampton and free-interface reduction, consistent-mass
 invariants, the `elastic: fe:` scene key and its cache.  References: the full FE model solved densely by LAPACK
 (scipy.linalg.eigh) with the same boundary condition, closed-form box moments, the lumped-mass sums of the
-nodal path, conservation laws of a free body, and the Matrix Market and Abaqus COORDINATE file formats."""
+nodal path, conservation laws of a free body, the Matrix Market and Abaqus (MATRIX INPUT, COORDINATE) file formats,
+and Exudyn's reader of Abaqus COORDINATE files."""
 
 import os
 import time
@@ -286,7 +287,7 @@ def test_lumped_mass_model_equals_the_nodal_path():
 # -- readers -----------------------------------------------------------------------------------------------
 
 def write_abaqus(folder, X, M, K, labels):
-    """The model as Abaqus writes it: *NODE/*NSET in an .inp, lower triangles as COORDINATE .mtx lines."""
+    """The model as Abaqus writes it: *NODE/*NSET in an .inp, lower triangles as FORMAT=MATRIX INPUT .mtx lines."""
     lines = ["*HEADING", "** written by the test", "*NODE"]
     lines += [f"{lab}, {float(x)!r}, {float(y)!r}, {float(z)!r}" for lab, (x, y, z) in zip(labels, X)]
     root = labels[X[:, 0] == 0]
@@ -298,7 +299,67 @@ def write_abaqus(folder, X, M, K, labels):
         (folder / name).write_text("\n".join(rows) + "\n")
 
 
-def test_abaqus_coordinate_files_give_the_same_body(tmp_path):
+def write_abaqus_coordinate(folder, M, K, perm=None):
+    """M and K as *MATRIX OUTPUT, FORMAT=COORDINATE writes them (as Exudyn's Abaqus-written test data): blank-
+    separated `row col value`, 1-based global equation numbers, both triangles; equation e is DOF perm[e - 1]."""
+    for A, name in ((M, "M3.mtx"), (K, "K3.mtx")):
+        coo = sp.coo_matrix(A)
+        eq = np.argsort(perm) if perm is not None else np.arange(A.shape[0])   # DOF → its equation
+        lines = [f"{eq[i] + 1} {eq[j] + 1} {v: .15e}" for i, j, v in zip(coo.row, coo.col, coo.data)]
+        (folder / name).write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("dof_map", ["node-major", "direction-major", "file"])
+def test_abaqus_coordinate_files_read_as_exudyn_reads_them(tmp_path, dof_map):
+    """FORMAT=COORDINATE files (row col value) against Exudyn's FEMinterface.Read…MatrixFromAbaqus (its reader of
+    them) and against the matrices written; the FORMAT=MATRIX INPUT files of the same model give the same model."""
+    exudyn_fem = pytest.importorskip("exudyn.FEM")
+    X, M, K = bar(p2=False, nx=3)
+    N = len(X)
+    labels = np.arange(1, N + 1)
+    write_abaqus(tmp_path, X, M, K, labels)
+    perm = {"node-major": None, "direction-major": (3 * np.arange(N)[None, :] + np.arange(3)[:, None]).ravel(),
+            "file": np.random.default_rng(1).permutation(3 * N)}[dof_map]
+    write_abaqus_coordinate(tmp_path, M, K, perm)
+    arg = dof_map
+    if dof_map == "file":
+        (tmp_path / "dofs.txt").write_text("".join(f"{p // 3} {'xyz'[p % 3]}\n" for p in perm))
+        arg = tmp_path / "dofs.txt"
+    coordinate = fe.from_abaqus(tmp_path / "M3.mtx", tmp_path / "K3.mtx", tmp_path / "part.inp", dof_map=arg)
+    matrix_input = fe.from_abaqus(tmp_path / "M.mtx", tmp_path / "K.mtx", tmp_path / "part.inp")
+    fem = exudyn_fem.FEMinterface()
+    fem.ReadMassMatrixFromAbaqus(str(tmp_path / "M3.mtx"))
+    fem.ReadStiffnessMatrixFromAbaqus(str(tmp_path / "K3.mtx"))
+    order = np.arange(3 * N) if perm is None else np.argsort(perm)   # Exudyn keeps the file's equation order
+    for ours, theirs, written in ((coordinate.M, fem.massMatrix, M), (coordinate.K, fem.stiffnessMatrix, K)):
+        theirs = sp.csr_matrix(theirs)[order][:, order]
+        scale = abs(written).max()
+        assert abs(ours - theirs).max() <= 1e-15 * scale and abs(ours - written).max() <= 1e-15 * scale
+    assert abs(matrix_input.M - coordinate.M).max() <= 1e-15 * abs(M).max()
+    assert abs(matrix_input.K - coordinate.K).max() <= 1e-15 * abs(K).max()
+    assert np.array_equal(coordinate.nodes, X) and sorted(coordinate.node_sets) == ["root"]
+
+
+def test_abaqus_coordinate_files_in_a_scene_and_their_errors(tmp_path):
+    """`format: abaqus` takes either layout (by its columns); equations beyond the .inp's nodes and a dof_map
+    beside MATRIX INPUT files are refused with the file's name."""
+    X, M, K = bar(p2=False, nx=3)
+    write_abaqus(tmp_path, X, M, K, np.arange(1, len(X) + 1))
+    write_abaqus_coordinate(tmp_path, M, K)
+    iface = "interface: {node_set: root, reference: [0, 0, 0]}, modes: 2"
+    a = scene(tmp_path, f"{{mass: M3.mtx, stiffness: K3.mtx, nodes: part.inp, format: abaqus, {iface}}}")
+    b = scene(tmp_path, f"{{mass: M.mtx, stiffness: K.mtx, nodes: part.inp, format: abaqus, {iface}}}")
+    fa, fb = (s.spec["bodies"][0]["elastic"]["fe"] for s in (a, b))
+    assert np.allclose(fa["frequencies"], fb["frequencies"], rtol=1e-10)
+    assert np.allclose(fa["frequencies"], dense_frequencies(K, M, np.flatnonzero(X[:, 0] == 0), count=2), rtol=1e-8)
+    (tmp_path / "K3.mtx").write_text((tmp_path / "K3.mtx").read_text() + f"{3 * len(X) + 1} 1 1.0\n")
+    with pytest.raises(ModelError, match=r"K3.mtx: equation %d, but the %d nodes" % (3 * len(X) + 1, len(X))):
+        scene(tmp_path, f"{{mass: M3.mtx, stiffness: K3.mtx, nodes: part.inp, format: abaqus, {iface}}}")
+    with pytest.raises(ModelError, match="M.mtx: a FORMAT=MATRIX INPUT file names its nodes"):
+        scene(tmp_path, f"{{mass: M.mtx, stiffness: K.mtx, nodes: part.inp, format: abaqus, dof_map: direction-major, {iface}}}")
+
+
+def test_abaqus_matrix_input_files_give_the_same_body(tmp_path):
     X, M, K = bar(p2=False)
     labels = 1000 + 7 * np.arange(len(X))[::-1]           # labels neither 1-based nor in order
     write_abaqus(tmp_path, X, M, K, labels)
@@ -364,6 +425,65 @@ def test_reduction_is_cached_by_its_inputs(tmp_path, monkeypatch):
     for members in (root, root[:3]):                                    # a node set's members are inputs too
         part(scene(tmp_path, f"{{{MM}, node_sets: {{root: {members}}}, interface: {{node_set: root, reference: [0, 0, 0]}}, modes: 3}}"))
     assert len(list((tmp_path / "cache" / "fe").glob("*.npz"))) == 4
+
+
+@pytest.mark.parametrize("damage", ["truncated", "empty", "bit flip", "tampered", "other key", "wrong shape", "folder"])
+def test_a_damaged_or_tampered_cache_entry_is_computed_again(tmp_path, monkeypatch, damage):
+    """A cache entry is never trusted: a truncated, empty or bit-flipped file, one whose content was changed and
+    written again as a valid .npz (stiffness × 4), one made for another key, or of other shapes:
+    each is reduced again (results equal the fresh reduction, not the entry) and rewritten, then used."""
+    X, M, K = bar(p2=False, nx=3)
+    write_mm(tmp_path, X, M, K)
+    yaml = f"{{{MM}, interface: {{nodes: {np.flatnonzero(X[:, 0] == 0).tolist()}, reference: [0, 0, 0]}}, modes: 2}}"
+    fresh = scene(tmp_path, yaml).spec["bodies"][0]["elastic"]["fe"]
+    (entry,) = (tmp_path / "cache" / "fe").glob("*.npz")
+    data = entry.read_bytes()
+    with np.load(entry) as z:
+        arrays = {k: z[k] for k in z.files}
+    if damage == "truncated":
+        entry.write_bytes(data[: len(data) // 2])
+    elif damage == "empty":
+        entry.write_bytes(b"")
+    elif damage == "bit flip":   # in the stiffness values: the zip's CRC or the digest catches it
+        at = data.index(arrays["stiffness"].tobytes()) + 3
+        entry.write_bytes(data[:at] + bytes([data[at] ^ 0x10]) + data[at + 1:])
+    elif damage in ("tampered", "other key"):
+        if damage == "tampered":
+            arrays["stiffness"] = 4 * arrays["stiffness"]
+        else:   # a valid entry of another reduction (other modes) copied under this key
+            other = scene(tmp_path, yaml.replace("modes: 2", "modes: 1")).spec["bodies"][0]["elastic"]["fe"]
+            (other_entry,) = set((tmp_path / "cache" / "fe").glob("*.npz")) - {entry}
+            with np.load(other_entry) as z:
+                arrays = {k: z[k] for k in z.files}
+            assert len(other["frequencies"]) == 1
+        np.savez(entry, **arrays)
+    elif damage == "wrong shape":
+        np.savez(entry, **dict(arrays, stiffness=arrays["stiffness"][:1]))
+    else:
+        entry.unlink()
+        entry.mkdir()
+    again = scene(tmp_path, yaml).spec["bodies"][0]["elastic"]["fe"]
+    assert again == fresh
+    if damage != "folder":   # rewritten: the next load takes it from the cache
+        monkeypatch.setattr(cms, "reduce", lambda *a, **k: pytest.fail("reduced again"))
+        assert scene(tmp_path, yaml).spec["bodies"][0]["elastic"]["fe"] == fresh
+
+
+def test_a_cache_entry_gives_back_the_arrays_as_built(tmp_path):
+    """Every array of a reduced body comes back from the cache as built: values, shapes and dtypes (the integer
+    stress_nodes and stress_counts stay integers)."""
+    X, M, K = bar(p2=False, nx=3)
+    write_mm(tmp_path, X, M, K)
+    model = fe.FEModel(X, M, K, {}, "bar", stress=lambda U, at: np.ones((len(at), 6, U.shape[1])))
+    stress = [[1, 2], 5]
+
+    def build():
+        return cms.reduce(model, interface=np.flatnonzero(X[:, 0] == 0), reference=[0, 0, 0], modes=2, stress=stress)
+    fresh = cms.reduce_cached([tmp_path / "K.mtx"], {"stress": stress}, build)
+    cached = cms.reduce_cached([tmp_path / "K.mtx"], {"stress": stress}, lambda: pytest.fail("reduced again"))
+    assert sorted(cached) == sorted(fresh)
+    for k, v in fresh.items():
+        assert cached[k].dtype == v.dtype and cached[k].shape == v.shape and np.array_equal(cached[k], v), k
 
 
 # -- hostile input -----------------------------------------------------------------------------------------

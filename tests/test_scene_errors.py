@@ -176,3 +176,28 @@ def test_expression_parser_never_evaluates_python():
 def test_unreadable_file_is_a_model_error(tmp_path):
     e = _error(tmp_path / "missing.yaml")
     assert "missing.yaml" in str(e)
+
+
+@pytest.mark.parametrize("text, value", [("2.1e11", 2.1e11), ("1e-3", 1e-3), ("5E+2", 500.0), ("-1.5e3", -1.5e3),
+                                         (".5e1", 5.0), ('"2.5e-2"', 2.5e-2)])
+def test_numbers_with_an_exponent_are_numbers_in_every_field(text, value):
+    """PyYAML (YAML 1.1) reads a float only with a dot and a signed exponent (2.1e+11): 2.1e11, 1e-3, 5E+2 stay text.
+    Every numeric field takes them as the numbers they are (YAML 1.2), read once: parameters, scalars, vectors,
+    tensors, mappings of values, and the fields read as plain numbers (beam axis)."""
+    mag = abs(value)
+    text_abs = text.lstrip("-")
+    scene = (BASE.replace("L: 1.0", f"L: {text}")
+                 .replace("    mass: 1.0\n    center", f"    mass: {text_abs}\n    center")
+                 .replace("center_of_mass: [0, 0, -L/2]", f"center_of_mass: [0, 0, {text}]")
+                 .replace("inertia: {xx: 0.1, yy: 0.1, zz: 0.01}\n  link2", f"inertia: {{xx: {text_abs}, yy: {text_abs}, zz: {text_abs}}}\n  link2")
+                 .replace("at: [0, 0, -L]", f"at: [{text}, 0, 0]"))
+    spec = mbsfmu.loads(scene).spec
+    body = spec["bodies"][0]
+    assert spec["parameters"][0]["value"] == value
+    got = [body["mass"], body["center_of_mass"][2], body["inertia"][0][0], body["inertia"][2][2], spec["bodies"][1]["joint"]["at"][0]]
+    assert got == [mag, value, mag, mag, value] and all(type(v) is float for v in got), got
+
+
+def test_a_number_with_an_exponent_that_overflows_is_refused():
+    with pytest.raises(mbsfmu.ModelError, match="not finite"):
+        mbsfmu.loads(BASE.replace("    mass: 1.0\n    center", "    mass: 1e400\n    center"))

@@ -1,7 +1,7 @@
 """Writes the FE model of models/fe_plate.yaml as Abaqus writes it: an aluminium plate 0.4 × 0.1 × 0.005 m (x along
 the plate, z through its thickness), tet10 (scikit-fem P2 on a tensor tet mesh); the part's nodes and node sets in
 plate.inp (*NODE, *NSET HUB for the edge x = 0, *NSET TIP for the edge x = L), mass and stiffness as
-`*MATRIX OUTPUT, FORMAT=COORDINATE` files (lower triangle, lines `row_node, row_dof, col_node, col_dof, value`).
+`*MATRIX OUTPUT, FORMAT=MATRIX INPUT` files (lower triangle, lines `row_node, row_dof, col_node, col_dof, value`).
 Node labels are 101, 103, 105, … as a part meshed among others gets them.
 Run once from the repository: python models/fe/make_plate.py  (needs the `fe` extra)."""
 

@@ -39,6 +39,7 @@ import contextlib
 import hashlib
 import json
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +48,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh, splu
 
 from ..errors import ModelError
-from ..scene import limits
+from ..scene import datafile, limits
 from . import fe
 from .nodal import MassMoments, NodalData, _symmetric_psd, damping_from_ratio
 
@@ -657,6 +658,7 @@ def _largest(Phi):
 REDUCED = ("R_RP", "Phi", "Psi", "stiffness", "frequencies", "m", "S0", "S_RR", "C_t", "A", "B")
 CACHED = REDUCED + ("full_frequencies",)   # the full model's frequencies: for `mbsfmu check`, not the body
 STRESS = ("stress", "stress_nodes", "stress_counts")   # only for a body with stress nodes (stress_modes)
+INTEGER = ("stress_nodes", "stress_counts")              # node indices and counts: integers in and out of the cache
 
 
 def nodal_data(reduced, damping_ratio=0.0, key="elastic.fe"):
@@ -750,25 +752,56 @@ def _resolve(model, params):
 
 
 def reduce_cached(files, inputs, build):
-    """build() (a reduced body), or its result from the cache: an .npz named by cache_key(files, inputs)."""
-    path = cache_dir() / f"{cache_key(files, inputs)}.npz"
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            reduced = {k: z[k] for k in CACHED + (STRESS if inputs.get("stress") else ())}
-        nodal_data(reduced)   # a damaged entry fails here and is computed again
-        if not 1 <= len(reduced["full_frequencies"]) <= len(reduced["frequencies"]):
-            raise ValueError("damaged")
-        if inputs.get("stress"):
-            stress_table(reduced)
+    """build() (a reduced body), or its result from the cache: an .npz named by cache_key(files, inputs).  An entry
+    is used only if it reads back (bounded, no pickle: datafile.read_npz) with every member, the digest of its
+    content under this key (_digest) and the shapes of a reduced body; any other is built and written again."""
+    key = cache_key(files, inputs)
+    path = cache_dir() / f"{key}.npz"
+    names = CACHED + (STRESS if inputs.get("stress") else ())
+    reduced = _cached_entry(path, key, names)
+    if reduced is not None:
         return reduced
-    except (OSError, KeyError, ValueError, IndexError, TypeError):
-        pass
     reduced = build()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, **reduced)
-        os.replace(tmp, path)
+        fd, tmp = tempfile.mkstemp(prefix=f".{key}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **reduced, digest=_digest(key, reduced))
+            os.replace(tmp, path)   # readers see the old entry or the whole new one, never a part
+        except BaseException:
+            os.unlink(tmp)
+            raise
     except OSError:
         pass   # no writable cache: reduce again next time
     return reduced
+
+
+def _digest(key, arrays):
+    """SHA-256 of the cache key and every array (name, shape, float64 values; integers are exact in them), as 32
+    bytes: an entry changed in any way, or stored under another key, no longer matches.  (Integrity, not a
+    signature: the cache is the user's own.)"""
+    h = hashlib.sha256(key.encode())
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name], dtype=np.float64)
+        h.update(f"\0{name}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    return np.frombuffer(h.digest(), dtype=np.uint8)
+
+
+def _cached_entry(path, key, names):
+    """The reduced body of the cache entry at `path`, or None where it is not exactly what reduce_cached wrote."""
+    try:
+        z = datafile.read_npz(path, names + ("digest",))   # float arrays, bounded, never unpickled
+        digest = z.pop("digest")
+        if set(z) != set(names) or not np.array_equal(digest, _digest(key, z)):
+            return None
+        reduced = {k: z[k].astype(np.int64) if k in INTEGER else z[k] for k in names}
+        nodal_data(reduced)
+        if not 1 <= len(reduced["full_frequencies"]) <= len(reduced["frequencies"]):
+            return None
+        if "stress" in names:
+            stress_table(reduced)
+        return reduced
+    except Exception:   # noqa: BLE001 -- unreadable (truncated, empty, not a zip, a folder) or damaged: built again
+        return None

@@ -3,8 +3,10 @@
 A solid FE model has translational node DOFs only, ordered node-major: [u1x u1y u1z u2x ...].  Readers:
 - Matrix Market (`scipy.io.mmwrite`, Ansys, Code_Aster): a mass and a stiffness file, a node file (x y z per
   line, commas or blanks) and a DOF map (node-major by default, or a file of `node direction` rows);
-- Abaqus `*MATRIX OUTPUT, FORMAT=COORDINATE` (`.mtx` lines `row_node, row_dof, col_node, col_dof, value`) with
-  the nodes and node sets (`*NODE`, `*NSET`) of the `.inp` file.
+- Abaqus `*MATRIX OUTPUT` `.mtx` files, either layout (told apart by their columns): FORMAT=MATRIX INPUT lines
+  `row_node, row_dof, col_node, col_dof, value`, or FORMAT=COORDINATE lines `row col value` with global
+  equation numbers (node-major over the `.inp`'s *NODE order by default, or the DOF map); with the nodes and
+  node sets (`*NODE`, `*NSET`) of the `.inp` file.
 A matrix given as one triangle (the other empty) is mirrored; given whole, it must be symmetric.  Every file
 is bounded (scene/limits.py) before it is parsed: sizes and counts in headers are checked before any entry is
 read.  The consistent mass of a solid is the same scalar mass matrix for x, y and z (M = M_s ⊗ E); check()
@@ -248,41 +250,72 @@ def read_inp_nodes(path):
     return np.array(labels), np.array(coords, float), sets
 
 
-def read_abaqus_matrix(path, index):
-    """A sparse matrix from an Abaqus COORDINATE .mtx file; `index` maps node labels to 0-based node indices."""
+ABAQUS_LAYOUTS = {   # columns of an Abaqus *MATRIX OUTPUT file → the FORMAT= that writes them
+    5: "MATRIX INPUT",   # row_node, row_dof, col_node, col_dof, value (node labels, DOFs 1-6)
+    3: "COORDINATE",     # row col value: global equation numbers, 1-based
+}
+_ABAQUS_HINT = ("*MATRIX OUTPUT, FORMAT=MATRIX INPUT lines 'row_node, row_dof, col_node, col_dof, value' or "
+                "FORMAT=COORDINATE lines 'row col value'")
+
+
+def read_abaqus_matrix(path, index, dof_map="node-major"):
+    """A sparse matrix from an Abaqus .mtx file in either layout (ABAQUS_LAYOUTS, told apart by their columns;
+    commas or blanks): `index` maps node labels to 0-based node indices; `dof_map` ("node-major",
+    "direction-major" or an array: equation → node-major DOF) numbers a COORDINATE file's equations."""
     name = Path(path).name
     with open_bounded(path) as f:
+        lines = (raw.replace(b",", b" ").decode("latin-1") for raw in f)
         try:
-            rows = np.loadtxt(f, delimiter=",", comments="*", ndmin=2, max_rows=limits.FE_ENTRIES + 1)
+            rows = np.loadtxt(lines, comments="*", ndmin=2, max_rows=limits.FE_ENTRIES + 1)
         except ValueError as e:
-            raise ModelError(f"{name}: cannot read it: {str(e)[:120]}",
-                             hint="lines 'row_node, row_dof, col_node, col_dof, value' (*MATRIX OUTPUT, FORMAT=COORDINATE)") from None
-    if rows.shape[1] != 5 or len(rows) == 0:
-        raise ModelError(f"{name}: expected lines 'row_node, row_dof, col_node, col_dof, value', got {rows.shape[1]} columns")
+            raise ModelError(f"{name}: cannot read it: {str(e)[:120]}", hint=_ABAQUS_HINT) from None
+    if len(rows) == 0 or rows.shape[1] not in ABAQUS_LAYOUTS:
+        raise ModelError(f"{name}: {rows.shape[1] if len(rows) else 'no'} columns: not an Abaqus matrix file",
+                         hint=_ABAQUS_HINT)
     if len(rows) > limits.FE_ENTRIES:
         raise ModelError(f"{name}: more than {limits.FE_ENTRIES:,} entries", hint="reduce the model in the FE program first")
-    node_dof = rows[:, :4]
-    if not np.all(np.isfinite(rows)) or np.any(node_dof != np.round(node_dof)):
-        raise ModelError(f"{name}: node labels and DOFs must be integers and values finite")
-    dof = node_dof[:, [1, 3]].astype(np.int64)
-    if np.any((dof < 1) | (dof > 3)):
-        bad = int(dof[(dof < 1) | (dof > 3)][0])
-        raise ModelError(f"{name}: DOF {bad} found; only translations 1, 2, 3 can be read",
-                         hint="solid models only: condense rotational DOFs (beams, shells) in the FE program")
-    labels = node_dof[:, [0, 2]].astype(np.int64)
+    ints = rows[:, :-1]
+    if not np.all(np.isfinite(rows)) or np.any(ints != np.round(ints)):
+        raise ModelError(f"{name}: node labels, DOFs and equation numbers must be integers and values finite")
     lab, idx = index
-    pos = np.searchsorted(lab, labels)
-    pos = np.minimum(pos, len(lab) - 1)
-    known = lab[pos] == labels
-    if not known.all():
-        raise ModelError(f"{name}: node label {int(labels[~known][0])} is not in the *NODE block")
-    dofs = 3 * idx[pos] + dof - 1
     N = len(lab)
-    return _finite(sp.csr_matrix((rows[:, 4], (dofs[:, 0], dofs[:, 1])), shape=(3 * N, 3 * N)), name)
+    if rows.shape[1] == 3:
+        dofs = _equation_dofs(ints.astype(np.int64), dof_map, N, name)
+    else:
+        if not isinstance(dof_map, str) or dof_map != "node-major":
+            raise ModelError(f"{name}: a FORMAT=MATRIX INPUT file names its nodes and DOFs; a dof_map numbers "
+                             "the equations of FORMAT=COORDINATE files only", key="dof_map", hint="leave dof_map out")
+        dof = ints[:, [1, 3]].astype(np.int64)
+        if np.any((dof < 1) | (dof > 3)):
+            bad = int(dof[(dof < 1) | (dof > 3)][0])
+            raise ModelError(f"{name}: DOF {bad} found; only translations 1, 2, 3 can be read",
+                             hint="solid models only: condense rotational DOFs (beams, shells) in the FE program")
+        labels = ints[:, [0, 2]].astype(np.int64)
+        pos = np.minimum(np.searchsorted(lab, labels), N - 1)
+        known = lab[pos] == labels
+        if not known.all():
+            raise ModelError(f"{name}: node label {int(labels[~known][0])} is not in the *NODE block")
+        dofs = 3 * idx[pos] + dof - 1
+    return _finite(sp.csr_matrix((rows[:, -1], (dofs[:, 0], dofs[:, 1])), shape=(3 * N, 3 * N)), name)
 
 
-def from_abaqus(mass, stiffness, inp, node_sets=None):
-    """FEModel from Abaqus COORDINATE matrix files and the .inp with their nodes (node sets: *NSET and YAML)."""
+def _equation_dofs(eqs, dof_map, N, name):
+    """Node-major DOF indices of a COORDINATE file's 1-based equation numbers (eqs: entries × 2)."""
+    if eqs.min(initial=1) < 1 or eqs.max(initial=1) > 3 * N:
+        bad = int(eqs[(eqs < 1) | (eqs > 3 * N)][0])
+        raise ModelError(f"{name}: equation {bad}, but the {N} nodes of the .inp have equations 1 … {3 * N} "
+                         "(x, y, z per node)", hint="a solid model's matrices and the .inp of the same part")
+    e = eqs - 1
+    if isinstance(dof_map, str) and dof_map == "direction-major":   # [all x, all y, all z]
+        return 3 * (e % N) + e // N
+    if isinstance(dof_map, str):                                     # node-major
+        return e
+    return dof_map[e]
+
+
+def from_abaqus(mass, stiffness, inp, node_sets=None, dof_map="node-major"):
+    """FEModel from Abaqus *MATRIX OUTPUT files (FORMAT=MATRIX INPUT or COORDINATE, read_abaqus_matrix) and the
+    .inp with their nodes (node sets: *NSET and YAML); `dof_map` as from_matrix_market's, for COORDINATE files."""
     labels, X, inp_sets = read_inp_nodes(inp)
     if len(np.unique(labels)) != len(labels):
         raise ModelError(f"{Path(inp).name}: a node label appears twice in *NODE")
@@ -298,7 +331,10 @@ def from_abaqus(mass, stiffness, inp, node_sets=None):
             raise ModelError(f"{Path(inp).name}: *NSET {set_name} names a node that is not in *NODE")
         sets[set_name] = np.unique(index[1][pos])
     sets.update(node_sets or {})
-    M, K = read_abaqus_matrix(mass, index), read_abaqus_matrix(stiffness, index)
+    if dof_map not in ("node-major", "direction-major"):
+        dof_map, path = read_dof_map(dof_map, len(X)), dof_map
+        _check_dof_map(dof_map, len(X), Path(path).name)
+    M, K = read_abaqus_matrix(mass, index, dof_map), read_abaqus_matrix(stiffness, index, dof_map)
     source = ", ".join(Path(p).name for p in (mass, stiffness, inp))
     return check(FEModel(X, symmetric(M, Path(mass).name), symmetric(K, Path(stiffness).name), sets, source))
 
@@ -314,9 +350,10 @@ def read(files, source, node_sets=None):
         model = assemble_solid(files["mesh"], mat["E"], mat["nu"], mat["rho"], source.get("element"),
                                base=Path(files["mesh"]).parent)
         return check(replace(model, node_sets={**model.node_sets, **(node_sets or {})}))
+    dof_map = files.get("dof_map", source.get("dof_map", "node-major"))
     if source["format"] == "abaqus":
-        return from_abaqus(files["mass"], files["stiffness"], files["nodes"], node_sets)
-    return from_matrix_market(files["mass"], files["stiffness"], files["nodes"], files.get("dof_map", source.get("dof_map", "node-major")), node_sets)
+        return from_abaqus(files["mass"], files["stiffness"], files["nodes"], node_sets, dof_map)
+    return from_matrix_market(files["mass"], files["stiffness"], files["nodes"], dof_map, node_sets)
 
 
 def node_set(model, name):

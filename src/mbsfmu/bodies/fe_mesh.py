@@ -50,15 +50,20 @@ def assemble_solid(mesh, E, nu, rho, element=None, *, base=".", allow_outside=Fa
     meshio.Mesh) with Young's modulus E, Poisson's ratio nu and density rho; `element` one of ELEMENTS or None."""
     _require_extra()
     E, nu, rho = _material(E, nu, rho)
+    path, source = None, "<meshio.Mesh>"
     if isinstance(mesh, (str, os.PathLike)):
-        source = str(mesh)
-        mesh = read_mesh(datafile.resolve(base, str(mesh), allow_outside))
-    else:
-        source = "<meshio.Mesh>"
-    try:
-        return _assemble(mesh, E, nu, rho, element, source)
+        path = datafile.resolve(base, str(mesh), allow_outside)
+        try:
+            source = path.relative_to(Path(base).resolve()).as_posix()
+        except ValueError:
+            source = str(path)
+    try:   # the file named in the message: a scene's error keeps its line and key, not a `file`
+        if path is not None:
+            mesh = read_mesh(path)
+        name_cell = (lambda k: _file_element(path, mesh, k)) if path else (lambda k: f"solid cell {k} (0-based)")
+        return _assemble(mesh, E, nu, rho, element, source, name_cell)
     except ModelError as err:
-        raise ModelError(err.message, file=source, key=err.key, hint=err.hint) from None
+        raise ModelError(f"{source}: {err.message}", key=err.key, hint=err.hint) from None
 
 
 def _require_extra():
@@ -178,7 +183,8 @@ def _mesh(meta, npz, fmt, path):
                          hint="write the mesh again from the mesher (gmsh, Abaqus, meshio)") from None
 
 
-def _assemble(mesh, E, nu, rho, element, source):
+def _assemble(mesh, E, nu, rho, element, source, name_cell):
+    """FEModel of a meshio.Mesh; name_cell(k) names solid cell k (0-based) as its file does, for messages."""
     kind, cells = _solid_cells(mesh)
     element = _element(kind, element)
     try:
@@ -195,13 +201,13 @@ def _assemble(mesh, E, nu, rho, element, source):
     vertex = np.full(len(points), -1)
     vertex[used] = np.arange(len(used))
     p, t = points[used], vertex[corners]
-    _check_orientation(p, t, kind)
+    _check_orientation(p, t, kind, name_cell)
     grid, elem = _mesh_element(p, t, element)
     edges = None
     if kind == "tetra10" and element == "tet10":                # with tet4 its midside points are dropped
         edges = _cell_edges(grid.edges, vertex, cells)
         if _curved(points, cells):
-            grid = _curved_mesh(grid, points, cells, edges)
+            grid = _curved_mesh(grid, points, cells, edges, name_cell)
     basis, M, K = _matrices(grid, elem, E, nu, rho)
     order, nodes = _node_major(basis, element)
     point_node = _point_nodes(vertex, basis, cells, edges)
@@ -254,7 +260,14 @@ def _check_size(element, vertices, cells):
                          hint="coarsen the mesh: a few thousand quadratic elements resolve the lowest modes")
 
 
-def _check_orientation(p, t, kind):
+NODE_ORDER = {   # the corner order every supported file (gmsh, VTK, Abaqus; meshio keeps it) gives a positive volume
+    "tetra": "corners 1, 2, 3 counter-clockwise seen from corner 4",
+    "tetra10": "corners 1, 2, 3 counter-clockwise seen from corner 4, then the midside nodes",
+    "hexahedron": "bottom face 1, 2, 3, 4 counter-clockwise seen from the top face 5, 6, 7, 8 (5 above 1)",
+}
+
+
+def _check_orientation(p, t, kind, name_cell):
     """Every element's corner Jacobians positive (VTK/meshio node order): an inverted or flat element is refused.
     Measured as the sine-like ratio det / (product of the three edge lengths), so that small elements pass."""
     if kind == "hexahedron":
@@ -266,8 +279,83 @@ def _check_orientation(p, t, kind):
     bad = np.nonzero(~(shape > 1e-9).all(axis=1))[0]     # NaN (coincident corners) counts as flat
     if len(bad):
         raise ModelError(f"{len(bad)} element(s) are inverted or flat (non-positive Jacobian), "
-                         f"the first is cell {bad[0]}",
-                         hint="fix the node order or the mesh in the mesher")
+                         f"the first is {name_cell(int(bad[0]))}",
+                         hint=f"the node order for a positive volume: {NODE_ORDER[kind]}; fix it or the mesh in the mesher")
+
+
+def _file_element(path, mesh, k):
+    """How the mesh file names solid cell k: its element tag (gmsh, Abaqus label), else its VTK cell index."""
+    solid = _solid_cells(mesh)[0]
+    position = 0   # of the cell among all the file's cells: meshio keeps their order, block by block
+    for block in mesh.cells:
+        if block.type == solid and k < len(block.data):
+            position += k
+            break
+        position += len(block.data)
+        k -= len(block.data) if block.type == solid else 0
+    fmt = FORMATS[path.suffix.lower()]
+    if fmt in ("vtk", "vtu"):
+        return f"cell {position} (0-based, as VTK and ParaView number cells)"
+    try:
+        with limits.open_regular(path) as f:
+            tags = (_gmsh_tags if fmt == "gmsh" else _abaqus_labels)(f.read(limits.FE_MESH_BYTES).decode("latin-1"))
+    except (OSError, ValueError, IndexError, KeyError, OverflowError):   # a file meshio read but we cannot
+        tags = []
+    if position < len(tags):
+        return f"element {tags[position]}"
+    return f"element number {position + 1} in the file's order"   # (binary gmsh 2.2: tags not read)
+
+
+def _gmsh_tags(text):
+    """The element tags of a gmsh file (2.2 or 4.1; binary only 4.1, else []), in the file's order."""
+    head = text.split("$MeshFormat", 1)[1].split()
+    if head[1] != "0":
+        return _gmsh41_binary_tags(text, head) if head[0].startswith("4") else []
+    lines = text.split("$Elements", 1)[1].split("$EndElements", 1)[0].strip().splitlines()
+    if head[0].startswith("2"):              # count, then: tag type ntags tags… nodes…
+        return [int(line.split()[0]) for line in lines[1:] if line.strip()]
+    tags, i = [], 1                          # blocks: dim entity type count, then count lines: tag nodes…
+    while i < len(lines):
+        count = int(lines[i].split()[3])
+        tags += [int(line.split()[0]) for line in lines[i + 1:i + 1 + count]]
+        i += 1 + count
+    return tags
+
+
+def _gmsh41_binary_tags(text, head):
+    """Binary gmsh 4.1 $Elements: counts (4 size_t), then blocks of entity dim, tag, element type (3 int), count
+    (size_t) and count rows of the element tag and its nodes (size_t)."""
+    from meshio._common import num_nodes_per_cell
+    from meshio.gmsh.common import _gmsh_to_meshio_type
+    size = np.dtype(f"u{int(head[2])}")
+    data = text.split("$Elements\n", 1)[1].encode("latin-1")
+    blocks = int(np.frombuffer(data, size, 1)[0])
+    at, tags = 4 * size.itemsize, []
+    for _ in range(blocks):
+        kind = int(np.frombuffer(data, np.int32, 1, at + 8)[0])
+        count = int(np.frombuffer(data, size, 1, at + 12)[0])
+        width = 1 + num_nodes_per_cell[_gmsh_to_meshio_type[kind]]
+        rows = np.frombuffer(data, size, count * width, at + 12 + size.itemsize).reshape(count, width)
+        tags += rows[:, 0].tolist()
+        at += 12 + size.itemsize * (1 + count * width)
+    return tags
+
+
+def _abaqus_labels(text):
+    """The element labels of an Abaqus .inp, in the file's order: the first number of each *ELEMENT data line that
+    does not continue the one before (a line ending in a comma continues on the next)."""
+    labels, inside, continued = [], False, False
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.startswith("**"):
+            continue
+        if line.startswith("*"):
+            inside, continued = line[1:].split(",")[0].strip().lower() == "element", False
+            continue
+        if inside and not continued:
+            labels.append(int(line.split(",")[0]))
+        continued = line.endswith(",")
+    return labels
 
 
 def _corner_shape(p, t, i, a, b, c):
@@ -287,7 +375,7 @@ def _curved(points, cells):
     return bool(off.max() > MIDSIDE_TOL)
 
 
-def _curved_mesh(mesh, points, cells, edges):
+def _curved_mesh(mesh, points, cells, edges, name_cell):
     """The isoparametric (MeshTet2) mesh with the file's midside nodes; its Jacobian must stay positive at the
     corners and the quadrature points of every element (a midside node pushed too far inverts a corner)."""
     from skfem import MeshTet2
@@ -300,7 +388,7 @@ def _curved_mesh(mesh, points, cells, edges):
     bad = np.nonzero(~(curved.mapping().detDF(X) > 0).all(axis=1))[0]
     if len(bad):
         raise ModelError(f"{len(bad)} curved element(s) are inverted somewhere (non-positive Jacobian), the first "
-                         f"is cell {bad[0]}", hint="move the midside nodes back towards their edges' midpoints")
+                         f"is {name_cell(int(bad[0]))}", hint="move the midside nodes back towards their edges' midpoints")
     return curved
 
 

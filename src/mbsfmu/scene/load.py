@@ -20,7 +20,7 @@ from ..expr import FUNCTIONS, ExprError, parse
 from ..kinematics.joints import PARAMETERIZATIONS, TYPES as JOINT_TYPES, joint_type  # the joint table
 from . import datafile, domains, limits, names, urdf
 from .shapes import check_shapes
-from .yaml_lines import Date, Map, Seq, read_yaml
+from .yaml_lines import FLOAT_LITERAL, Date, Map, Seq, read_yaml
 
 FORCE_TYPES = tuple(e[1] for e in LISTS["MBS_FORCES"])  # the engine's force elements (mbs_layout.h: MBS_FORCES)
 TOP_KEYS = ("mbsfmu", "name", "description", "gravity", "parameters", "bodies", "forces", "integrator",
@@ -132,6 +132,14 @@ _EXPR_HINT = ("an expression may use numbers, parameters, pi, + - * / ^ ** and p
 _NUMBER_HINT = "write a number (1.5, 2e-3) or an expression over parameters (m_rod/2, pi/6)"
 
 
+def _literal(value):
+    """A number written as text (quoted, "2.5e-3") as the float it is; anything else as it is.  The one reading of
+    numbers beside YAML's own (yaml_lines.FLOAT_LITERAL: plain 2.1e11 is already a float)."""
+    if isinstance(value, str) and not isinstance(value, Date) and FLOAT_LITERAL.fullmatch(value):
+        return float(value)
+    return value
+
+
 def _shown(value):
     """A YAML value as the file gave it, for messages: what was written, never the reader's type names."""
     if value is None:
@@ -215,7 +223,7 @@ class _Checker:
     # -- values ------------------------------------------------------------------------------------
     def number(self, parent, key, path, allow_t=False, positive=False, nonneg=False, magnitude=True):
         """A numeric field: number or expression over parameters (and `t` where allowed) → JSON value."""
-        value = parent[key]
+        value = _literal(parent[key])
         if isinstance(value, Date):
             self.fail(parent, key, path, f"'{value}' reads as a date, not a number", "write the number; quote an expression that looks like a date")
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
@@ -366,11 +374,7 @@ class _Checker:
                     if not isinstance(unit, str) or not re.fullmatch(r"[A-Za-z0-9_.*/^()+-]{1,32}", unit):
                         self.fail(v, "unit", path + ".unit", f"a unit is a short name such as N/m, kg.m2 or rad/s, got {_shown(unit)}")
                 desc, v = self.text(v, "description", path + ".description"), v["value"]
-            if isinstance(v, str) and v.isascii() and not isinstance(v, Date):  # YAML 1.1 reads 1.0e8 or 1e8 as a string
-                try:
-                    v = float(v)
-                except ValueError:
-                    pass
+            v = _literal(v)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 self.fail(node, name, path, f"a parameter value must be a finite number, got {_shown(v)}",
                           "a parameter is a plain number such as 1.5 or 2e-3; expressions belong in the fields that use it")
@@ -768,9 +772,7 @@ class _Checker:
             self.fail(node, "format", path + ".format", f"unknown format {_shown(fmt)}", _suggest(fmt, _FE_FORMATS))
         files = {k: self.fe_file(node, k, path) for k in ("mass", "stiffness", "nodes")}
         dof_map = node.get("dof_map", "node-major")
-        if dof_map not in ("node-major", "direction-major"):
-            if fmt == "abaqus":
-                self.fail(node, "dof_map", path + ".dof_map", "Abaqus files name their DOFs; no dof_map")
+        if dof_map not in ("node-major", "direction-major"):   # (Abaqus: for FORMAT=COORDINATE files, fe.py)
             files["dof_map"] = self.fe_file(node, "dof_map", path)
             dof_map = "file"
         return {"format": fmt, "dof_map": dof_map}, files
