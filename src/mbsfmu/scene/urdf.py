@@ -108,6 +108,9 @@ def _parse(path, fail):
         fail(None, None, f"cannot read the URDF file: {e.strerror or e}", "give the path of a regular URDF file")
     if len(data) > limits.DOCUMENT_BYTES:
         fail(None, None, f"the file is larger than {limits.DOCUMENT_BYTES // 2**20} MiB", "a robot description is far smaller")
+    starts = data.count(b"<") - data.count(b"</") - data.count(b"<!") - data.count(b"<?")  # ≥ its elements: C-fast
+    if starts > limits.URDF_ELEMENTS:
+        fail(None, None, f"more than {limits.URDF_ELEMENTS:,} XML elements ({starts:,} start tags)", "a robot description needs far fewer")
     builder = _Builder(fail)
     parser = DefusedExpatParser()  # entity declarations and external references are refused where they stand
     parser.setContentHandler(builder)
@@ -276,7 +279,7 @@ class _Robot:
         if self.notes:
             import warnings
             more = f"; and {len(self.notes) - 5} more" if len(self.notes) > 5 else ""
-            warnings.warn(f"{self.file}: " + f"; {self.file}:".join(self.notes[:5]) + more, stacklevel=4)
+            warnings.warn("; ".join(f"{self.file}:{n}" for n in self.notes[:5]) + more, stacklevel=4)
 
     def visuals(self, link):
         """The link's <visual> geometry as `shape:` entries (drawing only): boxes, cylinders (along z in both),
@@ -351,13 +354,11 @@ class _Robot:
         if i is not None:
             xx, xy, xz, yy, yz, zz = (self.numbers(i, k, 1, [0.0])[0] for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
             I = R @ np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]) @ R.T  # the inertial frame's tensor in the link frame
-        defect = domains.check(domains.INERTIA, I.ravel())
-        if defect:
-            physical = nearest_physical_inertia(I)
-            if np.abs(physical - I).max() <= ROUNDOFF * self.inertia_scale(link, m, com, I):
-                return m, com, physical, None  # the rounding of the file's digits, not an unphysical body
-            return m, com, I, ((i or e).line, defect)
-        return m, com, I, None
+        lam = np.linalg.eigvalsh(I)
+        if lam[0] >= 0 and lam[0] + lam[1] >= lam[2]:
+            return m, com, I, None  # physical (most links: no scale needed)
+        defect, I = unphysical(I, self.inertia_scale(link, m, com, I))
+        return m, com, I, ((i or e).line, defect) if defect else None
 
     def inertia_scale(self, link, m, com, I):
         """The size of inertia a link has: its largest moment, or m·ℓ² with ℓ its extent (centre of mass, the
@@ -379,7 +380,11 @@ class _Robot:
             line, defect = inertial[link][3]
             group = [n for n in self.order if top[n] == top[link]]
             total = self.composite(group, inertial) if len(group) > 1 else None
-            if total is not None and domains.check(domains.INERTIA, total[2].ravel()) is None:
+            if total is not None:
+                m, com, I, _ = total
+                problem, I = unphysical(I, max(self.inertia_scale(n, *inertial[n][:3]) for n in group))
+                total = None if problem else (m, com, I, None)
+            if total is not None:
                 for n in group:
                     inertial[n] = (0.0, [0.0] * 3, np.zeros((3, 3)), None)
                 inertial[group[0]] = total
@@ -540,6 +545,19 @@ def rpy_matrix(rpy):
     Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     return Rz @ Ry @ Rx
+
+
+def unphysical(I, scale):
+    """(None or what is wrong, I): an inertia within ROUNDOFF·scale of a physical one is taken as that one (its
+    file's digits rounded it: icub's point masses of moments -5.4e-20); farther, it is unphysical (not positive
+    semi-definite, or breaking I1 + I2 >= I3), whatever its own size (domains.check's floor is absolute)."""
+    lam = np.linalg.eigvalsh(I)
+    if max(-lam[0], lam[2] - lam[0] - lam[1]) <= ROUNDOFF * scale:
+        return None, I if domains.check(domains.INERTIA, I.ravel()) is None else nearest_physical_inertia(I)
+    moments = f"principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g}"
+    if lam[0] < -ROUNDOFF * scale:
+        return f"the inertia tensor is not positive semi-definite ({moments})", I
+    return f"{moments} break the triangle inequality (I1 + I2 >= I3)", I
 
 
 def nearest_physical_inertia(I):
