@@ -1,8 +1,11 @@
 """URDF import (issue 25): real robots against Pinocchio's model of the same file (an independent URDF parser
 and dynamics), the URDF conventions against closed forms, hostile and broken URDFs refused in one line."""
 
+import contextlib
+import re
 import sysconfig
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -741,7 +744,12 @@ def test_fmu_attributes_are_never_nan(tmp_path):
     from mbsfmu.fmu.variables import variables
     scene = mbsfmu.loads("mbsfmu: 1\nname: point\nbodies:\n  b: {parent: world, joint: {type: revolute, axis: [1, 0, 0]}, mass: 0.526,\n"
                          "      center_of_mass: [0, 0, 0.03], inertia: {xx: -5.42101e-20, yy: -5.42101e-20, zz: 0}}\n")
-    xml = model_description(scene.spec, "point", variables(scene.spec), "1")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the NaN came with a RuntimeWarning (invalid value in sqrt)
+        listed = variables(scene.spec)
+        xml = model_description(scene.spec, "point", listed, "1")
+    # ℓ = the centre of mass's 0.03 m (the point mass has no radius of gyration), T = √(ℓ/g), g the default 9.81
+    assert [v.nominal for v in listed if v.nominal] == pytest.approx([1.0, 1 / np.sqrt(0.03 / 9.81)], rel=1e-14)
     numbers = [v for e in ET.fromstring(xml).iter() for k, v in e.attrib.items()
                if e.tag == "DefaultExperiment" or e.tag == "Real" and k in ("start", "nominal", "min", "max")]
     assert any(e.get("nominal") for e in ET.fromstring(xml).iter("Real"))
@@ -776,3 +784,37 @@ def test_a_chain_of_the_documented_10000_links_loads_and_one_more_is_refused(tmp
     with pytest.raises(ModelError, match=r"more than 10,000 links"):
         mbsfmu.load(tmp_path / f"c{limits.ENTRIES + 1}.urdf")
     assert time.process_time() - t0 < 10
+
+
+# every URDF of example-robot-data: loads as it is, meshes drawn from its package folder, or one documented refusal
+REFUSED = {"alex_psyonic_hands": "mimics joint", "baxter": "mimics joint", "panda": "mimics joint", "panda_collision": "mimics joint",
+           "pr2": "mimics joint", "talos_full_v2": "mimics joint", "talos_full_v2_box": "mimics joint", "tiago_pro": "mimics joint",
+           "romeo": "no mass or inertia", "romeo_laas_small": "no mass or inertia",  # repair merges the fingers
+           "romeo_small": "triangle inequality",  # repair projects it
+           "ur3": r"no <link> in the robot"}  # ur3.urdf is an empty wrapper (ur3_robot.urdf is the robot)
+
+
+def test_every_example_robot_loads_with_its_meshes_or_is_refused_as_documented():
+    files = sorted(ROBOTS.rglob("*.urdf"))
+    assert len(files) >= 69
+    loaded = 0
+    for f in files:
+        with _notes() as notes:
+            try:
+                scene = mbsfmu.load(f, package_dirs=[ROBOTS.parent.parent])  # share/: package://example-robot-data/...
+            except ModelError as e:
+                assert f.stem in REFUSED and re.search(REFUSED[f.stem], str(e)) and str(e).startswith(f"{f}:"), str(e)
+                continue
+        assert f.stem not in REFUSED, f
+        assert not [n for n in notes if "not drawn" in str(n.message)], f  # every visual mesh found, in its package
+        assert scene.spec["bodies"] and not scene.repairs
+        loaded += 1
+    assert loaded == len(files) - len(REFUSED)
+
+
+@contextlib.contextmanager
+def _notes():
+    """The warnings given inside, every one (not once per place)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield caught
