@@ -818,3 +818,16 @@ def _notes():
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         yield caught
+
+
+def test_an_overlays_errors_in_the_urdf_name_the_urdf_and_its_line(tmp_path):
+    """A problem the scene's checker finds in what the URDF gave (a mass of 1e-200 kg) names the URDF's file and
+    the link's line, through an overlay too (it named the YAML's `urdf:` line); the overlay's own keys its own."""
+    _urdf(tmp_path, _link("base") + "\n" + _link("arm", m="1e-200") +
+          '<joint name="j" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/></joint>')
+    (tmp_path / "s.yaml").write_text("mbsfmu: 1\nurdf: {file: robot.urdf}\n")
+    with pytest.raises(ModelError, match=r"robot.urdf:4: bodies.arm.mass: 1e-200 is outside"):
+        mbsfmu.load(tmp_path / "s.yaml")
+    (tmp_path / "s.yaml").write_text("mbsfmu: 1\nurdf: {file: robot.urdf}\nbodies:\n  arm: {mass: -1}\n")
+    with pytest.raises(ModelError, match=r"s.yaml:4: bodies.arm.mass: must not be negative"):
+        mbsfmu.load(tmp_path / "s.yaml")

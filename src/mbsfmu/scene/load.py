@@ -183,11 +183,16 @@ class _Checker:
         line = None
         if isinstance(parent, (Map, Seq)):
             line = parent.lines.get(key, parent.line)
-        raise ModelError(message, file=self.file, line=line, key=path, hint=hint)
+        raise ModelError(message, file=self.file_of(line), line=line, key=path, hint=hint)
+
+    def file_of(self, line):
+        """The file a line is in: the scene's, or (urdf.FileLine) the URDF a YAML scene includes."""
+        return getattr(line, "file", self.file)
 
     def fail_at(self, path, message, hint=None):
         """Fail at the line of a key path such as `bodies.arm.elastic.nodal.stiffness` (the deepest key given)."""
-        raise ModelError(message, file=self.file, line=self.line_of(path), key=path, hint=hint)
+        line = self.line_of(path)
+        raise ModelError(message, file=self.file_of(line), line=line, key=path, hint=hint)
 
     def line_of(self, path):
         node, line = self.root, self.root.line

@@ -70,7 +70,7 @@ class _Builder(xml.sax.ContentHandler):
         self.stack.pop()
 
 
-def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None, scene_dir=None, packages_kept=True):
+def read(path, package_dirs=(), base="fixed", repair=False, included=False, scene_dir=None, packages_kept=True):
     """The URDF file `path` → (scene document of Map/Seq as a YAML scene gives it, [repair reports]).
 
     base: 'fixed' (the root link fixed to the world) or 'free' (a free joint, a floating base). repair: merge
@@ -78,7 +78,7 @@ def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None
     package_dirs: folders (resolved) that `package://NAME/...` mesh files are looked up in, each mesh confined
     to the folder it is found in. scene_dir: the folder mesh shapes are named relative to (default the URDF's);
     packages_kept: a package mesh outside it keeps its package:// name (else it is not drawn).
-    line_of_include: the line every node of the document reports (the YAML's `urdf:` line), else URDF lines."""
+    Every body and damper reports its URDF line; included (in a YAML scene): each line names the URDF too."""
     path = Path(path)
     fail = _failer(str(path))
     if path.suffix.lower() == ".xacro":
@@ -90,7 +90,7 @@ def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None
     robot.file = str(path)
     robot.meshes = _Meshes(path.parent, package_dirs, scene_dir or path.parent, fail, packages_kept)
     doc = robot.document(base)
-    tree = _tree(doc, line_of_include) if line_of_include is not None else _with_urdf_lines(doc, robot.lines, robot.damper_lines)
+    tree = _with_urdf_lines(doc, robot.lines, robot.damper_lines, str(path) if included else None)
     return tree, robot.repairs
 
 
@@ -596,15 +596,30 @@ def _tree(value, line):
     return out
 
 
-def _with_urdf_lines(doc, lines, damper_lines):
-    """The document with each body and joint damper reporting the line of its URDF element."""
-    tree = _tree(doc, 1)
+class FileLine(int):
+    """A line of another file than the scene's: the URDF a YAML scene includes (the checker names that file)."""
+
+
+def _line(n, file):
+    if file is None:
+        return n
+    out = FileLine(n)
+    out.file = file
+    return out
+
+
+def _with_urdf_lines(doc, lines, damper_lines, file=None):
+    """The document with each body and joint damper reporting the line of its URDF element (as a FileLine of
+    `file` if given: the URDF merged into a YAML scene)."""
+    tree = _tree(doc, _line(1, file))
     for name, body in doc["bodies"].items():
-        tree["bodies"][name] = _tree(body, lines[name])
-        tree["bodies"].lines[name] = lines[name]
+        line = _line(lines[name], file)
+        tree["bodies"][name] = _tree(body, line)
+        tree["bodies"].lines[name] = line
     for i, force in enumerate(doc.get("forces", ())):
-        tree["forces"][i] = _tree(force, damper_lines[i])
-        tree["forces"].lines[i] = damper_lines[i]
+        line = _line(damper_lines[i], file)
+        tree["forces"][i] = _tree(force, line)
+        tree["forces"].lines[i] = line
     return tree
 
 
@@ -637,7 +652,7 @@ def include(root, file, base, allow_outside=False, repair=False):
     if not isinstance(repair, bool):
         raise ModelError("expected true or false", file=file, line=spec.lines.get("repair", line), key="urdf.repair")
     package_dirs = package_folders(spec.get("package_dirs", []), base, file, spec.lines.get("package_dirs", line), "urdf.package_dirs")
-    doc, repairs = read(path, package_dirs, kind, repair, line, base)
+    doc, repairs = read(path, package_dirs, kind, repair, included=True, scene_dir=base)
     merged = _merge(doc, Map({k: v for k, v in root.items() if k != "urdf"}), ("forces", "outputs"))
     if isinstance(root.get("bodies"), Map) and isinstance(merged.get("bodies"), Map):
         _overlay_replaces(merged["bodies"], root["bodies"], doc["bodies"])
