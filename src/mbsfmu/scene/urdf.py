@@ -255,9 +255,7 @@ class _Robot:
             if link == self.root:
                 joint = {"type": base}
             else:
-                joint = self.joint(self.parent_joint[link], link in moving, forces)
-                if link in floating:
-                    joint["type"] = "free"
+                joint = self.joint(self.parent_joint[link], link in moving, forces)  # floating ones: free
             body = {"parent": "world" if link == self.root else self.body_of[self.parent_joint[link].find("parent").attrs["link"]],
                     "joint": joint}
             m, com, inertia, _ = inertial[link]
