@@ -1,8 +1,11 @@
 """URDF import (issue 25): real robots against Pinocchio's model of the same file (an independent URDF parser
 and dynamics), the URDF conventions against closed forms, hostile and broken URDFs refused in one line."""
 
+import contextlib
+import re
 import sysconfig
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -265,7 +268,7 @@ HOSTILE = {
     "links_collide": ('<robot name="r">\n' + _link("a") + '\n' + _link("b-1") + '\n' + _link("b_1") + '\n<joint name="j" type="fixed"><parent link="a"/>'
                       '<child link="b-1"/></joint><joint name="k" type="fixed"><parent link="a"/><child link="b_1"/></joint>\n</robot>',
                       r":4: <link>: link 'b_1' would be the scene body 'b_1', which another link"),
-    "many_elements": ('<robot name="r">' + "<a/>" * 100_001 + "</robot>", r":1: <a>: more than 100,000 XML elements"),
+    "many_elements": ('<robot name="r">' + "<a/>" * 320_001 + "</robot>", r": more than 320,000 XML elements \(320,002 start tags\)"),
     "deep": ('<robot name="r">' + "<a>" * 100 + "</a>" * 100 + "</robot>", r"nested deeper than 64"),
 }
 
@@ -401,18 +404,20 @@ def test_visuals_become_shapes_and_package_uris_stay_in_their_folder(tmp_path):
     assert cyl["type"] == "cylinder" and cyl["opacity"] == 0.5 and cyl["color"] == "#ff0000"
     page = mbsfmu.animate(scene, str(tmp_path / "anim.html"), stop=0.1)
     assert Path(page).stat().st_size > 0
-    # a package:// name that climbs out of its package folder is refused where it stands
-    (tmp_path / "robot/robot.urdf").write_text('<robot name="r">\n<link name="a"><visual><geometry>\n'
-                                               '<mesh filename="package://arm_description/../../../secret.stl"/></geometry></visual></link>\n</robot>')
+    # a package:// name that climbs out of its package folder is not followed: that visual is not drawn, named
+    # by its URDF line (a drawing never refuses the robot's dynamics)
+    (tmp_path / "robot/robot.urdf").write_text('<robot name="r">\n<link name="a">' + _BOX.format(c="0 0 0", rpy="0 0 0", m=1, ixx=0.1, iyy=0.1, izz=0.1) +
+                                               '<visual><geometry>\n<mesh filename="package://arm_description/../../../secret.stl"/>'
+                                               '</geometry></visual></link>\n</robot>')
     _stl(tmp_path / "secret.stl")
-    with pytest.raises(ModelError, match=r"robot.urdf:3: <mesh>: the mesh file 'package://arm_description/../../../secret.stl' leaves its folder"):
-        mbsfmu.load(tmp_path / "scene.yaml")
-    # a mesh of 1 GB (sparse) is refused by its size before a byte is read
+    with pytest.warns(UserWarning, match=r"robot.urdf:3: <mesh>: the mesh file 'package://arm_description/../../../secret.stl' leaves its folder"):
+        assert "shape" not in mbsfmu.load(tmp_path / "scene.yaml").spec["bodies"][0]
+    # a mesh of 1 GB (sparse) is left out by its size before a byte is read
     (tmp_path / "robot/robot.urdf").write_text(visual.join(['<robot name="r">\n', '\n</robot>']))
     with open(tmp_path / "pkgs/arm_description/meshes/link.stl", "wb") as f:
         f.truncate(2**30)
-    with pytest.raises(ModelError, match=r"bodies\.base\.shape\[1\]\.file: .*larger than 64 MB"):
-        mbsfmu.load(tmp_path / "scene.yaml")
+    with pytest.warns(UserWarning, match=r"visual meshes not drawn: .*1 larger than 64 MB"):
+        assert [s["type"] for s in mbsfmu.load(tmp_path / "scene.yaml").spec["bodies"][0]["shape"]] == ["box", "cylinder"]
 
 
 @pytest.mark.parametrize("file,base", REAL, ids=[Path(f).stem for f, _ in REAL])
@@ -570,3 +575,259 @@ def test_fixed_and_massless_links_match_pinocchio(tmp_path):
         ydd_p = pin.aba(pm, pd, q, v, np.zeros(pm.nv))[twin.P]
         np.testing.assert_allclose(sim.f(0.0, np.concatenate([y, yd]))[len(y):], ydd_p, rtol=0,
                                    atol=1e-12 * max(1.0, np.abs(ydd_p).max()))
+
+
+# ---- issue 34: whole robots load; drawing never refuses them; trusted package folders; base=; limits -----------
+TINY_BASES = [("anymal_b_simple_description/robots/anymal.urdf", "free"), ("b1_description/urdf/b1.urdf", "free"),
+              ("go1_description/urdf/go1.urdf", "free"), ("hyq_description/robots/hyq_no_sensors.urdf", "free"),
+              ("ur_description/urdf/ur5_robot.urdf", "free")]  # ur5: its root link is `world`, the free base its child
+
+
+@pytest.mark.parametrize("file,base", TINY_BASES, ids=[Path(f).stem for f, _ in TINY_BASES])
+def test_tiny_base_links_and_world_roots_float_as_pinocchio(file, base):
+    """anymal's, b1's, go1's and hyq's base link of 1e-6 kg has the tensor 1e-6·ones (moments −2e-22, 8.5e-23, 3e-6:
+    no rigid body's); welded to its trunk, the rigid group is physical: loaded without repair, and M, k, ÿ are
+    Pinocchio's (which merges the group itself). ur5 given base='free' directly: its `world` link stays the
+    world, base_link floats (Pinocchio: the free flyer on the root, world_joint welded)."""
+    with pytest.warns(UserWarning) as notes:
+        scene = mbsfmu.load(ROBOTS / file, base=base)
+    if "ur5" not in file:
+        assert any("-2.459e-22" in str(n.message) and "rigid group" in str(n.message) for n in notes)
+    assert not scene.repairs and scene.spec["bodies"][0]["joint"]["type"] == "free"
+    _matches_pinocchio(mbsfmu.compile(scene), file, base)
+
+
+def _matches_pinocchio(ev, file, base):
+    pm = _pinocchio(file, base)
+    pd, twin = pm.createData(), _Twin(ev, pm)
+    assert sorted(twin.P) == list(range(pm.nv))
+    rng = np.random.default_rng(7)
+    for _ in range(2):
+        y, yd, ydd = _random_state(ev, rng)
+        q, v, a, T = twin.state(y, yd, ydd)
+        damping = pm.damping * v
+        tau = T.T @ (pin.rnea(pm, pd, q, v, a) + damping)
+        M, k, qf = ev.equations(y, yd, 0.0)
+        np.testing.assert_allclose(M @ ydd + k - qf, tau, rtol=0, atol=1e-10 * max(1.0, np.abs(tau).max()))
+        Mp = pin.crba(pm, pd, q)
+        np.testing.assert_allclose(M, T.T @ (np.triu(Mp) + np.triu(Mp, 1).T) @ T, rtol=0, atol=1e-10 * max(1.0, np.abs(M).max()))
+
+
+def test_inertia_tolerance_is_relative_to_the_links_own_scale(tmp_path):
+    """A link's inertia is taken as physical within 1e-6 of its own scale (its largest moment, or m·ℓ²): icub's
+    point mass of moments −5.4e-20 (0.526 kg, 3 cm: scale 4.7e-4) is zero; a 1e-9 link breaking I1 + I2 >= I3 by
+    80 % is refused, however small (an absolute floor of 1e-9 let it pass); alone on its joint, the 1e-6·ones
+    tensor is refused too (no rigid group to carry it)."""
+    def load(ixx, iyy, izz, m=0.526, c="0 0 0.03045", ixy=0):
+        inertial = (f'<inertial><origin xyz="{c}"/><mass value="{m}"/><inertia ixx="{ixx}" iyy="{iyy}" izz="{izz}" '
+                    f'ixy="{ixy}" ixz="{ixy}" iyz="{ixy}"/></inertial>')
+        return mbsfmu.load(_urdf(tmp_path, _link("base") + f'<link name="arm">{inertial}</link>'
+                                 '<joint name="j" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/></joint>'))
+    arm = load(-5.42101e-20, -5.42101e-20, 0).spec["bodies"][1]
+    assert np.abs(np.array(arm["inertia"])).max() <= 1e-19
+    for args, what in (((1e-10, 1e-10, 1e-9), "triangle inequality"), ((1e-6, 1e-6, 1e-6, 1e-6, "0 0 0", 1e-6), "triangle inequality"),
+                       ((-1e-9, 1e-9, 1e-9, 1e-3, "0 0 0"), "not positive semi-definite")):
+        with pytest.raises(ModelError, match=r"robot.urdf:3: <inertia>: link 'arm': .*" + what):
+            load(*args)
+
+
+def test_rigid_group_carries_its_total_inertia_on_its_top_link(tmp_path):
+    """The anymal numbers by hand: a 1e-6 kg base of tensor 1e-6·ones welded 0.1 m above a 5 kg trunk of
+    diag(0.1, 0.2, 0.25): one body of 5.000001 kg at the mass-weighted centre, the tensor summed with the
+    parallel-axis shifts (Steiner); the base's own entry is left empty."""
+    base = ('<link name="base"><inertial><mass value="1e-6"/><inertia ixx="1e-6" ixy="1e-6" ixz="1e-6" iyy="1e-6" '
+            'iyz="1e-6" izz="1e-6"/></inertial></link>')
+    path = _urdf(tmp_path, base + _link("trunk", m=5) + '<joint name="w" type="fixed"><parent link="base"/><child link="trunk"/>'
+                 '<origin xyz="0 0 -0.1"/></joint>')
+    with pytest.warns(UserWarning, match=r"robot.urdf:3: link 'base': .*alone; the rigid group of 2 links"):
+        b = mbsfmu.load(path, base="free").spec["bodies"]
+    m1, m2, z2 = 1e-6, 5.0, -0.1
+    c = m2 * z2 / (m1 + m2)
+    I = 1e-6 * np.ones((3, 3)) + np.diag([0.1, 0.2, 0.25])
+    I += m1 * (c * c * np.eye(3) - np.outer([0, 0, c], [0, 0, c])) + m2 * ((z2 - c) ** 2 * np.eye(3) - np.outer([0, 0, z2 - c], [0, 0, z2 - c]))
+    assert b[0]["mass"] == pytest.approx(m1 + m2, rel=1e-15) and b[0]["center_of_mass"] == pytest.approx([0, 0, c], abs=1e-15)
+    np.testing.assert_allclose(b[0]["inertia"], I, rtol=1e-13, atol=1e-19)
+    assert b[1]["mass"] == 0 and not np.any(b[1]["inertia"])
+
+
+def _tetra_stl(path):
+    """A closed tetrahedron, faces wound outwards (signed volume +1/6)."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    faces = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("solid t\n" + "".join("facet normal 0 0 0\nouter loop\n" + "".join(f"vertex {x} {y} {z}\n" for x, y, z in V[list(f)])
+                                         + "endloop\nendfacet\n" for f in faces) + "endsolid t\n")
+
+
+def _ros_layout(tmp_path, scale="1 1 1", extra_visual=""):
+    """example-robot-data's layout: robots/arm_description/{urdf/arm.urdf, meshes/tetra.stl}, package:// names."""
+    pkg = tmp_path / "robots/arm_description"
+    _tetra_stl(pkg / "meshes/tetra.stl")
+    (pkg / "urdf").mkdir()
+    visual = f'<visual><geometry><mesh filename="package://arm_description/meshes/tetra.stl" scale="{scale}"/></geometry></visual>'
+    return _urdf(pkg / "urdf", f'<link name="base">{_BOX.format(c="0 0 0", rpy="0 0 0", m=1, ixx=0.1, iyy=0.1, izz=0.1)}'
+                 f'{visual}\n{extra_visual}</link>', name="arm.urdf")
+
+
+def _signed_volume(tris):
+    t = np.asarray(tris, float)
+    return np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6
+
+
+def test_mirrored_mesh_is_drawn_and_bad_visuals_never_refuse_the_robot(tmp_path):
+    """scale="0.001 -0.001 0.001" (centauro, talos_reduced, tiago_dual) mirrors the mesh: drawn with its corners'
+    order turned, so the closed surface still winds outwards (signed volume > 0, |det S| × 1/6). A zero scale or a
+    negative box leaves that visual out with a note at its URDF line, on a direct load and through an overlay."""
+    from mbsfmu.animation.drawing import shapes
+    from mbsfmu.equations.model import Model
+    bad = '<visual><geometry>\n<mesh filename="package://arm_description/meshes/tetra.stl" scale="0 1 1"/></geometry></visual>' \
+          '<visual><geometry><box size="1 -1 1"/></geometry></visual>'
+    path = _ros_layout(tmp_path, "0.001 -0.001 0.001", bad)
+    with pytest.warns(UserWarning, match=r"arm.urdf:5: <mesh>: scale=\"0 1 1\" has a zero factor.*arm.urdf:5: <box>: .*not positive"):
+        scene = mbsfmu.load(path, package_dirs=["../.."])
+    (mesh,) = scene.spec["bodies"][0]["shape"]
+    assert mesh["scale"] == [0.001, -0.001, 0.001]
+    tris = shapes(Model(scene.spec), 0, path.parent, scene.package_dirs)[0]["triangles"]
+    assert _signed_volume(tris) == pytest.approx(1e-9 / 6, rel=1e-6)
+    (path.parent / "over.yaml").write_text("mbsfmu: 1\nurdf: {file: arm.urdf, package_dirs: [../..]}\n")
+    with pytest.warns(UserWarning, match=r"arm.urdf:5: <mesh>: scale"):
+        assert mbsfmu.load(path.parent / "over.yaml").spec["bodies"][0]["shape"][0]["scale"] == [0.001, -0.001, 0.001]
+
+
+def test_package_folders_outside_the_scene_folder_are_trusted_and_still_confined(tmp_path, capsys):
+    """urdf/ beside meshes/: package_dirs the user names are trusted wherever they are, on a direct load and an
+    overlay; the mesh is drawn from there (no copy under the scene). A package:// name leaving its package is not
+    followed. An FMU's drawing names the package; `animate X.fmu` says how to give it (--scene --package-dir)."""
+    from mbsfmu.cli import main
+    path = _ros_layout(tmp_path)
+    scene = mbsfmu.load(path, package_dirs=["../.."], base="free")
+    assert scene.spec["bodies"][0]["shape"][0]["file"] == "package://arm_description/meshes/tetra.stl"
+    page = mbsfmu.animate(scene, str(tmp_path / "a.html"), stop=0.05)
+    assert "tetra.stl" in Path(page).read_text()
+    (path.parent / "over.yaml").write_text("mbsfmu: 1\nurdf: {file: arm.urdf, package_dirs: [../..], base: free}\n")
+    over = mbsfmu.load(path.parent / "over.yaml")
+    assert over.spec["bodies"][0]["shape"] == scene.spec["bodies"][0]["shape"] and over.package_dirs == [tmp_path / "robots"]
+    # the same name without its package folder: refused as a drawing, with the way to give it
+    with pytest.raises(ModelError, match=r"no package folder holds the mesh 'package://arm_description/meshes/tetra.stl'.*--package-dir"):
+        mbsfmu.loads("mbsfmu: 1\nname: m\nbodies: {b: {parent: world, joint: {type: fixed}, shape: {type: mesh, "
+                     "file: 'package://arm_description/meshes/tetra.stl'}}}\n", base=tmp_path)
+    with pytest.raises(ModelError, match=r"package folder 'nowhere' is not a folder"):
+        mbsfmu.load(path, package_dirs=["nowhere"])
+    fmu = mbsfmu.build_fmu(scene, tmp_path)
+    assert main(["animate", str(fmu), "-o", str(tmp_path / "b.html"), "--stop", "0.05"]) == 1
+    assert "--package-dir" in capsys.readouterr().err
+    assert main(["animate", str(fmu), "--scene", str(path), "--package-dir", "../..", "--base", "free", "-o", str(tmp_path / "b.html"), "--stop", "0.05"]) == 0
+
+
+def test_base_free_on_a_direct_load_and_the_command_line(tmp_path, capsys):
+    """load(urdf, base='free') is the overlay's base: free; `--base free` on check; a YAML scene given a base is
+    told where it goes; a world root holding a robot on a moving joint cannot float it."""
+    from mbsfmu.cli import main
+    path = _urdf(tmp_path, _link("base") + _link("arm") + '<joint name="j" type="revolute"><parent link="base"/><child link="arm"/>'
+                 '<axis xyz="0 0 1"/></joint>')
+    (tmp_path / "over.yaml").write_text("mbsfmu: 1\nurdf: {file: robot.urdf, base: free}\n")
+    assert mbsfmu.load(path, base="free").spec == mbsfmu.load(tmp_path / "over.yaml").spec
+    assert main(["check", "--base", "free", str(path)]) == 0 and "7 degrees of freedom" in capsys.readouterr().out
+    assert main(["check", "--base", "free", str(tmp_path / "over.yaml")]) == 1
+    assert "base is given for a URDF loaded directly" in capsys.readouterr().err
+    world = _urdf(tmp_path, '<link name="world"/>' + _link("arm") + '<joint name="j" type="revolute"><parent link="world"/>'
+                  '<child link="arm"/><axis xyz="0 0 1"/></joint>', name="w.urdf")
+    with pytest.raises(ModelError, match=r"w.urdf:3: <joint>: joint 'j' \(revolute\) holds link 'arm' on the URDF's world link"):
+        mbsfmu.load(world, base="free")
+
+
+def test_fmu_attributes_are_never_nan(tmp_path):
+    """A point mass whose tensor rounds to moments −5.4e-20 (icub's r_hip_2) gave the nominal √(tr I / 2m) = NaN;
+    every real attribute of its modelDescription parses now as a finite number, and the writer refuses NaN."""
+    import xml.etree.ElementTree as ET
+    from mbsfmu.fmu.common import _fmt, model_description
+    from mbsfmu.fmu.variables import variables
+    scene = mbsfmu.loads("mbsfmu: 1\nname: point\nbodies:\n  b: {parent: world, joint: {type: revolute, axis: [1, 0, 0]}, mass: 0.526,\n"
+                         "      center_of_mass: [0, 0, 0.03], inertia: {xx: -5.42101e-20, yy: -5.42101e-20, zz: 0}}\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the NaN came with a RuntimeWarning (invalid value in sqrt)
+        listed = variables(scene.spec)
+        xml = model_description(scene.spec, "point", listed, "1")
+    # ℓ = the centre of mass's 0.03 m (the point mass has no radius of gyration), T = √(ℓ/g), g the default 9.81
+    assert [v.nominal for v in listed if v.nominal] == pytest.approx([1.0, 1 / np.sqrt(0.03 / 9.81)], rel=1e-14)
+    numbers = [v for e in ET.fromstring(xml).iter() for k, v in e.attrib.items()
+               if e.tag == "DefaultExperiment" or e.tag == "Real" and k in ("start", "nominal", "min", "max")]
+    assert any(e.get("nominal") for e in ET.fromstring(xml).iter("Real"))
+    assert numbers and all(np.isfinite(float(v)) for v in numbers)
+    with pytest.raises(ValueError, match="non-finite"):
+        _fmt(float("nan"))
+
+
+@pytest.mark.slow
+def test_a_chain_of_the_documented_10000_links_loads_and_one_more_is_refused(tmp_path):
+    """docs: URDFs of up to 10,000 links. The element cap is derived from it (limits.URDF_ELEMENTS =
+    ENTRIES × URDF_ELEMENTS_PER_LINK): a plain chain (12 elements a link with its <limit>) of 10,000 loads, in a
+    child process whose CPU time and peak memory are bounded; 10,001 links are refused by their count."""
+    import subprocess
+    import sys
+    from mbsfmu.scene import limits
+    link = ('<link name="l{i}"><inertial><origin xyz="0 0 0.05"/><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.001" '
+            'ixy="0" ixz="0" iyz="0"/></inertial></link>')
+    joint = ('<joint name="j{i}" type="revolute"><origin xyz="0 0 0.1"/><parent link="l{p}"/><child link="l{i}"/>'
+             '<axis xyz="1 0 0"/><limit effort="1" velocity="1" lower="-1" upper="1"/></joint>')
+    for n in (limits.ENTRIES, limits.ENTRIES + 1):
+        (tmp_path / f"c{n}.urdf").write_text('<robot name="chain">' + "".join(link.format(i=i) + (joint.format(i=i, p=i - 1) if i else "")
+                                                                            for i in range(n)) + "</robot>")
+    assert 12 * limits.ENTRIES <= limits.URDF_ELEMENTS
+    code = ("import resource, sys, time, mbsfmu\nt = time.process_time()\ns = mbsfmu.load(sys.argv[1])\n"
+            "print(len(s.spec['bodies']), time.process_time() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / f"c{limits.ENTRIES}.urdf")], capture_output=True, text=True,
+                         env={**__import__("os").environ, "PYTHONPATH": str(Path(mbsfmu.__file__).parents[1])}, timeout=300)
+    n, cpu, rss_kb = out.stdout.split()
+    assert int(n) == limits.ENTRIES and float(cpu) < 60 and int(rss_kb) < 1_000_000, out.stdout
+    t0 = time.process_time()
+    with pytest.raises(ModelError, match=r"more than 10,000 links"):
+        mbsfmu.load(tmp_path / f"c{limits.ENTRIES + 1}.urdf")
+    assert time.process_time() - t0 < 10
+
+
+# every URDF of example-robot-data: loads as it is, meshes drawn from its package folder, or one documented refusal
+REFUSED = {"alex_psyonic_hands": "mimics joint", "baxter": "mimics joint", "panda": "mimics joint", "panda_collision": "mimics joint",
+           "pr2": "mimics joint", "talos_full_v2": "mimics joint", "talos_full_v2_box": "mimics joint", "tiago_pro": "mimics joint",
+           "romeo": "no mass or inertia", "romeo_laas_small": "no mass or inertia",  # repair merges the fingers
+           "romeo_small": "triangle inequality",  # repair projects it
+           "ur3": r"no <link> in the robot"}  # ur3.urdf is an empty wrapper (ur3_robot.urdf is the robot)
+
+
+def test_every_example_robot_loads_with_its_meshes_or_is_refused_as_documented():
+    files = sorted(ROBOTS.rglob("*.urdf"))
+    assert len(files) >= 69
+    loaded = 0
+    for f in files:
+        with _notes() as notes:
+            try:
+                scene = mbsfmu.load(f, package_dirs=[ROBOTS.parent.parent])  # share/: package://example-robot-data/...
+            except ModelError as e:
+                assert f.stem in REFUSED and re.search(REFUSED[f.stem], str(e)) and str(e).startswith(f"{f}:"), str(e)
+                continue
+        assert f.stem not in REFUSED, f
+        assert not [n for n in notes if "not drawn" in str(n.message)], f  # every visual mesh found, in its package
+        assert scene.spec["bodies"] and not scene.repairs
+        loaded += 1
+    assert loaded == len(files) - len(REFUSED)
+
+
+@contextlib.contextmanager
+def _notes():
+    """The warnings given inside, every one (not once per place)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield caught
+
+
+def test_an_overlays_errors_in_the_urdf_name_the_urdf_and_its_line(tmp_path):
+    """A problem the scene's checker finds in what the URDF gave (a mass of 1e-200 kg) names the URDF's file and
+    the link's line, through an overlay too (it named the YAML's `urdf:` line); the overlay's own keys its own."""
+    _urdf(tmp_path, _link("base") + "\n" + _link("arm", m="1e-200") +
+          '<joint name="j" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/></joint>')
+    (tmp_path / "s.yaml").write_text("mbsfmu: 1\nurdf: {file: robot.urdf}\n")
+    with pytest.raises(ModelError, match=r"robot.urdf:4: bodies.arm.mass: 1e-200 is outside"):
+        mbsfmu.load(tmp_path / "s.yaml")
+    (tmp_path / "s.yaml").write_text("mbsfmu: 1\nurdf: {file: robot.urdf}\nbodies:\n  arm: {mass: -1}\n")
+    with pytest.raises(ModelError, match=r"s.yaml:4: bodies.arm.mass: must not be negative"):
+        mbsfmu.load(tmp_path / "s.yaml")

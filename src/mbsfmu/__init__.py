@@ -10,13 +10,14 @@ __version__ = "0.1.0"
 __all__ = ["load", "loads", "compile", "simulate", "animate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
 
 
-def load(path, allow_outside=False, repair=False, package_dirs=()):
+def load(path, allow_outside=False, repair=False, package_dirs=(), base=None):
     """Read and validate a scene file or a URDF (`.urdf`); raises ModelError (only) with file:line, key and a
     hint. Data files must lie in the scene's folder unless allow_outside=True. repair=True fixes a URDF's
     massless moving links and unphysical inertias instead of refusing them (listed in `scene.repairs`).
-    package_dirs: for a URDF, the folders of its `package://NAME/...` meshes, relative to the URDF's folder."""
+    package_dirs: for a URDF, the folders of its `package://NAME/...` meshes, relative to the URDF's folder
+    (trusted wherever they are). base: for a URDF, 'fixed' (default) or 'free' (a floating base)."""
     from .scene import load as _load
-    return _load(path, allow_outside=allow_outside, repair=repair, package_dirs=package_dirs)
+    return _load(path, allow_outside=allow_outside, repair=repair, package_dirs=package_dirs, base=base)
 
 
 def loads(text, file="<string>", base=None, allow_outside=False, repair=False):

@@ -103,8 +103,9 @@ def _need_scene(path):
 def _animate(args):
     from .animation import animate
     model = args.model if _is_fmu(args.model) else _load(args.model, args)
+    scene = _load(args.scene, args) if args.scene and _is_fmu(args.model) else args.scene  # its meshes' package folders
     out = animate(model, args.output, stop=args.stop, input_csv=args.input, result_csv=args.result, fps=args.fps,
-                  scene=args.scene)
+                  scene=scene)
     print(f"wrote {out}")
 
 
@@ -117,7 +118,7 @@ def _need_fmu(path):
 def _load(path, args):
     """A scene file or URDF as the options of _allow_outside say (every command that loads one)."""
     from . import load
-    return load(path, allow_outside=args.allow_outside, repair=args.repair, package_dirs=args.package_dir)
+    return load(path, allow_outside=args.allow_outside, repair=args.repair, package_dirs=args.package_dir, base=args.base)
 
 
 def _build(args):
@@ -404,7 +405,10 @@ def _allow_outside(p):
                    help="read data files (nodal .npz) outside the scene's folder too (default: refused)")
     p.add_argument("--package-dir", action="append", default=[], metavar="DIR",
                    help="a URDF given directly: a folder its package://NAME/... meshes are looked up in, relative "
-                        "to the URDF's folder (repeatable; a YAML scene names them in urdf: package_dirs)")
+                        "to the URDF's folder, trusted wherever it is (repeatable; a YAML scene names them in urdf: package_dirs)")
+    p.add_argument("--base", choices=BASES, default=None,
+                   help="a URDF given directly: its root link fixed in the world (default) or on a free joint (a "
+                        "floating base; a root link named world stays the world and the links it holds float)")
 
 
 def parser():

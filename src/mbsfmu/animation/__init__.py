@@ -33,10 +33,12 @@ def animate(source, output="animation.html", stop=None, input_csv=None, result_c
     the scene, else next to the FMU)."""
     from .. import files
     from ..equations.model import Model
+    from ..scene.shapes import mesh_path
     from . import drawing, frames, page, trajectory
-    spec, base, fmu = trajectory.load_source(source, scene)
+    spec, base, fmu, package_dirs = trajectory.load_source(source, scene)
     inputs = {"the model": getattr(source, "path", source), "the input CSV": input_csv, "the result CSV": result_csv,
-              "the scene": scene, **{f"the mesh file {f}": base / f for f in drawing.mesh_files(spec)}}
+              "the scene": getattr(scene, "path", scene),
+              **{f"the mesh file {f}": mesh_path(base, f, package_dirs) for f in drawing.mesh_files(spec)}}
     files.check({"the page": output}, inputs)
     model = Model(spec)
     if result_csv:
@@ -51,6 +53,6 @@ def animate(source, output="animation.html", stop=None, input_csv=None, result_c
     layout, F = frames.frames(model, t, Y, YD)
     if not np.all(np.isfinite(F)):
         raise ValueError("the motion has non-finite positions (did the simulation fail?)")
-    scene_data = drawing.describe(model, layout, F, base)
+    scene_data = drawing.describe(model, layout, F, base, package_dirs)
     html = page.render(spec["name"], spec.get("description", ""), t, F, scene_data)
     return Path(files.write_text(output, html))

@@ -12,7 +12,7 @@ import numpy as np
 from ..expr import parse
 from ..equations.model import initial_rotation
 from ..kinematics.rotations import matrix_to_quat
-from ..scene.datafile import resolve
+from ..scene.shapes import mesh_path
 from .mesh import read_mesh
 
 PALETTE = ("#4878cf", "#d65f5f", "#6acc65", "#b47cc7", "#c4ad66", "#77bedb", "#e08a3c", "#8c8c8c")
@@ -47,8 +47,9 @@ def mesh_files(spec):
     return [s["file"] for b in spec["bodies"] for s in b.get("shape") or () if s.get("type") == "mesh"]
 
 
-def shapes(model, i, base):
-    """Body i's `shape:` entries with numbers evaluated, rotations as quaternions (x, y, z, w), meshes read."""
+def shapes(model, i, base, package_dirs=()):
+    """Body i's `shape:` entries with numbers evaluated, rotations as quaternions (x, y, z, w), meshes read
+    (relative to `base`, or package:// ones in package_dirs)."""
     env, out = model.env, []
     for s in model.bodies[i].spec.get("shape") or ():
         g = {"type": s["type"], "at": _vec(s["at"], env), "color": s["color"], "opacity": s["opacity"]}
@@ -58,8 +59,11 @@ def shapes(model, i, base):
             if k in s:
                 g[k] = _vec(s[k], env) if k == "size" else parse(s[k])(env)
         if s["type"] == "mesh":
-            f = resolve(base, s["file"])  # confined again: specs from FMUs are foreign data
-            g["triangles"] = read_mesh(f) * np.array(_vec(s["scale"], env), dtype=np.float32)
+            f = mesh_path(base, s["file"], package_dirs)  # confined again: specs from FMUs are foreign data
+            scale = np.array(_vec(s["scale"], env), dtype=np.float32)
+            g["triangles"] = read_mesh(f) * scale
+            if np.prod(np.sign(scale)) < 0:  # a mirror image: the corners' order turned, so faces still face out
+                g["triangles"] = g["triangles"][:, ::-1].copy()
             g["file"] = s["file"]
         out.append(g)
     return out
@@ -74,7 +78,7 @@ def _extent(g):
     return g["radius"] + 0.5 * g.get("length", 0.0)
 
 
-def describe(model, layout, F, base):
+def describe(model, layout, F, base, package_dirs=()):
     """Static description of the scene for the page (JSON-able apart from mesh arrays), with sizes
     from the bounding box of everything drawn over all frames."""
     nb = len(model.bodies)
@@ -82,7 +86,7 @@ def describe(model, layout, F, base):
     for i, b in enumerate(model.bodies):
         o, q = F[:, 7 * i:7 * i + 3], F[:, 7 * i + 3:7 * i + 7]
         links = [] if b.elastic else link_points(model, i)
-        sh = shapes(model, i, base)
+        sh = shapes(model, i, base, package_dirs)
         local = links + [np.asarray(g["at"]) for g in sh] + ([b.c] if b.c is not None else [])
         pts.append(o)
         for p in local:

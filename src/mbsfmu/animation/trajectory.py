@@ -93,7 +93,8 @@ def from_result(path, coordinates):
 
 
 def load_scene(scene):
-    """A scene file or loaded Scene → (Scene, base folder for shape files)."""
+    """A scene file or loaded Scene → (Scene, base folder for shape files); its package folders are
+    scene.package_dirs."""
     from ..scene import load
     if hasattr(scene, "spec"):
         return scene, Path(scene.path).parent if scene.path and Path(scene.path).is_file() else Path.cwd()
@@ -104,11 +105,11 @@ def load_scene(scene):
 
 def load_source(source, scene=None):
     """SCENE or FMU (with the scene it was built from, or the one it carries) → (spec, base folder for shape
-    files, FMU path or None)."""
+    files, FMU path or None, package folders of its package:// meshes: a loaded scene's, never an FMU's)."""
     if not hasattr(source, "spec") and Path(source).is_file() and zipfile.is_zipfile(source):
         if scene is not None:
             s, base = load_scene(scene)
-            return s.spec, base, Path(source)
-        return fmu_spec(source), Path(source).parent, Path(source)
+            return s.spec, base, Path(source), s.package_dirs
+        return fmu_spec(source), Path(source).parent, Path(source), ()
     s, base = load_scene(source)
-    return s.spec, base, None
+    return s.spec, base, None, s.package_dirs

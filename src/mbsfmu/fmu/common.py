@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import math
 import uuid
 import warnings
 import zipfile
@@ -79,7 +80,12 @@ def drawing_resource(spec: dict) -> dict[str, bytes]:
 
 
 def _fmt(x) -> str:
-    return repr(float(x))  # the shortest text that reads back to the same double (0.4, not 0.40000000000000002)
+    """Every real attribute of a modelDescription (start, nominal, experiment): the shortest text that reads back
+    to the same double (0.4, not 0.40000000000000002); NaN or inf is a bug upstream, never an FMU's attribute."""
+    x = float(x)
+    if not math.isfinite(x):
+        raise ValueError(f"a non-finite number ({x}) for a modelDescription attribute")
+    return repr(x)
 
 
 # <ModelExchange> of an FMU that offers it (native kind): the same capabilities as its co-simulation

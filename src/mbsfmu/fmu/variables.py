@@ -150,7 +150,7 @@ def characteristic_length(model):
     for b in model.bodies:
         lengths += [np.linalg.norm(b.at) if b.at is not None else 0.0, np.linalg.norm(b.c) if b.c is not None else 0.0]
         if b.m > 0:
-            lengths.append(np.sqrt(np.trace(b.I) / (2 * b.m)))
+            lengths.append(np.sqrt(max(np.trace(b.I), 0.0) / (2 * b.m)))  # a point mass's rotated zero: -1e-19
         if b.elastic:
             lengths.append(np.linalg.norm(b.nodal.R_RP, axis=1).max())
     ell = max(lengths)

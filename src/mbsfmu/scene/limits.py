@@ -13,7 +13,9 @@ ALIAS_NODES = 1_000_000         # nodes that aliases may add to the document onc
 SCALAR_CHARS = 65_536           # one string (a description, an expression)
 INT_CHARS = 100                 # one integer literal (digits, sign, base prefix)
 EXPRESSION_CHARS = 4096         # one numeric expression
-URDF_ELEMENTS = 100_000         # XML elements of a URDF (Talos, 1,939 with visuals, collisions and transmissions)
+URDF_ELEMENTS_PER_LINK = 32     # XML elements a URDF may spend per link it may have (ENTRIES): a plain chain
+                                # needs 11, Talos 20 (1,939 with visuals, collisions and transmissions)
+URDF_ELEMENTS = ENTRIES * URDF_ELEMENTS_PER_LINK  # so a URDF of ENTRIES links is never refused by its elements
 MESSAGE_CHARS = 400             # an error message (quoted input is shortened)
 
 NPZ_BYTES = 64 * 2**20          # an .npz file, and the arrays read from it (declared uncompressed sizes)

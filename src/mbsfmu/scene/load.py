@@ -33,30 +33,35 @@ _COORD = re.compile(r"[A-Za-z][A-Za-z0-9_.]*")
 class Scene:
     """A validated scene: `spec` (normalized, JSON-able), `name`, `path`."""
 
-    def __init__(self, spec, path=None, repairs=()):
+    def __init__(self, spec, path=None, repairs=(), package_dirs=()):
         self.spec, self.path, self.name = spec, path, spec["name"]
         self.repairs = list(repairs)  # what `repair` changed in an imported URDF, one line each
+        self.package_dirs = list(package_dirs)  # where its shapes' package://NAME/... meshes are (a URDF's, trusted)
 
     def __repr__(self):
         return f"<Scene {self.name} ({len(self.spec['bodies'])} bodies)>"
 
 
-def load(path, allow_outside=False, repair=False, package_dirs=()):
+def load(path, allow_outside=False, repair=False, package_dirs=(), base=None):
     """Read and validate a scene file or a URDF (format: docs/scene-format.md); raises ModelError and nothing else.
 
     Data files (`nodal: {file: ...}`, `urdf: {file: ...}`) must lie inside the scene's folder unless
     `allow_outside` is true. `repair`: fix a URDF's massless moving links and unphysical inertias (reported
     in `Scene.repairs`) instead of refusing them. `package_dirs`: for a URDF, the folders its `package://NAME/...`
-    meshes are looked up in, relative to the URDF's folder and inside it unless `allow_outside` (a YAML scene
-    names them in its `urdf:` entry).
+    meshes are looked up in, relative to the URDF's folder (trusted folders: they may lie anywhere; a YAML scene
+    names them in its `urdf:` entry). `base`: for a URDF, 'fixed' (default: the root link held in the world) or
+    'free' (a floating base), as the `urdf:` entry's `base` key.
     """
     path = Path(path)
     if path.suffix.lower() in (".urdf", ".xacro"):
-        return _checked(lambda: urdf.read(path, urdf.package_folders(package_dirs, path.parent, allow_outside, str(path)), repair=repair),
-                        str(path), path.parent, allow_outside)
-    if package_dirs:
-        raise ModelError("package folders are given for a URDF loaded directly", file=str(path), key="package_dirs",
-                         hint="a YAML scene names them in its urdf: entry (urdf: {file: robot.urdf, package_dirs: [...]})")
+        def document():
+            dirs = urdf.package_folders(package_dirs, path.parent, str(path))
+            return (*urdf.read(path, dirs, base=base or "fixed", repair=repair), dirs)
+        return _checked(document, str(path), path.parent, allow_outside)
+    for given, key in ((package_dirs, "package_dirs"), (base, "base")):
+        if given:
+            raise ModelError(f"{key} is given for a URDF loaded directly, and this is a YAML scene", file=str(path), key=key,
+                             hint=f"a YAML scene names it in its urdf: entry (urdf: {{file: robot.urdf, {key}: ...}})")
     try:
         with limits.open_regular(path) as f:
             raw = f.read(limits.DOCUMENT_BYTES + 1)  # bounded
@@ -79,16 +84,17 @@ def loads(text, file="<string>", base=None, allow_outside=False, repair=False):
         root = read_yaml(text, file)
         if isinstance(root, Map) and "urdf" in root:  # a URDF with this YAML over it (scene/urdf.py)
             return urdf.include(root, file, base, allow_outside, repair)
-        return root, ()
+        return root, (), ()
     return _checked(document, file, base, allow_outside)
 
 
 def _checked(document, file, base, allow_outside):
-    """Scene of the document that `document()` gives (a Map/Seq tree and the repairs made while reading it)."""
+    """Scene of the document that `document()` gives (a Map/Seq tree, the repairs made while reading it and the
+    package folders its meshes may be in)."""
     try:
         with _collector_paused():
-            root, repairs = document()
-            spec = _Checker(file, base, allow_outside).scene(root)
+            root, repairs, package_dirs = document()
+            spec = _Checker(file, base, allow_outside, package_dirs).scene(root)
             json.dumps(spec)  # the run time gets the spec as JSON: it must stay plain data
     except ModelError as e:
         raise _short(e) from None
@@ -97,7 +103,7 @@ def _checked(document, file, base, allow_outside):
         raise _short(ModelError(f"cannot read this scene ({type(e).__name__}: {e})", file=file)) from None
     for r in repairs:  # the CLI shows each as a note
         warnings.warn(f"{file}: repaired {r}", stacklevel=3)
-    return Scene(spec, file, repairs)
+    return Scene(spec, file, repairs, package_dirs)
 
 
 @contextmanager
@@ -173,8 +179,8 @@ def _suggest(word, valid):
 class _Checker:
     """Walks the YAML tree; `self.fail(node, key, ...)` reports the key's own line."""
 
-    def __init__(self, file, base, allow_outside=False):
-        self.file, self.base, self.allow_outside = file, base, allow_outside
+    def __init__(self, file, base, allow_outside=False, package_dirs=()):
+        self.file, self.base, self.allow_outside, self.package_dirs = file, base, allow_outside, package_dirs
         self.params = {}
         self.root = None
         self.node_count = {}  # elastic body → number of nodes
@@ -185,11 +191,16 @@ class _Checker:
         line = None
         if isinstance(parent, (Map, Seq)):
             line = parent.lines.get(key, parent.line)
-        raise ModelError(message, file=self.file, line=line, key=path, hint=hint)
+        raise ModelError(message, file=self.file_of(line), line=line, key=path, hint=hint)
+
+    def file_of(self, line):
+        """The file a line is in: the scene's, or (urdf.FileLine) the URDF a YAML scene includes."""
+        return getattr(line, "file", self.file)
 
     def fail_at(self, path, message, hint=None):
         """Fail at the line of a key path such as `bodies.arm.elastic.nodal.stiffness` (the deepest key given)."""
-        raise ModelError(message, file=self.file, line=self.line_of(path), key=path, hint=hint)
+        line = self.line_of(path)
+        raise ModelError(message, file=self.file_of(line), line=line, key=path, hint=hint)
 
     def line_of(self, path):
         node, line = self.root, self.root.line

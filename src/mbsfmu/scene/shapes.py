@@ -3,7 +3,8 @@
     shape: {type: box, size: [a, b, c], at: [x, y, z], rotation: {axis: [..], angle: ..}, color: "#c03030"}
     shape: [{type: cylinder, radius: r, length: L, at: [0, 0, -L/2]}, {type: sphere, radius: r_bob, at: [0, 0, -L]}]
 
-Cylinders and capsules lie along the body z axis; a mesh file (STL, OBJ or COLLADA .dae) must sit in the scene's folder.
+Cylinders and capsules lie along the body z axis; a mesh file (STL, OBJ or COLLADA .dae) must sit in the scene's folder,
+or (`package://NAME/...`, from a URDF) in a package folder the user named.
 Numbers may be expressions over parameters. Nothing here is used by the equations of motion.
 """
 
@@ -79,18 +80,53 @@ def _scale(ck, s, path):
         v = ck.vector(s, "scale", path + ".scale")
     else:
         v = [ck.number(s, "scale", path + ".scale")] * 3
-    if not all(ck.value(x) > 0 for x in v):
-        ck.fail(s, "scale", path + ".scale", "scale factors must be positive", "e.g. scale: 0.001 for a mesh drawn in mm")
+    if not all(ck.value(x) != 0 for x in v):  # a negative factor mirrors the mesh (drawing.py turns its triangles)
+        ck.fail(s, "scale", path + ".scale", "scale factors must not be zero",
+                "e.g. scale: 0.001 for a mesh drawn in mm, [0.001, -0.001, 0.001] for its mirror image")
     return v
 
 
+PACKAGE = "package://"
+_PACKAGE_NAME = re.compile(r"[^/\\]+")
+
+
+def package_path(package_dirs, uri):
+    """`package://NAME/rest` → (the folder NAME in the first of `package_dirs` that has one, the file in it), or
+    None if none has; the file may still lie outside the folder (a '..' in rest): the caller refuses that."""
+    package, _, rest = uri[len(PACKAGE):].partition("/")
+    if not _PACKAGE_NAME.fullmatch(package) or package in (".", ".."):
+        return None
+    folder = next(((Path(d) / package).resolve() for d in package_dirs if (Path(d) / package).is_dir()), None)
+    return None if folder is None else (folder, (folder / rest).resolve())
+
+
+def mesh_path(base, name, package_dirs=()):
+    """The mesh file a shape names: relative to the scene's folder `base` and inside it, or `package://NAME/...`
+    inside a package folder the user named (package_dirs: trusted, wherever they are). Raises ModelError."""
+    if not (isinstance(name, str) and name.startswith(PACKAGE)):
+        try:  # always confined, even when nodal data may come from elsewhere: the drawing never needs more
+            return datafile.resolve(base, name)
+        except ModelError as e:
+            raise ModelError(e.message.replace("data file", "mesh file"), hint="mesh files must sit in the scene's folder or below it") from None
+    found = package_path(package_dirs, name)
+    if found is None:
+        raise ModelError(f"no package folder holds the mesh '{name}'" + ("" if package_dirs else " (none was named)"),
+                         hint="name the folder that holds the package: package_dirs (urdf: package_dirs, load(..., package_dirs=...), "
+                              "--package-dir DIR; for an FMU's drawing: --scene ROBOT.urdf --package-dir DIR)")
+    folder, f = found
+    if not f.is_relative_to(folder):
+        raise ModelError(f"the mesh file '{name}' leaves its package folder {folder}", hint="mesh files must lie inside their package folder")
+    return f
+
+
 def _mesh_file(ck, s, path):
-    """A mesh file inside the scene's folder (no absolute paths, no '..' out of it), STL, OBJ or DAE, bounded size."""
+    """A mesh file inside the scene's folder (no absolute paths, no '..' out of it) or a named package folder,
+    STL, OBJ or DAE, bounded size."""
     name = s["file"]
-    try:  # always confined, even when nodal data may come from elsewhere: the drawing never needs more
-        f = datafile.resolve(ck.base, name)
+    try:
+        f = mesh_path(ck.base, name, ck.package_dirs)
     except ModelError as e:
-        ck.fail(s, "file", path + ".file", e.message.replace("data file", "mesh file"), "mesh files must sit in the scene's folder or below it")
+        ck.fail(s, "file", path + ".file", e.message, e.hint)
     base = ck.base.resolve()
     if f.suffix.lower() not in MESH_SUFFIXES:
         ck.fail(s, "file", path + ".file", f"'{name}' is not a supported mesh file", "formats: STL (binary or ASCII), OBJ, COLLADA (.dae)")
@@ -98,7 +134,7 @@ def _mesh_file(ck, s, path):
         ck.fail(s, "file", path + ".file", f"no such mesh file '{name}' (looked in {base})")
     if f.stat().st_size > limits.MESH_BYTES:
         ck.fail(s, "file", path + ".file", f"'{name}' is larger than {limits.MESH_BYTES // 2**20} MB", "simplify the mesh for drawing")
-    return Path(name).as_posix()
+    return name if name.startswith(PACKAGE) else Path(name).as_posix()
 
 
 def _color(ck, s, path):

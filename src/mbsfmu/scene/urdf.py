@@ -21,12 +21,13 @@ from defusedxml.expatreader import DefusedExpatParser
 
 from ..errors import ModelError
 from . import datafile, domains, limits
-from .shapes import MESH_SUFFIXES
+from .shapes import MESH_SUFFIXES, PACKAGE, package_path
 from .yaml_lines import Map, Seq
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
 BASES = ("fixed", "free")
 INCLUDE_KEYS = ("file", "package_dirs", "base", "repair")
+ROUNDOFF = 1e-6  # an inertia this close (relative to its link's scale) to a physical one is that one: the file's rounding
 _XACRO_HINT = "run xacro first (xacro robot.urdf.xacro > robot.urdf) and load the URDF it writes"
 
 
@@ -69,14 +70,15 @@ class _Builder(xml.sax.ContentHandler):
         self.stack.pop()
 
 
-def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None, scene_dir=None):
+def read(path, package_dirs=(), base="fixed", repair=False, included=False, scene_dir=None, packages_kept=True):
     """The URDF file `path` → (scene document of Map/Seq as a YAML scene gives it, [repair reports]).
 
     base: 'fixed' (the root link fixed to the world) or 'free' (a free joint, a floating base). repair: merge
     massless moving subtrees into their parents and project unphysical inertias instead of refusing them.
     package_dirs: folders (resolved) that `package://NAME/...` mesh files are looked up in, each mesh confined
-    to the folder it is found in. scene_dir: the folder mesh shapes are named relative to (default the URDF's).
-    line_of_include: the line every node of the document reports (the YAML's `urdf:` line), else URDF lines."""
+    to the folder it is found in. scene_dir: the folder mesh shapes are named relative to (default the URDF's);
+    packages_kept: a package mesh outside it keeps its package:// name (else it is not drawn).
+    Every body and damper reports its URDF line; included (in a YAML scene): each line names the URDF too."""
     path = Path(path)
     fail = _failer(str(path))
     if path.suffix.lower() == ".xacro":
@@ -85,9 +87,10 @@ def read(path, package_dirs=(), base="fixed", repair=False, line_of_include=None
     if root.tag != "robot":
         fail(root.line, root.tag, f"the document's element is <{root.tag}>, a URDF's is <robot>", "give a URDF file")
     robot = _Robot(root, fail, repair)
-    robot.meshes = _Meshes(path.parent, package_dirs, scene_dir or path.parent, fail)
+    robot.file = str(path)
+    robot.meshes = _Meshes(path.parent, package_dirs, scene_dir or path.parent, fail, packages_kept)
     doc = robot.document(base)
-    tree = _tree(doc, line_of_include) if line_of_include is not None else _with_urdf_lines(doc, robot.lines, robot.damper_lines)
+    tree = _with_urdf_lines(doc, robot.lines, robot.damper_lines, str(path) if included else None)
     return tree, robot.repairs
 
 
@@ -105,6 +108,9 @@ def _parse(path, fail):
         fail(None, None, f"cannot read the URDF file: {e.strerror or e}", "give the path of a regular URDF file")
     if len(data) > limits.DOCUMENT_BYTES:
         fail(None, None, f"the file is larger than {limits.DOCUMENT_BYTES // 2**20} MiB", "a robot description is far smaller")
+    starts = data.count(b"<") - data.count(b"</") - data.count(b"<!") - data.count(b"<?")  # ≥ its elements: C-fast
+    if starts > limits.URDF_ELEMENTS:
+        fail(None, None, f"more than {limits.URDF_ELEMENTS:,} XML elements ({starts:,} start tags)", "a robot description needs far fewer")
     builder = _Builder(fail)
     parser = DefusedExpatParser()  # entity declarations and external references are refused where they stand
     parser.setContentHandler(builder)
@@ -126,7 +132,7 @@ class _Robot:
     """Links and joints of one URDF, checked; `document` writes the scene."""
 
     def __init__(self, root, fail, repair):
-        self.fail, self.repair, self.repairs = fail, repair, []
+        self.fail, self.repair, self.repairs, self.notes = fail, repair, [], []  # notes: "line: what", warned once
         self.coordinates = {}  # coordinate name → the URDF joint that gives it
         self.lines, self.damper_lines = {}, []  # URDF lines of the bodies (by name) and of the joint dampers
         self.name = _identifier(root.attrs.get("name") or "robot", "model")
@@ -194,7 +200,7 @@ class _Robot:
         return v
 
     def _depth_first(self):
-        children = {}
+        self.child_joints = children = {}
         for j in self.joints.values():
             children.setdefault(j.find("parent").attrs["link"], []).append(j)
         order, stack = [], [self.root]
@@ -204,20 +210,44 @@ class _Robot:
             stack.extend(j.find("child").attrs["link"] for j in reversed(children.get(link, [])))
         return order
 
+    def origin(self, j):
+        """A joint's <origin> → (R, p): the child link's frame in the parent link's."""
+        o = j.find("origin")
+        return rpy_matrix(self.numbers(o, "rpy", 3, [0.0] * 3)), np.array(self.numbers(o, "xyz", 3, [0.0] * 3))
+
+    def floating_links(self, base):
+        """The links on a free joint that `base` adds: the root, or with the URDF's own `world` link as root (the
+        fixed frame, as in ur*, xarm7, z1) its children on fixed joints: the robot it holds floats instead."""
+        if base != "free":
+            return set()
+        if self.root != "world":
+            return {self.root}
+        out = set()
+        for j in self.child_joints.get("world", []):
+            if self.attr(j, "type") == "fixed":
+                out.add(j.find("child").attrs["link"])
+            elif j.attrs["type"] != "floating":
+                self.fail(j.line, "joint", f"joint '{j.attrs['name']}' ({j.attrs['type']}) holds link '{j.find('child').attrs['link']}' "
+                          "on the URDF's world link: a free base cannot float a robot that moves on the world's joint",
+                          "load with base fixed, or make the URDF's root the robot's base link")
+        return out
+
     # -- the scene document -----------------------------------------------------------------------
     def document(self, base):
         if base not in BASES:
             self.fail(None, None, f"unknown base '{base}'", "base: fixed (the root link held in the world) or free (a floating base)")
+        floating = self.floating_links(base)
         inertial = {n: self.inertial(n) for n in self.order}
-        moving = self.moving_links(inertial)
+        moving = self.moving_links(inertial, floating)
+        self.rigid_groups(inertial, moving | floating)
         bodies, forces, self.body_of = {}, [], {}
         for link in self.order:
             self.body_of[link] = _identifier(link, "body")
         for link in self.order:
             e = self.links[link]
             name = self.body_of[link]
-            if link == self.root and link == "world" and base == "fixed":
-                self.body_of[link] = "world"  # the URDF's own world link: the scene's world
+            if link == self.root and link == "world":
+                self.body_of[link] = "world"  # the URDF's own world link: the scene's world (with a free base too)
                 continue
             if name in bodies or name == "world":
                 self.fail(e.line, "link", f"link '{link}' would be the scene body '{name}', which another link or the world already is",
@@ -225,10 +255,10 @@ class _Robot:
             if link == self.root:
                 joint = {"type": base}
             else:
-                joint = self.joint(self.parent_joint[link], link in moving, forces)
+                joint = self.joint(self.parent_joint[link], link in moving, forces)  # floating ones: free
             body = {"parent": "world" if link == self.root else self.body_of[self.parent_joint[link].find("parent").attrs["link"]],
                     "joint": joint}
-            m, com, inertia = inertial[link]
+            m, com, inertia, _ = inertial[link]
             if m > 0 or np.any(inertia):
                 body.update(mass=m, center_of_mass=com, inertia=_entries(inertia))
             shapes = self.visuals(e)
@@ -237,43 +267,66 @@ class _Robot:
             bodies[name] = body
             self.lines[name] = e.line
         self.meshes.report()
+        self.report()
         doc = {"mbsfmu": 1, "name": self.name, "bodies": bodies}
         if forces:
             doc["forces"] = forces
         return doc
 
+    def report(self):
+        if self.notes:
+            import warnings
+            more = f"; and {len(self.notes) - 5} more" if len(self.notes) > 5 else ""
+            warnings.warn("; ".join(f"{self.file}:{n}" for n in self.notes[:5]) + more, stacklevel=4)
+
     def visuals(self, link):
         """The link's <visual> geometry as `shape:` entries (drawing only): boxes, cylinders (along z in both),
-        spheres, STL/OBJ meshes; the colour of an inline or named material."""
+        spheres, STL/OBJ/DAE meshes; the colour of an inline or named material. A visual the drawing cannot
+        show (a zero size or scale, unreadable numbers) is left out with a note: drawing never refuses a robot."""
         out = []
         for v in link.children:
             g = v.find("geometry") if v.tag == "visual" else None
             if g is None or not g.children:
                 continue
-            geom = g.children[0]
-            if geom.tag == "box":
-                shape = {"type": "box", "size": self.numbers(geom, "size", 3, [0.0] * 3)}
-            elif geom.tag == "cylinder":
-                shape = {"type": "cylinder", "radius": self.numbers(geom, "radius", 1, [0.0])[0], "length": self.numbers(geom, "length", 1, [0.0])[0]}
-            elif geom.tag == "sphere":
-                shape = {"type": "sphere", "radius": self.numbers(geom, "radius", 1, [0.0])[0]}
-            elif geom.tag == "mesh":
-                name = self.meshes.find(geom, self.attr(geom, "filename"))
-                if name is None:
-                    continue
-                shape = {"type": "mesh", "file": name, "scale": self.numbers(geom, "scale", 3, [1.0] * 3)}
-            else:
+            try:
+                shape = self.visual(v, g.children[0])
+            except ModelError as e:
+                self.notes.append(f"{e.line}: {e.key or '<visual>'}: {e.message} (not drawn)")
                 continue
-            origin = v.find("origin")
-            shape["at"] = self.numbers(origin, "xyz", 3, [0.0] * 3)
-            rpy = self.numbers(origin, "rpy", 3, [0.0] * 3)
-            if any(rpy):
-                shape["rotation"] = {"matrix": rpy_matrix(rpy).tolist()}
-            rgba = self.color(v.find("material"))
-            if rgba:
-                shape["color"], shape["opacity"] = [min(max(c, 0.0), 1.0) for c in rgba[:3]], min(max(rgba[3], 1e-3), 1.0)
-            out.append(shape)
+            if shape is not None:
+                out.append(shape)
         return out
+
+    def visual(self, v, geom):
+        """One <visual> as a `shape:` entry, None if it is not drawn (a mesh not found); ModelError if unreadable."""
+        if geom.tag == "box":
+            shape = {"type": "box", "size": self.numbers(geom, "size", 3, [0.0] * 3)}
+        elif geom.tag == "cylinder":
+            shape = {"type": "cylinder", "radius": self.numbers(geom, "radius", 1, [0.0])[0], "length": self.numbers(geom, "length", 1, [0.0])[0]}
+        elif geom.tag == "sphere":
+            shape = {"type": "sphere", "radius": self.numbers(geom, "radius", 1, [0.0])[0]}
+        elif geom.tag == "mesh":
+            scale = self.numbers(geom, "scale", 3, [1.0] * 3)
+            if not all(scale):  # a negative factor mirrors the mesh (drawn so); a zero one flattens it away
+                self.fail(geom.line, "mesh", f"scale=\"{geom.attrs['scale']}\" has a zero factor")
+            name = self.meshes.find(geom, self.attr(geom, "filename"))
+            if name is None:
+                return None
+            shape = {"type": "mesh", "file": name, "scale": scale}
+        else:
+            return None
+        sizes = [shape[k] for k in ("radius", "length") if k in shape] + shape.get("size", [])
+        if not all(x > 0 for x in sizes):
+            self.fail(geom.line, geom.tag, f"<{geom.tag}> has a size that is not positive ({', '.join(f'{x:g}' for x in sizes)})")
+        origin = v.find("origin")
+        shape["at"] = self.numbers(origin, "xyz", 3, [0.0] * 3)
+        rpy = self.numbers(origin, "rpy", 3, [0.0] * 3)
+        if any(rpy):
+            shape["rotation"] = {"matrix": rpy_matrix(rpy).tolist()}
+        rgba = self.color(v.find("material"))
+        if rgba:
+            shape["color"], shape["opacity"] = [min(max(c, 0.0), 1.0) for c in rgba[:3]], min(max(rgba[3], 1e-3), 1.0)
+        return shape
 
     def color(self, material):
         if material is None:
@@ -284,10 +337,10 @@ class _Robot:
         return self.numbers(c, "rgba", 4, [0.5, 0.5, 0.5, 1.0]) if c is not None else None
 
     def inertial(self, link):
-        """(mass, centre of mass, inertia about it in the link frame), refused or repaired when unphysical."""
+        """(mass, centre of mass, inertia about it in the link frame, None or (line, what is unphysical about it))."""
         e = self.links[link].find("inertial")
         if e is None:
-            return 0.0, [0.0] * 3, np.zeros((3, 3))
+            return 0.0, [0.0] * 3, np.zeros((3, 3)), None
         origin = e.find("origin")
         com = self.numbers(origin, "xyz", 3, [0.0] * 3)
         R = rpy_matrix(self.numbers(origin, "rpy", 3, [0.0] * 3))
@@ -299,17 +352,71 @@ class _Robot:
         if i is not None:
             xx, xy, xz, yy, yz, zz = (self.numbers(i, k, 1, [0.0])[0] for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
             I = R @ np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]) @ R.T  # the inertial frame's tensor in the link frame
-        defect = domains.check(domains.INERTIA, I.ravel())
-        if defect:
-            if not self.repair:
-                self.fail((i or e).line, "inertia", f"link '{link}': {defect}", "no rigid body has such an inertia; load with repair "
-                          "(repair: true, --repair) to project it onto the nearest physical inertia")
-            I, before = nearest_physical_inertia(I), np.linalg.eigvalsh(I)
-            self.repairs.append(f"link '{link}': principal moments {_moments(before)} projected onto the nearest "
-                                f"physical ones {_moments(np.linalg.eigvalsh(I))}")
-        return m, com, I
+        lam = np.linalg.eigvalsh(I)
+        if lam[0] >= 0 and lam[0] + lam[1] >= lam[2]:
+            return m, com, I, None  # physical (most links: no scale needed)
+        defect, I = unphysical(I, self.inertia_scale(link, m, com, I))
+        return m, com, I, ((i or e).line, defect) if defect else None
 
-    def moving_links(self, inertial):
+    def inertia_scale(self, link, m, com, I):
+        """The size of inertia a link has: its largest moment, or m·ℓ² with ℓ its extent (centre of mass, the
+        origins of its child joints), whichever is larger."""
+        ell = max([np.linalg.norm(com)] + [np.linalg.norm(self.origin(j)[1]) for j in self.child_joints.get(link, [])])
+        return max(float(np.abs(np.linalg.eigvalsh(I)).max()), m * ell * ell)
+
+    def rigid_groups(self, inertial, moving):
+        """Links with an inertia that no rigid body has. A link on fixed joints is one rigid body with the links
+        fixed to it (Pinocchio merges them): if that group's total inertia is physical (anymal's, b1's, go1's, hyq's
+        1e-6 base on its trunk), the total goes on the group's top link and the others carry none (the same
+        dynamics exactly); else refused, or (repair) projected onto the nearest physical inertia."""
+        top = {}
+        for link in self.order:
+            top[link] = link if link == self.root or link in moving else top[self.parent_joint[link].find("parent").attrs["link"]]
+        for link in self.order:
+            if inertial[link][3] is None:
+                continue
+            line, defect = inertial[link][3]
+            group = [n for n in self.order if top[n] == top[link]]
+            total = self.composite(group, inertial) if len(group) > 1 else None
+            if total is not None:
+                m, com, I, _ = total
+                problem, I = unphysical(I, max(self.inertia_scale(n, *inertial[n][:3]) for n in group))
+                total = None if problem else (m, com, I, None)
+            if total is not None:
+                for n in group:
+                    inertial[n] = (0.0, [0.0] * 3, np.zeros((3, 3)), None)
+                inertial[group[0]] = total
+                self.notes.append(f"{line}: link '{link}': {defect} alone; the rigid group of {len(group)} links on "
+                                  f"fixed joints is physical and goes on '{group[0]}' as one body")
+                continue
+            if not self.repair:
+                self.fail(line, "inertia", f"link '{link}': {defect}", "no rigid body has such an inertia; load with repair "
+                          "(repair: true, --repair) to project it onto the nearest physical inertia")
+            m, com, I, _ = inertial[link]
+            inertial[link] = (m, com, nearest_physical_inertia(I), None)
+            self.repairs.append(f"link '{link}': principal moments {_moments(np.linalg.eigvalsh(I))} projected onto the nearest "
+                                f"physical ones {_moments(np.linalg.eigvalsh(inertial[link][2]))}")
+
+    def composite(self, group, inertial):
+        """(mass, centre of mass, inertia about it) of the links `group` (the first is the top, the others fixed
+        below it, in tree order) in the top link's frame."""
+        frame = {group[0]: (np.eye(3), np.zeros(3))}
+        parts = []
+        for n in group:
+            if n != group[0]:
+                j = self.parent_joint[n]
+                Rp, pp = frame[j.find("parent").attrs["link"]]
+                R, p = self.origin(j)
+                frame[n] = (Rp @ R, pp + Rp @ p)
+            R, p = frame[n]
+            m, com, I, _ = inertial[n]
+            parts.append((m, p + R @ np.asarray(com, dtype=float), R @ I @ R.T))
+        M = sum(m for m, _, _ in parts)
+        c = sum(m * x for m, x, _ in parts) / M if M > 0 else np.zeros(3)
+        I = sum(J + m * ((x - c) @ (x - c) * np.eye(3) - np.outer(x - c, x - c)) for m, x, J in parts)
+        return M, c.tolist(), I, None
+
+    def moving_links(self, inertial, floating):
         """Links on non-fixed joints. A moving subtree without mass or inertia makes M singular: refused, or
         (repair) its joint is fixed, merging the massless links into their parent."""
         loaded = {n: inertial[n][0] > 0 or bool(np.trace(inertial[n][2]) > 0) for n in self.order}
@@ -320,7 +427,7 @@ class _Robot:
         moving = set()
         for link in self.order:
             j = self.parent_joint.get(link)
-            if j is None or self.attr(j, "type") == "fixed":
+            if j is None or (self.attr(j, "type") == "fixed" and link not in floating):
                 continue
             if loaded[link]:
                 moving.add(link)
@@ -382,36 +489,41 @@ def _entries(I):
 
 
 class _Meshes:
-    """Mesh file names of <mesh filename=...> → names relative to the scene's folder: `package://NAME/rest` in
-    the named package folders, other names relative to the URDF's folder; a name that leaves its folder is
-    refused. Meshes the drawing cannot show (other formats, outside the scene's folder, not found) are counted and
-    reported in one note."""
+    """Mesh file names of <mesh filename=...> → the names shapes give: `package://NAME/rest` is looked up in the
+    named package folders and kept as it is (the scene's package_dirs are trusted folders, wherever they lie),
+    or named relative to the scene's folder if it lies in it; other names are relative to the URDF's folder and
+    must lie in the scene's. A name that leaves its folder is refused (its visual is not drawn). Meshes the
+    drawing cannot show (other formats, outside the scene's folder, not found) are counted and reported in one note.
+    packages_kept: False where the shapes must name files in the scene's folder (convert writes a YAML)."""
 
-    def __init__(self, urdf_dir, package_dirs, scene_dir, fail):
+    def __init__(self, urdf_dir, package_dirs, scene_dir, fail, packages_kept=True):
         self.urdf_dir, self.package_dirs, self.scene_dir, self.fail = urdf_dir.resolve(), list(package_dirs), scene_dir.resolve(), fail
-        self.skipped = {}
+        self.packages_kept, self.skipped = packages_kept, {}
 
     def find(self, e, uri):
-        if uri.startswith("package://"):
-            package, _, rest = uri[len("package://"):].partition("/")
-            found = [(d / package).resolve() for d in self.package_dirs if (d / package).is_dir()]
-            if not found:
-                return self.skip("in no named package folder (urdf: package_dirs)")
-            folder = found[0]
+        if uri.startswith(PACKAGE):
+            found = package_path(self.package_dirs, uri)
+            if found is None:
+                return self.skip("in no named package folder (package_dirs)")
+            folder, path = found
         elif "://" in uri:
             return self.skip(f"{uri.split('://')[0]}:// names")
         else:
-            folder, rest = self.urdf_dir, uri
-        path = (folder / rest).resolve()
+            folder = self.urdf_dir
+            path = (folder / uri).resolve()
         if not path.is_relative_to(folder):
             self.fail(e.line, "mesh", f"the mesh file '{uri[:200]}' leaves its folder {folder}", "mesh files must lie inside their package folder")
         if path.suffix.lower() not in MESH_SUFFIXES:
             return self.skip(f"{path.suffix or 'no suffix'} files")
         if not path.is_file():
             return self.skip("not found")
-        if not path.is_relative_to(self.scene_dir):
-            return self.skip("outside the scene's folder")
-        return path.relative_to(self.scene_dir).as_posix()
+        if path.stat().st_size > limits.MESH_BYTES:
+            return self.skip(f"larger than {limits.MESH_BYTES // 2**20} MB")
+        if path.is_relative_to(self.scene_dir):
+            return path.relative_to(self.scene_dir).as_posix()
+        if uri.startswith(PACKAGE) and self.packages_kept:
+            return uri
+        return self.skip("outside the scene's folder")
 
     def skip(self, why):
         self.skipped[why] = self.skipped.get(why, 0) + 1
@@ -431,6 +543,19 @@ def rpy_matrix(rpy):
     Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     return Rz @ Ry @ Rx
+
+
+def unphysical(I, scale):
+    """(None or what is wrong, I): an inertia within ROUNDOFF·scale of a physical one is taken as that one (its
+    file's digits rounded it: icub's point masses of moments -5.4e-20); farther, it is unphysical (not positive
+    semi-definite, or breaking I1 + I2 >= I3), whatever its own size (domains.check's floor is absolute)."""
+    lam = np.linalg.eigvalsh(I)
+    if max(-lam[0], lam[2] - lam[0] - lam[1]) <= ROUNDOFF * scale:
+        return None, I if domains.check(domains.INERTIA, I.ravel()) is None else nearest_physical_inertia(I)
+    moments = f"principal moments {lam[0]:.4g}, {lam[1]:.4g}, {lam[2]:.4g}"
+    if lam[0] < -ROUNDOFF * scale:
+        return f"the inertia tensor is not positive semi-definite ({moments})", I
+    return f"{moments} break the triangle inequality (I1 + I2 >= I3)", I
 
 
 def nearest_physical_inertia(I):
@@ -469,20 +594,36 @@ def _tree(value, line):
     return out
 
 
-def _with_urdf_lines(doc, lines, damper_lines):
-    """The document with each body and joint damper reporting the line of its URDF element."""
-    tree = _tree(doc, 1)
+class FileLine(int):
+    """A line of another file than the scene's: the URDF a YAML scene includes (the checker names that file)."""
+
+
+def _line(n, file):
+    if file is None:
+        return n
+    out = FileLine(n)
+    out.file = file
+    return out
+
+
+def _with_urdf_lines(doc, lines, damper_lines, file=None):
+    """The document with each body and joint damper reporting the line of its URDF element (as a FileLine of
+    `file` if given: the URDF merged into a YAML scene)."""
+    tree = _tree(doc, _line(1, file))
     for name, body in doc["bodies"].items():
-        tree["bodies"][name] = _tree(body, lines[name])
-        tree["bodies"].lines[name] = lines[name]
+        line = _line(lines[name], file)
+        tree["bodies"][name] = _tree(body, line)
+        tree["bodies"].lines[name] = line
     for i, force in enumerate(doc.get("forces", ())):
-        tree["forces"][i] = _tree(force, damper_lines[i])
-        tree["forces"].lines[i] = damper_lines[i]
+        line = _line(damper_lines[i], file)
+        tree["forces"][i] = _tree(force, line)
+        tree["forces"].lines[i] = line
     return tree
 
 
 def include(root, file, base, allow_outside=False, repair=False):
-    """A YAML scene with `urdf: {file, package_dirs, base, repair}` → the merged document and the repairs.
+    """A YAML scene with `urdf: {file, package_dirs, base, repair}` → the merged document, the repairs and the
+    package folders (which its mesh shapes may name).
 
     The URDF gives bodies (and joint dampers); the YAML adds or overrides the rest. Its `bodies:` entries are
     merged key by key into the URDF's (joint initial values, drives, shapes) or add bodies; its `forces` and
@@ -508,13 +649,14 @@ def include(root, file, base, allow_outside=False, repair=False):
     repair = spec.get("repair", repair)
     if not isinstance(repair, bool):
         raise ModelError("expected true or false", file=file, line=spec.lines.get("repair", line), key="urdf.repair")
-    doc, repairs = read(path, _package_dirs(spec, file, line, base, allow_outside), kind, repair, line, base)
+    package_dirs = package_folders(spec.get("package_dirs", []), base, file, spec.lines.get("package_dirs", line), "urdf.package_dirs")
+    doc, repairs = read(path, package_dirs, kind, repair, included=True, scene_dir=base)
     merged = _merge(doc, Map({k: v for k, v in root.items() if k != "urdf"}), ("forces", "outputs"))
     if isinstance(root.get("bodies"), Map) and isinstance(merged.get("bodies"), Map):
         _overlay_replaces(merged["bodies"], root["bodies"], doc["bodies"])
     merged.lines = {**doc.lines, **{k: v for k, v in root.lines.items() if k != "urdf"}}
     merged.line = root.line
-    return merged, repairs
+    return merged, repairs, package_dirs
 
 
 INERTIAL = ("mass", "center_of_mass", "inertia")
@@ -540,22 +682,22 @@ def _drop(node, keys):
         node.lines.pop(k, None)
 
 
-def _package_dirs(spec, file, line, base, allow_outside):
-    """`urdf.package_dirs`: folders relative to the scene's, inside it unless allow_outside."""
-    return package_folders(spec.get("package_dirs", []), base, allow_outside, file, spec.lines.get("package_dirs", line), "urdf.package_dirs")
-
-
-def package_folders(dirs, base, allow_outside, file, line=None, key="package_dirs"):
-    """Package folders (`package://NAME/...`) relative to `base`, inside it unless allow_outside → resolved paths."""
+def package_folders(dirs, base, file, line=None, key="package_dirs"):
+    """Package folders (`package://NAME/...`) relative to `base` → resolved paths. Folders the user names are
+    trusted wherever they lie (a ROS layout keeps meshes/ beside urdf/); each mesh stays confined to its package."""
     if isinstance(dirs, (str, Path)) or not isinstance(dirs, (list, tuple)) or len(dirs) > 64:
         raise ModelError("expected a list of at most 64 folders", file=file, line=line, key=key)
     out = []
     for i, d in enumerate(dirs):
         try:
-            out.append(datafile.resolve(base, os.fspath(d) if isinstance(d, os.PathLike) else d, allow_outside))
+            folder = datafile.resolve(base, os.fspath(d) if isinstance(d, os.PathLike) else d, allow_outside=True)
         except ModelError as e:
             raise ModelError(e.message.replace("data file", "package folder"), file=file, line=line,
-                             key=f"{key}[{i}]", hint=e.hint) from None
+                             key=f"{key}[{i}]", hint="give the folder that holds the packages (NAME/ of package://NAME/...)") from None
+        if not folder.is_dir():
+            raise ModelError(f"the package folder '{d}' is not a folder ({folder})", file=file, line=line, key=f"{key}[{i}]",
+                             hint="give the folder that holds the packages (NAME/ of package://NAME/...)")
+        out.append(folder)
     return out
 
 
@@ -579,11 +721,13 @@ def _merge(a, b, appended=()):
 def to_yaml(path, base="fixed", repair=False, scene_dir=None, package_dirs=()):
     """The URDF at `path` as the text of an equivalent scene YAML to be written into `scene_dir` (default the
     URDF's folder: mesh files are named relative to it), what `mbsfmu convert` writes. package_dirs: as for
-    mbsfmu.load of a URDF (relative to its folder, inside it)."""
+    mbsfmu.load of a URDF (relative to its folder); meshes outside `scene_dir` are not drawn (a YAML names
+    files in its folder)."""
     import json
 
     import yaml
-    doc, repairs = read(path, package_folders(package_dirs, Path(path).parent, False, str(path)), base, repair, scene_dir=scene_dir)
+    doc, repairs = read(path, package_folders(package_dirs, Path(path).parent, str(path)), base, repair, scene_dir=scene_dir,
+                        packages_kept=False)
     plain = json.loads(json.dumps(doc))  # Map/Seq → plain data; floats keep every digit (repr)
     head = [f"# {Path(path).name} converted by mbsfmu convert (base: {base}); joint limits and friction are not modelled"]
     head += [f"# repaired: {r}" for r in repairs]
