@@ -345,3 +345,67 @@ def test_sweep_numbers_must_be_finite(args, words, capsys):
     assert main(["sweep", str(PENDULUM), *args, "--stop", "0.1"]) == 1
     err = capsys.readouterr().err
     assert err == f"error: {words} is not a finite number\n", err
+
+
+# ---- issue 34 --------------------------------------------------------------------------------------------
+SLIDER = """mbsfmu: 1
+name: slider
+gravity: [0, 0, 0]
+bodies:
+  cart:
+    parent: world
+    joint: {type: prismatic, axis: [1, 0, 0], coordinates: [x]}
+    mass: 2.0
+    inertia: {xx: 0.01, yy: 0.01, zz: 0.01}
+integrator: {method: dopri5, rtol: 1e-10, atol: 1e-12}
+experiment: {start: 0, stop: 3, step: 0.1}
+"""
+
+
+def _held_force_x(t, rows, m=2.0):
+    """x(t) of a free mass m from rest under a force held from each row's time to the next (piecewise quadratic)."""
+    import numpy as np
+    out = []
+    for T in t:
+        x = v = 0.0
+        for k, (tk, F) in enumerate(rows):
+            end = min(T, rows[k + 1][0]) if k + 1 < len(rows) else T
+            h = max(0.0, end - tk)
+            x, v = x + v * h + F / m * h * h / 2, v + F / m * h
+        out.append(x)
+    return np.array(out)
+
+
+def test_input_table_is_held_everywhere(fmu, tmp_path, capsys):
+    """Item 7: an input CSV means one thing for the CLI (scene and FMU) and mbsfmu.simulate: each row's value
+    held until the next row's time (a row between communication points included); --interpolate linear is
+    the other reading. Against the free mass's closed form, and the CLI against the Python API."""
+    import numpy as np
+    import mbsfmu
+    from mbsfmu.cli import main
+    scene = tmp_path / "slider.yaml"
+    scene.write_text(SLIDER)
+    for rows in ([(0, 0), (1, 5), (2, 0)], [(0, 0), (0.55, 4), (1.23, -2), (1.23, 3)]):
+        table = tmp_path / "u.csv"
+        table.write_text("time,q.x\n" + "".join(f"{a},{b}\n" for a, b in rows))
+        t, Y, _ = mbsfmu.simulate(str(scene), inputs=str(table))
+        assert np.abs(Y[:, 0] - _held_force_x(t, rows)).max() < 1e-12
+        out = tmp_path / "r.csv"
+        assert main(["simulate", str(scene), "--input", str(table), "--csv", str(out)]) == 0
+        assert np.abs(np.loadtxt(out, delimiter=",", skiprows=1)[:, 1] - Y[:, 0]).max() < 1e-12
+    # linear: interpolated at each communication point t_k and held to t_k+1 (rk4 is exact on each step)
+    t, Y, _ = mbsfmu.simulate(str(scene), inputs=str(table), inputs_interpolation="linear", method="rk4")
+    F = np.interp(t, [r[0] for r in rows[:3]] + [1.23], [0, 4, -2, 3])
+    rows_lin = list(zip(t, F))
+    assert np.abs(Y[:, 0] - _held_force_x(t, rows_lin)).max() < 1e-12
+    # the FMU through fmpy: the issue's table on the double pendulum, CLI against the Python API
+    table.write_text("time,q.phi1\n0,0\n1,5\n2,0\n")
+    capsys.readouterr()
+    assert main(["simulate", str(fmu), "--input", str(table), "--stop", "3", "--csv", str(out)]) == 0
+    got = np.loadtxt(out, delimiter=",", skiprows=1)
+    t, Y, YD = mbsfmu.simulate(str(MODEL), stop=3, inputs=str(table))
+    assert got.shape[0] == len(t) and np.allclose(got[:, 0], t)
+    assert np.abs(got[:, 1:3] - Y).max() < 1e-8
+    assert main(["simulate", str(fmu), "--input", str(table), "--stop", "3", "--csv", str(out),
+                 "--interpolate", "linear"]) == 0
+    assert np.abs(np.loadtxt(out, delimiter=",", skiprows=1)[-1, 1:3] - Y[-1]).max() > 0.01  # the other reading

@@ -6,6 +6,7 @@ tools do. The scene format, the FMU interface and every command are described in
 """
 
 import argparse
+import contextlib
 import math
 import os
 import re
@@ -14,6 +15,7 @@ import sys
 from . import __version__, files
 from .engine.layout import METHODS
 from .errors import IntegrationError, ModelError, printable
+from .inputs import INTERPOLATIONS
 from .scene.limits import RESULT_POINTS, TABLE_ROWS
 from .scene.urdf import BASES
 
@@ -206,15 +208,8 @@ def _crosscheck(args):
 
 
 def _simulate(args):
-    import tempfile
-    is_fmu = _is_fmu(args.model)
     files.check({"--csv": args.csv, "--plot": args.plot}, {"the model": args.model, "--input": args.input})
-    if args.input and not is_fmu:  # inputs from a CSV go through an FMU built in a temporary folder
-        from . import build_fmu
-        with tempfile.TemporaryDirectory(prefix="mbsfmu_sim_") as tmp:
-            result = _run_fmu(str(build_fmu(_load(args.model, args), tmp)), args)
-    else:
-        result = _run_fmu(args.model, args) if is_fmu else _run_scene(args.model, args)
+    result = _run_fmu(args.model, args) if _is_fmu(args.model) else _run_scene(args.model, args)
     title, t, cols, names, units = result
     keep = _select(names, args.signals)
     cols, names, units = cols[:, keep], [names[k] for k in keep], [units[k] for k in keep]
@@ -250,7 +245,8 @@ def _run_scene(path, args):
     spec, e = scene.spec, scene.spec["experiment"]
     stop, step = args.stop or e["stop"], args.step or e["step"]
     _check_times(e["start"], stop, step)
-    t, Y, YD = simulate(scene, stop=stop, step=step, method=args.method)
+    t, Y, YD = simulate(scene, stop=stop, step=step, method=args.method, inputs=args.input,
+                        inputs_interpolation=args.interpolate)
     sim = Simulation(spec)
     sim.initialize(e["start"])  # binds the parameters the output points depend on
     outputs = [v for v in sim.variables if v.causality == "output"]  # y.*, yd.*, then the points
@@ -286,9 +282,16 @@ def _run_fmu(path, args):
             raise ValueError(f"{path}: --method needs an mbsfmu FMU (no parameter integrator.method)")
         start_values["integrator.method"] = args.method
     outputs = [v for v in md.modelVariables if v.causality == "output"]
-    inp = _read_input_csv(args.input, md) if args.input else None
-    res = simulate_fmu(path, stop_time=stop, output_interval=step, input=inp, start_values=start_values,
-                       output=[v.name for v in outputs])
+    inp = None
+    if args.input:
+        from .inputs import InputTable
+        inp = InputTable.read(args.input, {v.name for v in md.modelVariables if v.causality == "input"},
+                              md.modelName, args.interpolate).fmpy_signals()
+    with _stdout_to_stderr():  # fmpy's notes ("missing input for variable ...") are not rows of the table
+        res = simulate_fmu(path, stop_time=stop, output_interval=step, input=inp, start_values=start_values,
+                           output=[v.name for v in outputs])
+    k = (res["time"] - start) / step  # fmpy also stops where an input jumps: the rows asked for only
+    res = res[(np.abs(k - np.round(k)) < 1e-6) | (np.arange(len(k)) == len(k) - 1)]
     t = res["time"]
     if t[-1] < stop - 1e-9 * max(1.0, abs(stop)):
         print(f"warning: the FMU stopped at t = {t[-1]:g} s, before {stop:g} s (it refused a step; "
@@ -301,12 +304,25 @@ def _run_fmu(path, args):
     return title, t, cols, [v.name for v in outputs], [v.unit for v in outputs]
 
 
-def _read_input_csv(path, md):
-    """A structured array for fmpy's ``input=``: a ``time`` column plus FMU input names, every cell a number."""
-    from .csvfile import check_inputs, read_csv
-    names, _, data = read_csv(path, "input")
-    check_inputs(path, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
-    return data
+@contextlib.contextmanager
+def _stdout_to_stderr():
+    """What is printed meanwhile (Python's print or an FMU's C code) goes to stderr: stdout carries results."""
+    sys.stdout.flush()
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a real file (captured): Python's prints only
+        fd = None
+    saved = os.dup(fd) if fd is not None else None
+    try:
+        if saved is not None:
+            os.dup2(sys.stderr.fileno(), fd)
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        if saved is not None:
+            sys.stdout.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
 
 
 def _select(names, patterns):
@@ -441,8 +457,11 @@ def parser():
                    help="comma-separated outputs or shell patterns to keep, e.g. 'y.*,bob.r.z' (default: all)")
     p.add_argument("--csv", metavar="FILE", help="write every row of the result as CSV")
     p.add_argument("--input", metavar="FILE",
-                   help="input CSV: a 'time' column, then FMU input names; held between rows (scenes are built "
-                        "into a temporary FMU first)")
+                   help="input CSV: a 'time' column, then FMU input names; each row's values hold until the next "
+                        "row's time")
+    p.add_argument("--interpolate", choices=INTERPOLATIONS, default="hold",
+                   help="the input CSV between rows: hold (default) or linear (interpolated, sampled at every "
+                        "communication point)")
     p.add_argument("--plot", metavar="FILE", help="write a PNG plot, one panel per unit")
     _allow_outside(p)
     p.set_defaults(run=_simulate)
