@@ -389,7 +389,7 @@ def test_a_case_that_kills_its_worker_is_retried_once_then_recorded(crashing_fmu
     a = [-1.0, 1.0, 2.0, -2.0, 0.5, 3.0, 0.25, 1.5]
     out = tmp_path / "t.csv"
     assert main(["sweep", str(crashing_fmu), "--vary", "a=" + ",".join(map(str, a)), "--stop", "0.5",
-                 "--step", "0.1", "--workers", "2", "--out", str(out), "-q"]) == 0
+                 "--step", "0.1", "--workers", "2", "--out", str(out), "-q", "--allow-failures"]) == 0
     table = pd.read_csv(out)
     assert table["case"].tolist() == list(range(len(a))) and table["a"].tolist() == a
     crashed = table["a"] < 0
@@ -399,3 +399,24 @@ def test_a_case_that_kills_its_worker_is_retried_once_then_recorded(crashing_fmu
     assert np.allclose(table.loc[~crashed, "y.x1"], np.exp(-table.loc[~crashed, "a"] * 0.5), rtol=1e-10, atol=0)
     assert sorted(map(float, log.read_text().split())) == [-2.0, -2.0, -1.0, -1.0]  # each crash case twice
     assert f"{len(a)} cases, 2 failed" in capsys.readouterr().out
+
+
+def test_failed_cases_exit_1_and_a_dash_is_no_range(tmp_path, capsys):
+    """Issue 34, item 8: failed cases make a non-zero exit after the table is written (--allow-failures: 0);
+    `0.5-1.5` (or any word for a numeric name) is refused before any case runs, pointing to start:stop:count."""
+    pendulum, out = str(MODELS / "pendulum.yaml"), tmp_path / "r.csv"
+    argv = ["sweep", pendulum, "--vary", "m_rod=0,0.3", "--stop", "0.1", "--scheduler", "inprocess", "-q", "--out", str(out)]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: 1 of 2 cases failed (the first: m_rod = 0") and err.count("\n") == 1, err
+    assert pd.read_csv(out)["status"].tolist()[1] == "ok"
+    assert main(argv + ["--allow-failures"]) == 0
+    for spec, words in (("0.5-1.5", "e.g. 0.5:1.5:11"), ("abc", "a range start:stop:count")):
+        out.unlink(missing_ok=True)
+        assert main(["sweep", pendulum, "--vary", f"L={spec}", "--scheduler", "inprocess", "--out", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: --vary L: '{spec}' is not a number") and words in err, err
+        assert err.count("\n") == 1 and not out.exists()
+    with pytest.raises(ValueError, match="'fast' is not a number"):
+        mbsfmu.sweep(pendulum, vary={"L": ["fast"]}, scheduler="inprocess")
+    assert (mbsfmu.sweep(pendulum, vary={"integrator.method": "rk4,dop853"}, stop=0.1, scheduler="inprocess")["status"] == "ok").all()

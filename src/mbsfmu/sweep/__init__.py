@@ -37,6 +37,7 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
     if clash:
         raise ValueError(f"cannot vary {clash[0]!r}: the name is a result column ({', '.join(RESERVED)})")
     data, info = _model(model)
+    _words_only_for_strings(columns, info)
     inputs = {str(k): v for k, v in (inputs or {}).items()}
     info.check({**inputs, **{k: columns[k][0] for k in names}})
     outputs = info.outputs if outputs is None else _chosen_outputs(info, outputs)
@@ -54,6 +55,16 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
     return table, long
 
 
+def _words_only_for_strings(columns, info):
+    """A value that is not a number is refused before any case runs, unless its name takes text
+    (integrator.method): `0.5-1.5` would otherwise fail every case."""
+    from .cases import not_a_number
+    for name, values in columns.items():
+        word = next((v for v in values if isinstance(v, str)), None)
+        if word is not None and name not in info.strings:
+            raise ValueError(not_a_number(name, word))
+
+
 def _require(scheduler):
     try:
         import numpy
@@ -69,8 +80,9 @@ def _require(scheduler):
 class _Info:
     """What the client knows about the model: settable names, outputs, default experiment, a name check."""
 
-    def __init__(self, name, outputs, experiment, check):
+    def __init__(self, name, outputs, experiment, check, strings):
         self.name, self.outputs, self.experiment, self.check = name, outputs, experiment, check
+        self.strings = strings  # names that take text (integrator.method)
 
 
 def _model(model):
@@ -119,7 +131,8 @@ def _new_scene(spec, text, key):
 
     e = spec["experiment"]
     data = ModelData("scene", key, text, spec["name"])
-    return data, _Info(spec["name"], outs, (e["start"], e["stop"], e["step"]), check)
+    strings = {v.name for v in probe.variables if v.type == "String"}
+    return data, _Info(spec["name"], outs, (e["start"], e["stop"], e["step"]), check, strings)
 
 
 def _fmu(path):
@@ -143,7 +156,8 @@ def _fmu(path):
     t1 = d.stopTime if d and d.stopTime is not None else None
     h = d.stepSize if d and d.stepSize is not None else None
     exp = tuple(None if x is None else float(x) for x in (t0, t1, h))
-    return ModelData("fmu", _digest(blob), blob, md.modelName), _Info(md.modelName, outs, exp, check)
+    strings = {v.name for v in md.modelVariables if v.type == "String"}
+    return ModelData("fmu", _digest(blob), blob, md.modelName), _Info(md.modelName, outs, exp, check, strings)
 
 
 def _digest(b):

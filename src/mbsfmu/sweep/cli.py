@@ -1,8 +1,10 @@
 """`mbsfmu sweep`: the command-line face of mbsfmu.sweep (table to .parquet/.csv, optional series and plot)."""
 
+import sys
 from pathlib import Path
 
 from .. import files
+from ..errors import printable
 
 HELP = """examples:
   mbsfmu sweep models/pendulum.yaml --vary L=0.5:1.5:11 --vary m_bob=0.5,1,2 --stop 5 --out grid.csv
@@ -34,6 +36,8 @@ def configure(p):
                                                "existing cluster: workers to wait for")
     p.add_argument("--plot", metavar="FILE.png", help="plot the outputs against the varied name(s)")
     p.add_argument("--plot-vs", metavar="NAME[,NAME]", help="varied name(s) for the plot's axes (default: the first two)")
+    p.add_argument("--allow-failures", action="store_true",
+                   help="exit 0 even when cases failed (default: exit 1, after writing the results)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
@@ -68,6 +72,11 @@ def run(args):
         outputs = [c for c in table.columns if c not in vary and c not in ("case", "status", "wall_time")]
         plot(table, varied[:2], outputs, args.plot)
         print(f"wrote {args.plot}")
+    if failed and not args.allow_failures:
+        first = table.loc[table["status"] != "ok", "status"].iloc[0]
+        print(printable(f"error: {failed} of {len(table)} cases failed (the first: {first}); "
+                        "--allow-failures to exit 0 all the same"), file=sys.stderr)
+        return 1
 
 
 def _pair(text, option):
