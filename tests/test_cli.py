@@ -409,3 +409,16 @@ def test_input_table_is_held_everywhere(fmu, tmp_path, capsys):
     assert main(["simulate", str(fmu), "--input", str(table), "--stop", "3", "--csv", str(out),
                  "--interpolate", "linear"]) == 0
     assert np.abs(np.loadtxt(out, delimiter=",", skiprows=1)[-1, 1:3] - Y[-1]).max() > 0.01  # the other reading
+
+
+def test_fmpy_notes_stay_off_the_table(fmu, tmp_path):
+    """Item 17: an FMU input missing from the CSV makes fmpy print a warning: on stderr, stdout stays a table."""
+    import numpy as np
+    table = tmp_path / "u.csv"
+    table.write_text("time,q.phi1\n0,0\n0.5,1\n")  # no q.phi2
+    r = cli("simulate", fmu, "--input", table, "--stop", "1")
+    assert r.returncode == 0 and 'missing input for variable "q.phi2"' in r.stderr, r.stderr
+    lines = [ln for ln in r.stdout.splitlines() if not ln.startswith("#")]
+    assert lines[0] == "time,y.phi1,y.phi2,yd.phi1,yd.phi2"
+    rows = np.array([[float(c) for c in ln.split(",")] for ln in lines[1:]])
+    assert rows.shape == (21, 5) and rows[-1, 0] == 1.0
