@@ -422,3 +422,32 @@ def test_fmpy_notes_stay_off_the_table(fmu, tmp_path):
     assert lines[0] == "time,y.phi1,y.phi2,yd.phi1,yd.phi2"
     rows = np.array([[float(c) for c in ln.split(",")] for ln in lines[1:]])
     assert rows.shape == (21, 5) and rows[-1, 0] == 1.0
+
+
+def test_help_check_and_info_say_what_is_there(tmp_path, capsys):
+    """Item 20: the top line names FMI 3 and model exchange; build/check/simulate take URDFs too; bench and
+    stress show --out as optional; check lists outputs and parameters; info prints no '= None'; modal
+    coordinates are in metres (the generators scale each mode's largest node translation to 1, as
+    docs/scene-format.md says) and stresses in Pa, each plotted under its quantity."""
+    from mbsfmu.cli import main, parser
+    from mbsfmu.plot import QUANTITY
+    top = parser()
+    assert "FMI 2.0 and 3.0" in top.description and "model exchange" in top.description
+    for name in ("build", "check", "simulate"):
+        assert ".urdf" in top.commands[name].format_help(), name
+    for name in ("bench", "stress"):
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        usage = capsys.readouterr().out
+        assert "[--out OUT]" in usage and "default: a fresh" in usage, usage
+    assert main(["check", str(REPO / "models" / "fe_stress.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "  outputs: y.theta, y.link.q1" in out and "vm.link.gauge_top" in out and "  parameters: none" in out
+    assert main(["check", str(PENDULUM)]) == 0
+    assert "  parameters: L = 0.8, m_rod = 0.3, m_bob = 1, r_bob = 0.031\n" in capsys.readouterr().out
+    fmu = __import__("mbsfmu").build_fmu(REPO / "models" / "fe_stress.yaml", tmp_path)
+    assert main(["info", str(fmu)]) == 0
+    out = capsys.readouterr().out
+    assert "None" not in out and "    y.link.q1 [m]  " in out and "    yd.link.q1 [m/s]  " in out, out
+    assert "    vm.link.gauge_top [Pa]  " in out and "    q.link.q1 [N] = 0" in out
+    assert QUANTITY["Pa"] == "von Mises stress" and QUANTITY["m"] == "position"

@@ -146,6 +146,7 @@ def _build(args):
 
 def _check(args):
     from . import compile
+    from .simulation import Simulation
     _need_scene(args.scene)
     scene = _load(args.scene, args)
     ev = compile(scene)
@@ -153,7 +154,11 @@ def _check(args):
     print(f"{scene.name}: {nb} bod{'y' if nb == 1 else 'ies'}, {nf} degree{'' if nf == 1 else 's'} of freedom")
     print("  y  = " + ", ".join(ev.coordinates))
     print("  ẏ  = " + ", ".join(ev.velocity_coordinates))
-    print("  inputs: " + ", ".join(ev.inputs))
+    print("  inputs: " + (", ".join(ev.inputs) or "none"))
+    variables = Simulation(scene.spec).variables
+    print("  outputs: " + ", ".join(v.name for v in variables if v.causality == "output"))
+    params = [v for v in variables if v.causality == "parameter" and not v.name.startswith("integrator.")]
+    print("  parameters: " + (", ".join(f"{v.name} = {v.start:g}" for v in params) or "none"))
     for b in ev.model.bodies:
         if b.elastic:
             print("  " + _elastic_summary(b))
@@ -367,7 +372,8 @@ def _info(args):
         _say(f"  {causality}s ({len(vs)}):")
         for v in vs:
             unit = f" [{v.unit}]" if getattr(v, "unit", None) else ""
-            _say(f"    {v.name}{unit} = {v.start}  {v.description or ''}")
+            start = f" = {v.start}" if v.start is not None else ""  # outputs and inputs may have none
+            _say(f"    {v.name}{unit}{start}  {v.description or ''}")
 
 
 def _say(line):
@@ -392,14 +398,13 @@ def _bench(name, rest):
     scene = rest[0] if name == "bench" and rest and not rest[0].startswith("-") else None  # as documented: first
     if scene is not None:
         _need_scene(scene)
-    if not any(a in ("-h", "--help", "--out") or a.startswith("--out=") for a in rest):
-        rest = rest + ["--out", _fresh_folder(name, scene)]
     mod = importlib.import_module(f".bench.{'work_precision' if name == 'bench' else 'stress'}", __package__)
     return getattr(mod, f"{name}_main")(rest)
 
 
-def _fresh_folder(name, scene):
-    """`<name>[-<scene>]-<YYYYmmdd-HHMMSS>` in the current folder (not the tracked reports/)."""
+def fresh_folder(name, scene=None):
+    """`<name>[-<scene>]-<YYYYmmdd-HHMMSS>` in the current folder (not the tracked reports/): where `bench` and
+    `stress` write without --out."""
     import time
     from pathlib import Path
     base = "-".join(filter(None, [name, scene and Path(scene).stem, time.strftime("%Y%m%d-%H%M%S")]))
@@ -424,13 +429,14 @@ def _allow_outside(p):
 
 
 def parser():
-    top = CommandParser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
+    top = CommandParser(prog="mbsfmu", description="Multibody scenes (YAML, URDF) → FMI 2.0 and 3.0 FMUs "
+                                                            "(co-simulation, model exchange).",
                         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     top.add_argument("--version", action="version", version=f"mbsfmu {__version__}")
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     top.commands = sub.choices  # name → the command's parser: its errors name its help
     p = sub.add_parser("build", help="build FMUs from scene files")
-    p.add_argument("scene", nargs="+", help="scene files (.yaml)")
+    p.add_argument("scene", nargs="+", help="scene files (.yaml) or URDFs (.urdf)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
     p.add_argument("--kind", choices=("pythonfmu", "native"), default="pythonfmu",
                    help="pythonfmu (default; runs the engine through Python) or native (C only, no Python "
@@ -439,15 +445,15 @@ def parser():
                    help="FMI version: 2 (default) or 3 (co-simulation and model exchange; --kind native only)")
     _allow_outside(p)
     p.set_defaults(run=_build)
-    p = sub.add_parser("check", help="validate a scene and list its coordinates and inputs")
-    p.add_argument("scene", help="scene file (.yaml)")
+    p = sub.add_parser("check", help="validate a scene and list its coordinates, inputs, outputs and parameters")
+    p.add_argument("scene", help="scene file (.yaml) or URDF (.urdf)")
     _allow_outside(p)
     p.set_defaults(run=_check)
     p = sub.add_parser("simulate", help="simulate a scene (in-process) or an FMU (fmpy)",
                        description="Simulate a scene in-process, or an FMU with fmpy. Without --csv or --plot "
                                    f"a table of at most {TABLE_ROWS} rows goes to stdout. A run keeps at most "
                                    f"{RESULT_POINTS:,} communication points ((stop - start) / step).")
-    p.add_argument("model", help="scene file (.yaml) or FMU (.fmu)")
+    p.add_argument("model", help="scene file (.yaml), URDF (.urdf) or FMU (.fmu)")
     p.add_argument("--stop", type=_seconds, default=None, help="end time in s (default: the experiment's stop)")
     p.add_argument("--step", type=_seconds, default=None,
                    help="communication step in s (default: the experiment's step)")

@@ -242,14 +242,15 @@ def markdown(rows, quick):
 
 
 def stress_main(argv=None):
-    from ..cli import CommandParser
+    from ..cli import CommandParser, fresh_folder
     p = CommandParser(prog="mbsfmu stress", description="Numerical stability suite")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", help="output directory (default: a fresh stress-<time>/ folder here)")
     p.add_argument("--quick", action="store_true", help="shorter runs and fewer methods")
     p.add_argument("--cases", nargs="+", default=None, help="subset of: " + " ".join(c.name for c in cases()))
     p.add_argument("--methods", nargs="+", default=None, help="subset of: " + " ".join(METHODS))
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
+    a.out = a.out or fresh_folder("stress")
     rows = run(a.out, quick=a.quick, progress=not a.no_progress, only=a.cases, methods=a.methods)
     bad = [r for r in rows if r["status"] == "CRASH"]
     print(f"{len(rows)} runs → {os.path.join(a.out, 'stress.md')}; {len(bad)} crashes")
