@@ -420,3 +420,64 @@ def test_failed_cases_exit_1_and_a_dash_is_no_range(tmp_path, capsys):
     with pytest.raises(ValueError, match="'fast' is not a number"):
         mbsfmu.sweep(pendulum, vary={"L": ["fast"]}, scheduler="inprocess")
     assert (mbsfmu.sweep(pendulum, vary={"integrator.method": "rk4,dop853"}, stop=0.1, scheduler="inprocess")["status"] == "ok").all()
+
+
+@pytest.mark.parametrize("reply", [b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", b"\xff" * 64, None])
+def test_a_scheduler_address_that_is_no_dask_scheduler(reply, capsys):
+    """Issue 34, item 16: an address whose server answers HTTP or garbage, or says nothing (a dashboard's port):
+    one line within a few seconds, not a wait for ever or Dask's "Unable to allocate 3.07 EiB"."""
+    import socket
+    import threading
+    server = socket.create_server(("127.0.0.1", 0))
+    conns = []
+
+    def serve():
+        while True:
+            try:
+                c, _ = server.accept()
+            except OSError:
+                return
+            conns.append(c)
+            if reply is not None:
+                c.sendall(reply)
+    threading.Thread(target=serve, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    t0 = time.monotonic()
+    try:
+        assert main(["sweep", str(MODELS / "pendulum.yaml"), "--vary", "L=1,2", "--stop", "0.1", "-q",
+                     "--scheduler", address]) == 1
+    finally:
+        server.close()
+        for c in conns:
+            c.close()
+    assert time.monotonic() - t0 < 15
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {address} is not a Dask scheduler: ") and err.count("\n") == 1, err
+    assert ("no Dask handshake within 3 s" if reply is None else "something else") in err
+
+
+def test_ctrl_c_during_a_sweep_is_one_line(tmp_path):
+    """Issue 34, item 16: Ctrl-C in a terminal (SIGINT to the whole process group: the sweep and its embedded
+    cluster's workers) while cases run: one line, exit 130, no traceback from any process."""
+    import os
+    import signal
+    import sys
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import sys\nfrom mbsfmu.sweep import dispatch\nfrom mbsfmu.cli import main\n"
+        "real = dispatch._on_cluster\n"
+        "def running(*a, **k):\n    print('RUNNING', file=sys.stderr, flush=True)\n    return real(*a, **k)\n"
+        "dispatch._on_cluster = running\n"
+        f"if __name__ == '__main__':\n    sys.exit(main(['sweep', {str(MODELS / 'pendulum.yaml')!r}, '--vary', 'L=0.5:1.5:100000', '--stop', '20',"
+        " '--workers', '2', '-q']))\n")
+    p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True, cwd=tmp_path)
+    try:
+        assert p.stderr.readline() == "RUNNING\n"
+        time.sleep(1.5)  # batches on both workers
+        os.killpg(p.pid, signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130 and err == "interrupted\n", err

@@ -140,6 +140,8 @@ def _build(args):
         t0 = time.perf_counter()
         if n > 1:
             print(f"[{i}/{n}] {path} ...", end=" ", flush=True)
+        elif args.kind == "native":
+            status(f"building {path}: compiling the engine's C sources (10–60 s) …")
         out = build_fmu(scene, args.output, kind=args.kind, fmi=args.fmi)
         print(f"{out}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
 
@@ -537,8 +539,16 @@ def main(argv=None):
 
 
 def _note(message, category, filename, lineno, file=None, line=None):
-    """A warning (no MinGW for win64 binaries, ...) is a note to the user: one plain line, no source line."""
-    print(printable(f"note: {message}"), file=sys.stderr)
+    """A warning (no MinGW for win64 binaries, Dask's port note, ...) is a note to the user: one plain line, no
+    source line (the lines of a message of several joined)."""
+    print(printable("note: " + " ".join(str(message).split())), file=sys.stderr)
+
+
+def status(line):
+    """A progress line on stderr while something slow runs (a native build, a cluster starting), for a person
+    watching: only when stderr is a terminal (as the sweep's progress bar)."""
+    if sys.stderr.isatty():
+        print(printable(line), file=sys.stderr, flush=True)
 
 
 def _run(args):
@@ -554,6 +564,7 @@ def _run(args):
     except (ModelError, FileNotFoundError, KeyError, ValueError, OSError) as e:
         return _fail(f"error: {e}")
     except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # anything else: still one line, no traceback
         return _fail(f"error: {type(e).__name__}: {e}")
