@@ -451,3 +451,33 @@ def test_help_check_and_info_say_what_is_there(tmp_path, capsys):
     assert "None" not in out and "    y.link.q1 [m]  " in out and "    yd.link.q1 [m/s]  " in out, out
     assert "    vm.link.gauge_top [Pa]  " in out and "    q.link.q1 [N] = 0" in out
     assert QUANTITY["Pa"] == "von Mises stress" and QUANTITY["m"] == "position"
+
+
+def test_slow_steps_say_what_they_do(tmp_path, monkeypatch, capsys):
+    """Item 21: a native build says on stderr (a terminal) that it compiles before it does; a warning of several
+    lines (Dask's note that a port is taken) is one note line; the sweep's bar shows no time left until 5 % of
+    the cases are done, then tqdm's estimate."""
+    import io
+    import warnings
+    import mbsfmu
+    from mbsfmu.cli import main
+    from mbsfmu.sweep.dispatch import _bar
+    said = []
+    monkeypatch.setattr(mbsfmu, "build_fmu", lambda scene, out, **k: said.append(capsys.readouterr().err) or "x.fmu")
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert main(["build", "--kind", "native", str(PENDULUM), "-o", str(tmp_path)]) == 0
+    assert said == [f"building {PENDULUM}: compiling the engine's C sources (10–60 s) …\n"]
+    monkeypatch.setattr(mbsfmu, "build_fmu", lambda *a, **k: warnings.warn("Port 8787 is in use.\nPerhaps ...\nHosting on 4"))
+    main(["build", str(PENDULUM), "-o", str(tmp_path)])
+    assert capsys.readouterr().err == "note: Port 8787 is in use. Perhaps ... Hosting on 4\n"
+    shown = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", shown)
+    with _bar(100, True) as bar:
+        bar.update(1)
+        bar.bar.refresh()
+        first = shown.getvalue().rsplit("\r", 1)[-1]
+        bar.update(4)
+        bar.bar.refresh()
+        later = shown.getvalue().rsplit("\r", 1)[-1]
+    assert "time left: estimating" in first and "<" not in first, first
+    assert "time left" not in later and "<" in later, later  # tqdm's [elapsed<remaining, rate]
