@@ -345,3 +345,139 @@ def test_sweep_numbers_must_be_finite(args, words, capsys):
     assert main(["sweep", str(PENDULUM), *args, "--stop", "0.1"]) == 1
     err = capsys.readouterr().err
     assert err == f"error: {words} is not a finite number\n", err
+
+
+# ---- issue 34 --------------------------------------------------------------------------------------------
+SLIDER = """mbsfmu: 1
+name: slider
+gravity: [0, 0, 0]
+bodies:
+  cart:
+    parent: world
+    joint: {type: prismatic, axis: [1, 0, 0], coordinates: [x]}
+    mass: 2.0
+    inertia: {xx: 0.01, yy: 0.01, zz: 0.01}
+integrator: {method: dopri5, rtol: 1e-10, atol: 1e-12}
+experiment: {start: 0, stop: 3, step: 0.1}
+"""
+
+
+def _held_force_x(t, rows, m=2.0):
+    """x(t) of a free mass m from rest under a force held from each row's time to the next (piecewise quadratic)."""
+    import numpy as np
+    out = []
+    for T in t:
+        x = v = 0.0
+        for k, (tk, F) in enumerate(rows):
+            end = min(T, rows[k + 1][0]) if k + 1 < len(rows) else T
+            h = max(0.0, end - tk)
+            x, v = x + v * h + F / m * h * h / 2, v + F / m * h
+        out.append(x)
+    return np.array(out)
+
+
+def test_input_table_is_held_everywhere(fmu, tmp_path, capsys):
+    """Item 7: an input CSV means one thing for the CLI (scene and FMU) and mbsfmu.simulate: each row's value
+    held until the next row's time (a row between communication points included); --interpolate linear is
+    the other reading. Against the free mass's closed form, and the CLI against the Python API."""
+    import numpy as np
+    import mbsfmu
+    from mbsfmu.cli import main
+    scene = tmp_path / "slider.yaml"
+    scene.write_text(SLIDER)
+    for rows in ([(0, 0), (1, 5), (2, 0)], [(0, 0), (0.55, 4), (1.23, -2), (1.23, 3)]):
+        table = tmp_path / "u.csv"
+        table.write_text("time,q.x\n" + "".join(f"{a},{b}\n" for a, b in rows))
+        t, Y, _ = mbsfmu.simulate(str(scene), inputs=str(table))
+        assert np.abs(Y[:, 0] - _held_force_x(t, rows)).max() < 1e-12
+        out = tmp_path / "r.csv"
+        assert main(["simulate", str(scene), "--input", str(table), "--csv", str(out)]) == 0
+        assert np.abs(np.loadtxt(out, delimiter=",", skiprows=1)[:, 1] - Y[:, 0]).max() < 1e-12
+    # linear: interpolated at each communication point t_k and held to t_k+1 (rk4 is exact on each step)
+    t, Y, _ = mbsfmu.simulate(str(scene), inputs=str(table), inputs_interpolation="linear", method="rk4")
+    F = np.interp(t, [r[0] for r in rows[:3]] + [1.23], [0, 4, -2, 3])
+    rows_lin = list(zip(t, F))
+    assert np.abs(Y[:, 0] - _held_force_x(t, rows_lin)).max() < 1e-12
+    # the FMU through fmpy: the issue's table on the double pendulum, CLI against the Python API
+    table.write_text("time,q.phi1\n0,0\n1,5\n2,0\n")
+    capsys.readouterr()
+    assert main(["simulate", str(fmu), "--input", str(table), "--stop", "3", "--csv", str(out)]) == 0
+    got = np.loadtxt(out, delimiter=",", skiprows=1)
+    t, Y, YD = mbsfmu.simulate(str(MODEL), stop=3, inputs=str(table))
+    assert got.shape[0] == len(t) and np.allclose(got[:, 0], t)
+    assert np.abs(got[:, 1:3] - Y).max() < 1e-8
+    assert main(["simulate", str(fmu), "--input", str(table), "--stop", "3", "--csv", str(out),
+                 "--interpolate", "linear"]) == 0
+    assert np.abs(np.loadtxt(out, delimiter=",", skiprows=1)[-1, 1:3] - Y[-1]).max() > 0.01  # the other reading
+
+
+def test_fmpy_notes_stay_off_the_table(fmu, tmp_path):
+    """Item 17: an FMU input missing from the CSV makes fmpy print a warning: on stderr, stdout stays a table."""
+    import numpy as np
+    table = tmp_path / "u.csv"
+    table.write_text("time,q.phi1\n0,0\n0.5,1\n")  # no q.phi2
+    r = cli("simulate", fmu, "--input", table, "--stop", "1")
+    assert r.returncode == 0 and 'missing input for variable "q.phi2"' in r.stderr, r.stderr
+    lines = [ln for ln in r.stdout.splitlines() if not ln.startswith("#")]
+    assert lines[0] == "time,y.phi1,y.phi2,yd.phi1,yd.phi2"
+    rows = np.array([[float(c) for c in ln.split(",")] for ln in lines[1:]])
+    assert rows.shape == (21, 5) and rows[-1, 0] == 1.0
+
+
+def test_help_check_and_info_say_what_is_there(tmp_path, capsys):
+    """Item 20: the top line names FMI 3 and model exchange; build/check/simulate take URDFs too; bench and
+    stress show --out as optional; check lists outputs and parameters; info prints no '= None'; modal
+    coordinates are in metres (the generators scale each mode's largest node translation to 1, as
+    docs/scene-format.md says) and stresses in Pa, each plotted under its quantity."""
+    from mbsfmu.cli import main, parser
+    from mbsfmu.plot import QUANTITY
+    top = parser()
+    assert "FMI 2.0 and 3.0" in top.description and "model exchange" in top.description
+    for name in ("build", "check", "simulate"):
+        assert ".urdf" in top.commands[name].format_help(), name
+    for name in ("bench", "stress"):
+        with pytest.raises(SystemExit):
+            main([name, "--help"])
+        usage = capsys.readouterr().out
+        assert "[--out OUT]" in usage and "default: a fresh" in usage, usage
+    assert main(["check", str(REPO / "models" / "fe_stress.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "  outputs: y.theta, y.link.q1" in out and "vm.link.gauge_top" in out and "  parameters: none" in out
+    assert main(["check", str(PENDULUM)]) == 0
+    assert "  parameters: L = 0.8, m_rod = 0.3, m_bob = 1, r_bob = 0.031\n" in capsys.readouterr().out
+    fmu = __import__("mbsfmu").build_fmu(REPO / "models" / "fe_stress.yaml", tmp_path)
+    assert main(["info", str(fmu)]) == 0
+    out = capsys.readouterr().out
+    assert "None" not in out and "    y.link.q1 [m]  " in out and "    yd.link.q1 [m/s]  " in out, out
+    assert "    vm.link.gauge_top [Pa]  " in out and "    q.link.q1 [N] = 0" in out
+    assert QUANTITY["Pa"] == "von Mises stress" and QUANTITY["m"] == "position"
+
+
+def test_slow_steps_say_what_they_do(tmp_path, monkeypatch, capsys):
+    """Item 21: a native build says on stderr (a terminal) that it compiles before it does; a warning of several
+    lines (Dask's note that a port is taken) is one note line; the sweep's bar shows no time left until 5 % of
+    the cases are done, then tqdm's estimate."""
+    import io
+    import warnings
+    import mbsfmu
+    from mbsfmu.cli import main
+    from mbsfmu.sweep.dispatch import _bar
+    said = []
+    monkeypatch.setattr(mbsfmu, "build_fmu", lambda scene, out, **k: said.append(capsys.readouterr().err) or "x.fmu")
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert main(["build", "--kind", "native", str(PENDULUM), "-o", str(tmp_path)]) == 0
+    assert said == [f"building {PENDULUM}: compiling the engine's C sources (10–60 s) …\n"]
+    monkeypatch.setattr(mbsfmu, "build_fmu", lambda *a, **k: warnings.warn("Port 8787 is in use.\nPerhaps ...\nHosting on 4"))
+    main(["build", str(PENDULUM), "-o", str(tmp_path)])
+    assert capsys.readouterr().err == "note: Port 8787 is in use. Perhaps ... Hosting on 4\n"
+    shown = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", shown)
+    with _bar(100, True) as bar:
+        bar.update(1)
+        bar.bar.refresh()
+        first = shown.getvalue().rsplit("\r", 1)[-1]
+        bar.update(4)
+        bar.bar.refresh()
+        later = shown.getvalue().rsplit("\r", 1)[-1]
+    assert "time left: estimating" in first and "<" not in first, first
+    assert "time left" not in later and "<" in later, later  # tqdm's [elapsed<remaining, rate]

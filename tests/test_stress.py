@@ -1,5 +1,8 @@
 """Fast stress cases: NaN/Inf refused cleanly, gimbal-lock message, stiff spring with radau5/auto."""
 
+import csv
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -63,3 +66,36 @@ def test_run_writes_table(tmp_path):
     assert "gimbal lock" in text and "| method | status |" in text
     header = (tmp_path / "stress.csv").read_text().splitlines()[0]
     assert header == ",".join(stress.COLUMNS)
+
+
+def test_stress_of_a_scene_of_ones_own(tmp_path, capsys):
+    """Issue 34, item 22: `mbsfmu stress SCENE --quick` runs the scene over the quick methods, writes the
+    case × method summary (table and plot); its errors hold against scipy's integration of the pendulum's
+    own ODE (rod hinged at one end plus a sphere at L, written here from scratch) and mbsfmu.simulate's run."""
+    import math
+    import numpy as np
+    from scipy.integrate import solve_ivp
+    import mbsfmu
+    from mbsfmu.cli import main
+    scene = Path(__file__).resolve().parents[1] / "models" / "pendulum.yaml"
+    assert main(["stress", str(scene), "--quick", "--no-progress", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader((tmp_path / "stress.csv").open()))
+    assert [(r["case"], r["method"], r["status"], r["expected"]) for r in rows] == [
+        ("pendulum", m, "completed", "yes") for m in stress.QUICK_METHODS]
+    assert (tmp_path / "stress.png").stat().st_size > 5000
+    md = (tmp_path / "stress.md").read_text()
+    assert "| case | dopri5 | radau5 | rk4 |" in md and "\n| pendulum | " in md
+    L, m_rod, m_bob, r_bob, g = 0.8, 0.3, 1.0, 0.031, 9.81
+    I_O = m_rod * L**2 / 3 + m_bob * (L**2 + 0.4 * r_bob**2)
+    w2 = g * (m_rod * L / 2 + m_bob * L) / I_O
+    stop = 1.0  # a tenth of the experiment's 10 s
+    ts = np.linspace(0, stop, 101)
+    ref = solve_ivp(lambda t, x: [x[1], -w2 * math.sin(x[0])], (0, stop), [math.pi / 6, 0.0], t_eval=ts,
+                    method="DOP853", rtol=1e-13, atol=1e-14).y[0]
+    for r in rows:
+        _, Y, _ = mbsfmu.simulate(str(scene), stop=stop, method=r["method"], rtol=1e-6, atol=1e-8)
+        assert float(r["error"]) == pytest.approx(np.abs(Y[:, 0] - ref).max(), rel=1e-3, abs=1e-11), r
+    with pytest.raises(SystemExit) as e:
+        main(["stress", str(scene), "--cases", "nan_input", "--out", str(tmp_path)])
+    assert e.value.code == 2
+    assert "--cases chooses among the built-in cases" in capsys.readouterr().err

@@ -389,7 +389,7 @@ def test_a_case_that_kills_its_worker_is_retried_once_then_recorded(crashing_fmu
     a = [-1.0, 1.0, 2.0, -2.0, 0.5, 3.0, 0.25, 1.5]
     out = tmp_path / "t.csv"
     assert main(["sweep", str(crashing_fmu), "--vary", "a=" + ",".join(map(str, a)), "--stop", "0.5",
-                 "--step", "0.1", "--workers", "2", "--out", str(out), "-q"]) == 0
+                 "--step", "0.1", "--workers", "2", "--out", str(out), "-q", "--allow-failures"]) == 0
     table = pd.read_csv(out)
     assert table["case"].tolist() == list(range(len(a))) and table["a"].tolist() == a
     crashed = table["a"] < 0
@@ -399,3 +399,113 @@ def test_a_case_that_kills_its_worker_is_retried_once_then_recorded(crashing_fmu
     assert np.allclose(table.loc[~crashed, "y.x1"], np.exp(-table.loc[~crashed, "a"] * 0.5), rtol=1e-10, atol=0)
     assert sorted(map(float, log.read_text().split())) == [-2.0, -2.0, -1.0, -1.0]  # each crash case twice
     assert f"{len(a)} cases, 2 failed" in capsys.readouterr().out
+
+
+def test_failed_cases_exit_1_and_a_dash_is_no_range(tmp_path, capsys):
+    """Issue 34, item 8: failed cases make a non-zero exit after the table is written (--allow-failures: 0);
+    `0.5-1.5` (or any word for a numeric name) is refused before any case runs, pointing to start:stop:count."""
+    pendulum, out = str(MODELS / "pendulum.yaml"), tmp_path / "r.csv"
+    argv = ["sweep", pendulum, "--vary", "m_rod=0,0.3", "--stop", "0.1", "--scheduler", "inprocess", "-q", "--out", str(out)]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: 1 of 2 cases failed (the first: m_rod = 0") and err.count("\n") == 1, err
+    assert pd.read_csv(out)["status"].tolist()[1] == "ok"
+    assert main(argv + ["--allow-failures"]) == 0
+    for spec, words in (("0.5-1.5", "e.g. 0.5:1.5:11"), ("abc", "a range start:stop:count")):
+        out.unlink(missing_ok=True)
+        assert main(["sweep", pendulum, "--vary", f"L={spec}", "--scheduler", "inprocess", "--out", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: --vary L: '{spec}' is not a number") and words in err, err
+        assert err.count("\n") == 1 and not out.exists()
+    with pytest.raises(ValueError, match="'fast' is not a number"):
+        mbsfmu.sweep(pendulum, vary={"L": ["fast"]}, scheduler="inprocess")
+    assert (mbsfmu.sweep(pendulum, vary={"integrator.method": "rk4,dop853"}, stop=0.1, scheduler="inprocess")["status"] == "ok").all()
+
+
+@pytest.mark.parametrize("reply", [b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", b"\xff" * 64, None])
+def test_a_scheduler_address_that_is_no_dask_scheduler(reply, capsys):
+    """Issue 34, item 16: an address whose server answers HTTP or garbage, or says nothing (a dashboard's port):
+    one line within a few seconds, not a wait for ever or Dask's "Unable to allocate 3.07 EiB"."""
+    import socket
+    import threading
+    server = socket.create_server(("127.0.0.1", 0))
+    conns = []
+
+    def serve():
+        while True:
+            try:
+                c, _ = server.accept()
+            except OSError:
+                return
+            conns.append(c)
+            if reply is not None:
+                c.sendall(reply)
+    threading.Thread(target=serve, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    t0 = time.monotonic()
+    try:
+        assert main(["sweep", str(MODELS / "pendulum.yaml"), "--vary", "L=1,2", "--stop", "0.1", "-q",
+                     "--scheduler", address]) == 1
+    finally:
+        server.close()
+        for c in conns:
+            c.close()
+    assert time.monotonic() - t0 < 15
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {address} is not a Dask scheduler: ") and err.count("\n") == 1, err
+    assert ("no Dask handshake within 3 s" if reply is None else "something else") in err
+
+
+def test_ctrl_c_during_a_sweep_is_one_line(tmp_path):
+    """Issue 34, item 16: Ctrl-C in a terminal (SIGINT to the whole process group: the sweep and its embedded
+    cluster's workers) while cases run: one line, exit 130, no traceback from any process."""
+    import os
+    import signal
+    import sys
+    script = tmp_path / "run.py"
+    script.write_text(
+        "import sys\nfrom mbsfmu.sweep import dispatch\nfrom mbsfmu.cli import main\n"
+        "real = dispatch._on_cluster\n"
+        "def running(*a, **k):\n    print('RUNNING', file=sys.stderr, flush=True)\n    return real(*a, **k)\n"
+        "dispatch._on_cluster = running\n"
+        f"if __name__ == '__main__':\n    sys.exit(main(['sweep', {str(MODELS / 'pendulum.yaml')!r}, '--vary', 'L=0.5:1.5:100000', '--stop', '20',"
+        " '--workers', '2', '-q']))\n")
+    p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True, cwd=tmp_path)
+    try:
+        assert p.stderr.readline() == "RUNNING\n"
+        time.sleep(1.5)  # batches on both workers
+        os.killpg(p.pid, signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    assert p.returncode == 130 and err == "interrupted\n", err
+
+
+def test_an_input_table_is_held_in_every_case(tmp_path, capsys):
+    """Issue 34, item 7: a sweep reads an input CSV as mbsfmu.simulate does (each row held until the next row's
+    time, a row between communication points included), on a scene and on its FMU; against the closed form
+    of a free mass m under the held force: x = Σ piecewise quadratics, and the CLI's --input FILE."""
+    scene = tmp_path / "slider.yaml"
+    scene.write_text("mbsfmu: 1\nname: slider\ngravity: [0, 0, 0]\nparameters:\n  m: {value: 2.0}\nbodies:\n"
+                     "  cart:\n    parent: world\n    joint: {type: prismatic, axis: [1, 0, 0], coordinates: [x]}\n"
+                     "    mass: m\n    inertia: {xx: 0.01, yy: 0.01, zz: 0.01}\n"
+                     "integrator: {method: rk4}\nexperiment: {start: 0, stop: 3, step: 0.1}\n")
+    table = tmp_path / "u.csv"
+    table.write_text("time,q.x\n0,0\n1,5\n1.55,-1\n")
+
+    def x(m, t=3.0):  # force 0 to 1 s, 5 N to 1.55 s, -1 N after
+        a1, a2, h1, h2 = 5 / m, -1 / m, 0.55, t - 1.55
+        return a1 * h1**2 / 2 + a1 * h1 * h2 + a2 * h2**2 / 2
+    fmu = mbsfmu.build_fmu(scene, tmp_path)
+    for model in (scene, fmu):
+        res = mbsfmu.sweep(str(model), vary={"m": [1.0, 2.0, 4.0]}, input_table=str(table), scheduler="inprocess",
+                           outputs=["y.x"])
+        assert np.allclose(res["y.x"], [x(m) for m in res["m"]], rtol=0, atol=1e-12), res
+    out = tmp_path / "r.csv"
+    assert main(["sweep", str(scene), "--vary", "m=1,2", "--input", str(table), "--scheduler", "inprocess", "-q",
+                 "--out", str(out)]) == 0
+    assert np.allclose(pd.read_csv(out)["y.x"], [x(1.0), x(2.0)], rtol=0, atol=1e-12)
+    assert main(["sweep", str(scene), "--vary", "q.x=1,2", "--input", str(table), "--scheduler", "inprocess"]) == 1
+    assert "'q.x' is a column of the input table" in capsys.readouterr().err

@@ -36,14 +36,17 @@ def compile(scene):
     return Evaluator(scene.spec)
 
 
-def simulate(scene, stop=None, step=None, inputs=None, method=None, **integrator_options):
+def simulate(scene, stop=None, step=None, inputs=None, method=None, inputs_interpolation="hold",
+             **integrator_options):
     """In-process run with the FMU's integrators → (t, Y, YD) at the communication points. scene: path, loaded
-    scene or spec; inputs: {name: value} held throughout, or a function t → {name: value}; integrator_options:
+    scene or spec; inputs: {name: value} held throughout, an input CSV (each row held until the next row's
+    time; inputs_interpolation="linear": interpolated), or a function t → {name: value}; integrator_options:
     rtol, atol, max_step, step."""
     from .simulation import simulate as _simulate
     if not isinstance(scene, dict) and not hasattr(scene, "spec"):
         scene = load(scene)
-    return _simulate(scene, stop=stop, step=step, inputs=inputs, method=method, **integrator_options)
+    return _simulate(scene, stop=stop, step=step, inputs=inputs, method=method,
+                     inputs_interpolation=inputs_interpolation, **integrator_options)
 
 
 def animate(source, output="animation.html", **options):

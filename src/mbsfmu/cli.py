@@ -6,6 +6,7 @@ tools do. The scene format, the FMU interface and every command are described in
 """
 
 import argparse
+import contextlib
 import math
 import os
 import re
@@ -14,6 +15,7 @@ import sys
 from . import __version__, files
 from .engine.layout import METHODS
 from .errors import IntegrationError, ModelError, printable
+from .inputs import INTERPOLATIONS
 from .scene.limits import RESULT_POINTS, TABLE_ROWS
 from .scene.urdf import BASES
 
@@ -139,12 +141,15 @@ def _build(args):
         t0 = time.perf_counter()
         if n > 1:
             print(f"[{i}/{n}] {path} ...", end=" ", flush=True)
+        elif args.kind == "native":
+            status(f"building {path}: compiling the engine's C sources (10–60 s) …")
         out = build_fmu(scene, args.output, kind=args.kind, fmi=args.fmi)
         print(f"{out}" + (f" ({time.perf_counter() - t0:.1f} s)" if n > 1 else ""), flush=True)
 
 
 def _check(args):
     from . import compile
+    from .simulation import Simulation
     _need_scene(args.scene)
     scene = _load(args.scene, args)
     ev = compile(scene)
@@ -152,7 +157,11 @@ def _check(args):
     print(f"{scene.name}: {nb} bod{'y' if nb == 1 else 'ies'}, {nf} degree{'' if nf == 1 else 's'} of freedom")
     print("  y  = " + ", ".join(ev.coordinates))
     print("  ẏ  = " + ", ".join(ev.velocity_coordinates))
-    print("  inputs: " + ", ".join(ev.inputs))
+    print("  inputs: " + (", ".join(ev.inputs) or "none"))
+    variables = Simulation(scene.spec).variables
+    print("  outputs: " + ", ".join(v.name for v in variables if v.causality == "output"))
+    params = [v for v in variables if v.causality == "parameter" and not v.name.startswith("integrator.")]
+    print("  parameters: " + (", ".join(f"{v.name} = {v.start:g}" for v in params) or "none"))
     for b in ev.model.bodies:
         if b.elastic:
             print("  " + _elastic_summary(b))
@@ -207,15 +216,8 @@ def _crosscheck(args):
 
 
 def _simulate(args):
-    import tempfile
-    is_fmu = _is_fmu(args.model)
     files.check({"--csv": args.csv, "--plot": args.plot}, {"the model": args.model, "--input": args.input})
-    if args.input and not is_fmu:  # inputs from a CSV go through an FMU built in a temporary folder
-        from . import build_fmu
-        with tempfile.TemporaryDirectory(prefix="mbsfmu_sim_") as tmp:
-            result = _run_fmu(str(build_fmu(_load(args.model, args), tmp)), args)
-    else:
-        result = _run_fmu(args.model, args) if is_fmu else _run_scene(args.model, args)
+    result = _run_fmu(args.model, args) if _is_fmu(args.model) else _run_scene(args.model, args)
     title, t, cols, names, units = result
     keep = _select(names, args.signals)
     cols, names, units = cols[:, keep], [names[k] for k in keep], [units[k] for k in keep]
@@ -251,7 +253,8 @@ def _run_scene(path, args):
     spec, e = scene.spec, scene.spec["experiment"]
     stop, step = args.stop or e["stop"], args.step or e["step"]
     _check_times(e["start"], stop, step)
-    t, Y, YD = simulate(scene, stop=stop, step=step, method=args.method)
+    t, Y, YD = simulate(scene, stop=stop, step=step, method=args.method, inputs=args.input,
+                        inputs_interpolation=args.interpolate)
     sim = Simulation(spec)
     sim.initialize(e["start"])  # binds the parameters the output points depend on
     outputs = [v for v in sim.variables if v.causality == "output"]  # y.*, yd.*, then the points
@@ -287,9 +290,16 @@ def _run_fmu(path, args):
             raise ValueError(f"{path}: --method needs an mbsfmu FMU (no parameter integrator.method)")
         start_values["integrator.method"] = args.method
     outputs = [v for v in md.modelVariables if v.causality == "output"]
-    inp = _read_input_csv(args.input, md) if args.input else None
-    res = simulate_fmu(path, stop_time=stop, output_interval=step, input=inp, start_values=start_values,
-                       output=[v.name for v in outputs])
+    inp = None
+    if args.input:
+        from .inputs import InputTable
+        inp = InputTable.read(args.input, {v.name for v in md.modelVariables if v.causality == "input"},
+                              md.modelName, args.interpolate).fmpy_signals()
+    with _stdout_to_stderr():  # fmpy's notes ("missing input for variable ...") are not rows of the table
+        res = simulate_fmu(path, stop_time=stop, output_interval=step, input=inp, start_values=start_values,
+                           output=[v.name for v in outputs])
+    k = (res["time"] - start) / step  # fmpy also stops where an input jumps: the rows asked for only
+    res = res[(np.abs(k - np.round(k)) < 1e-6) | (np.arange(len(k)) == len(k) - 1)]
     t = res["time"]
     if t[-1] < stop - 1e-9 * max(1.0, abs(stop)):
         print(f"warning: the FMU stopped at t = {t[-1]:g} s, before {stop:g} s (it refused a step; "
@@ -302,12 +312,25 @@ def _run_fmu(path, args):
     return title, t, cols, [v.name for v in outputs], [v.unit for v in outputs]
 
 
-def _read_input_csv(path, md):
-    """A structured array for fmpy's ``input=``: a ``time`` column plus FMU input names, every cell a number."""
-    from .csvfile import check_inputs, read_csv
-    names, _, data = read_csv(path, "input")
-    check_inputs(path, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
-    return data
+@contextlib.contextmanager
+def _stdout_to_stderr():
+    """What is printed meanwhile (Python's print or an FMU's C code) goes to stderr: stdout carries results."""
+    sys.stdout.flush()
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a real file (captured): Python's prints only
+        fd = None
+    saved = os.dup(fd) if fd is not None else None
+    try:
+        if saved is not None:
+            os.dup2(sys.stderr.fileno(), fd)
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        if saved is not None:
+            sys.stdout.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
 
 
 def _select(names, patterns):
@@ -352,7 +375,8 @@ def _info(args):
         _say(f"  {causality}s ({len(vs)}):")
         for v in vs:
             unit = f" [{v.unit}]" if getattr(v, "unit", None) else ""
-            _say(f"    {v.name}{unit} = {v.start}  {v.description or ''}")
+            start = f" = {v.start}" if v.start is not None else ""  # outputs and inputs may have none
+            _say(f"    {v.name}{unit}{start}  {v.description or ''}")
 
 
 def _say(line):
@@ -377,14 +401,13 @@ def _bench(name, rest):
     scene = rest[0] if name == "bench" and rest and not rest[0].startswith("-") else None  # as documented: first
     if scene is not None:
         _need_scene(scene)
-    if not any(a in ("-h", "--help", "--out") or a.startswith("--out=") for a in rest):
-        rest = rest + ["--out", _fresh_folder(name, scene)]
     mod = importlib.import_module(f".bench.{'work_precision' if name == 'bench' else 'stress'}", __package__)
     return getattr(mod, f"{name}_main")(rest)
 
 
-def _fresh_folder(name, scene):
-    """`<name>[-<scene>]-<YYYYmmdd-HHMMSS>` in the current folder (not the tracked reports/)."""
+def fresh_folder(name, scene=None):
+    """`<name>[-<scene>]-<YYYYmmdd-HHMMSS>` in the current folder (not the tracked reports/): where `bench` and
+    `stress` write without --out."""
     import time
     from pathlib import Path
     base = "-".join(filter(None, [name, scene and Path(scene).stem, time.strftime("%Y%m%d-%H%M%S")]))
@@ -412,13 +435,14 @@ def _allow_outside(p):
 
 
 def parser():
-    top = CommandParser(prog="mbsfmu", description="Multibody scenes (YAML) → FMI 2.0 co-simulation FMUs.",
+    top = CommandParser(prog="mbsfmu", description="Multibody scenes (YAML, URDF) → FMI 2.0 and 3.0 FMUs "
+                                                            "(co-simulation, model exchange).",
                         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     top.add_argument("--version", action="version", version=f"mbsfmu {__version__}")
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     top.commands = sub.choices  # name → the command's parser: its errors name its help
     p = sub.add_parser("build", help="build FMUs from scene files")
-    p.add_argument("scene", nargs="+", help="scene files (.yaml)")
+    p.add_argument("scene", nargs="+", help="scene files (.yaml) or URDFs (.urdf)")
     p.add_argument("-o", "--output", default=".", help="output directory (default: .)")
     p.add_argument("--kind", choices=("pythonfmu", "native"), default="pythonfmu",
                    help="pythonfmu (default; runs the engine through Python) or native (C only, no Python "
@@ -427,15 +451,15 @@ def parser():
                    help="FMI version: 2 (default) or 3 (co-simulation and model exchange; --kind native only)")
     _allow_outside(p)
     p.set_defaults(run=_build)
-    p = sub.add_parser("check", help="validate a scene and list its coordinates and inputs")
-    p.add_argument("scene", help="scene file (.yaml)")
+    p = sub.add_parser("check", help="validate a scene and list its coordinates, inputs, outputs and parameters")
+    p.add_argument("scene", help="scene file (.yaml) or URDF (.urdf)")
     _allow_outside(p)
     p.set_defaults(run=_check)
     p = sub.add_parser("simulate", help="simulate a scene (in-process) or an FMU (fmpy)",
                        description="Simulate a scene in-process, or an FMU with fmpy. Without --csv or --plot "
                                    f"a table of at most {TABLE_ROWS} rows goes to stdout. A run keeps at most "
                                    f"{RESULT_POINTS:,} communication points ((stop - start) / step).")
-    p.add_argument("model", help="scene file (.yaml) or FMU (.fmu)")
+    p.add_argument("model", help="scene file (.yaml), URDF (.urdf) or FMU (.fmu)")
     p.add_argument("--stop", type=_seconds, default=None, help="end time in s (default: the experiment's stop)")
     p.add_argument("--step", type=_seconds, default=None,
                    help="communication step in s (default: the experiment's step)")
@@ -445,8 +469,11 @@ def parser():
                    help="comma-separated outputs or shell patterns to keep, e.g. 'y.*,bob.r.z' (default: all)")
     p.add_argument("--csv", metavar="FILE", help="write every row of the result as CSV")
     p.add_argument("--input", metavar="FILE",
-                   help="input CSV: a 'time' column, then FMU input names; held between rows (scenes are built "
-                        "into a temporary FMU first)")
+                   help="input CSV: a 'time' column, then FMU input names; each row's values hold until the next "
+                        "row's time")
+    p.add_argument("--interpolate", choices=INTERPOLATIONS, default="hold",
+                   help="the input CSV between rows: hold (default) or linear (interpolated, sampled at every "
+                        "communication point)")
     p.add_argument("--plot", metavar="FILE", help="write a PNG plot, one panel per unit")
     _allow_outside(p)
     p.set_defaults(run=_simulate)
@@ -516,8 +543,16 @@ def main(argv=None):
 
 
 def _note(message, category, filename, lineno, file=None, line=None):
-    """A warning (no MinGW for win64 binaries, ...) is a note to the user: one plain line, no source line."""
-    print(printable(f"note: {message}"), file=sys.stderr)
+    """A warning (no MinGW for win64 binaries, Dask's port note, ...) is a note to the user: one plain line, no
+    source line (the lines of a message of several joined)."""
+    print(printable("note: " + " ".join(str(message).split())), file=sys.stderr)
+
+
+def status(line):
+    """A progress line on stderr while something slow runs (a native build, a cluster starting), for a person
+    watching: only when stderr is a terminal (as the sweep's progress bar)."""
+    if sys.stderr.isatty():
+        print(printable(line), file=sys.stderr, flush=True)
 
 
 def _run(args):
@@ -533,6 +568,7 @@ def _run(args):
     except (ModelError, FileNotFoundError, KeyError, ValueError, OSError) as e:
         return _fail(f"error: {e}")
     except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
         return 130
     except Exception as e:  # anything else: still one line, no traceback
         return _fail(f"error: {type(e).__name__}: {e}")

@@ -7,7 +7,8 @@ dash-dotted: 40 curves per panel before a style repeats.
 from . import files
 
 QUANTITY = {"rad": "angle", "rad/s": "angular velocity", "m": "position", "m/s": "velocity",
-            "1": "dimensionless", "1/s": "rate", "N": "force", "N.m": "torque"}
+            "1": "dimensionless", "1/s": "rate", "N": "force", "N.m": "torque",
+            "Pa": "von Mises stress"}
 LINESTYLES = ("-", "--", ":", "-.")
 
 

@@ -217,10 +217,14 @@ def as_real(name, value):
     return x
 
 
-def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
+def simulate(scene, stop=None, step=None, inputs=None, method=None, inputs_interpolation="hold", **options):
     """In-process run: returns (t, Y, YD) at the communication points. `inputs`: {name: value} held for the
-    whole run, or a function `inputs(t) -> {name: value}`, sampled at every communication point and held
-    over the following interval (as an FMU master does)."""
+    whole run; an input table (a CSV path, read as inputs_interpolation says: "hold", each row's values
+    held until the next row's time, or "linear", interpolated and sampled at every communication point; or
+    an mbsfmu.inputs.InputTable); or a function `inputs(t) -> {name: value}`, sampled at every communication point and held over
+    the following interval (as an FMU master does)."""
+    import os
+    from .inputs import InputTable, interpolation, step_through
     spec = scene if isinstance(scene, dict) else scene.spec
     sim = Simulation(spec)
     if method is not None:
@@ -233,20 +237,30 @@ def simulate(scene, stop=None, step=None, inputs=None, method=None, **options):
         raise ValueError(f"need step > 0 and stop >= start (got step={step}, start={t0}, stop={stop})")
     n = int(round((stop - t0) / step))
     ts = t0 + step * np.arange(n + 1)
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = InputTable.read(inputs, {v.name for v in sim.variables if v.causality == "input"}, spec["name"],
+                                 interpolation(inputs_interpolation))
     sim.initialize(t0)
     if inputs is None or isinstance(inputs, dict):  # held for the whole run: points of one step together
         for name, val in (inputs or {}).items():
             sim.set(name, val)
         X = sim.run(ts)
     else:
-        X = [sim.x]
-        for k in range(n):
-            for name, val in inputs(ts[k]).items():
-                sim.set(name, val)
-            sim.do_step(ts[k], ts[k + 1] - ts[k])
-            X.append(sim.x)
-        X = np.array(X)
+        table = inputs if isinstance(inputs, InputTable) else _Sampled(inputs)
+        X = np.empty((n + 1, sim.npos + sim.nvel))
+        step_through(table, ts, sim.set_many, lambda a, b: sim.do_step(a, b - a), lambda k: X.__setitem__(k, sim.x))
     return ts, X[:, :sim.npos], X[:, sim.npos:]
+
+
+class _Sampled:
+    """A function of time as a table sampled at the communication points (inputs.step_through's table)."""
+
+    def __init__(self, f):
+        self.at = f
+
+    @staticmethod
+    def pieces(t0, t1):
+        return [t0, t1]
 
 
 __all__ = ["Simulation", "Variable", "simulate", "variables", "compiled", "IntegrationError", "as_real"]

@@ -7,18 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..csvfile import check_inputs, read_csv
+from ..csvfile import read_csv
+from ..inputs import InputTable
 
 
 def from_scene(spec, stop=None, input_csv=None):
-    """Run a scene in process; input CSV columns are interpolated linearly, held over each step."""
-    from .. import compile, simulate
-    inputs = None
-    if input_csv:
-        names, t_in, data = read_csv(input_csv, "input")
-        check_inputs(input_csv, names, compile(spec).inputs, spec["name"])
-        inputs = lambda t: {n: float(np.interp(t, t_in, data[n])) for n in names}  # noqa: E731
-    return simulate(spec, stop=stop, inputs=inputs)
+    """Run a scene in process; each row of the input CSV held until the next (mbsfmu.inputs)."""
+    from .. import simulate
+    return simulate(spec, stop=stop, inputs=input_csv)
 
 
 def fmu_spec(path):
@@ -72,8 +68,8 @@ def from_fmu(path, coordinates, stop=None, input_csv=None):
     md = read_model_description(path)
     inp = None
     if input_csv:
-        names, _, inp = read_csv(input_csv, "input")
-        check_inputs(input_csv, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
+        inp = InputTable.read(input_csv, {v.name for v in md.modelVariables if v.causality == "input"},
+                              md.modelName).fmpy_signals()
     outputs = [f"y.{c}" for c in coordinates]
     missing = set(outputs) - {v.name for v in md.modelVariables if v.causality == "output"}
     if missing:

@@ -2,8 +2,8 @@
 
 Every run either completes or fails with an `IntegrationError` (a clean failure, message recorded); any
 other exception is a bug and is reported as CRASH. Each run has a CPU-time budget (exceeding it is
-recorded as "budget"). Scenes live in `models/stress/*.yaml` (copies are embedded in this package's
-directory lookup: the repository's `models/stress`).
+recorded as "budget"). The built-in cases' scenes live in `models/stress/*.yaml` (the repository's); scenes
+given on the command line are run instead, each as a case over every method (`scene_cases`).
 
 Columns: case, method, status (completed | failed | budget | CRASH), expected (as the case expects?),
 error (max |y − y_ref| over communication points, y_ref = radau5/dop853 at rtol 1e-11 where sensible),
@@ -42,8 +42,8 @@ class Case:
 
     def __init__(self, name, scene, description, stop=None, step=None, methods=METHODS, expect="complete",
                  expect_message=None, reference="dop853", conservative=False, inputs=None, params=None,
-                 rtol=1e-6, atol=1e-8, quick_stop=None, budget=30.0, quick_methods=None, tol_error=None):
-        self.name, self.scene, self.description = name, scene, description
+                 rtol=1e-6, atol=1e-8, quick_stop=None, budget=30.0, quick_methods=None, tol_error=None, spec=None):
+        self.name, self.scene, self.description, self.spec = name, scene, description, spec
         self.stop, self.step, self.methods, self.expect = stop, step, methods, expect
         self.expect_message, self.reference, self.conservative = expect_message, reference, conservative
         self.inputs, self.params, self.rtol, self.atol = inputs or {}, params or {}, rtol, atol
@@ -92,6 +92,25 @@ def cases():
         Case("nan_parameter", "double_pendulum", "parameter m set to NaN after initialization", expect="fail",
              expect_message="not finite", params={"m": nan}, reference=None, stop=0.1),
     ]
+
+
+QUICK_METHODS = ("dopri5", "radau5", "rk4")  # a scene of the user's with --quick: explicit, implicit, fixed step
+
+
+def scene_cases(paths):
+    """A case per scene file (a user's): its experiment, every method, reference dop853 at rtol 1e-11 (radau5
+    where dop853 fails); --quick runs a tenth of the experiment (at least 10 communication steps)."""
+    import mbsfmu
+    out, names = [], set()
+    for path in paths:
+        spec = mbsfmu.load(str(path)).spec
+        e = spec["experiment"]
+        name = spec["name"] if spec["name"] not in names else f"{spec['name']} ({path})"
+        names.add(name)
+        quick = e["start"] + max(10 * e["step"], (e["stop"] - e["start"]) / 10)
+        out.append(Case(name, str(path), (spec.get("description") or f"the scene {path}").strip(), spec=spec,
+                        quick_stop=min(e["stop"], quick), quick_methods=QUICK_METHODS))
+    return out
 
 
 def _load_spec(scene):
@@ -167,18 +186,23 @@ def energy_drift(spec, Y, YD, ts):
     return float(np.max(np.abs(E - E[0])) / scale)
 
 
-def run(out_dir=None, quick=False, progress=True, only=None, methods=None):
-    """Run the suite; write stress.csv and stress.md in out_dir; return the rows."""
+def run(out_dir=None, quick=False, progress=True, only=None, methods=None, scenes=None):
+    """Run the suite (or a case per scene file of `scenes`); write stress.csv, stress.md and stress.png in
+    out_dir; return the rows."""
     rows = []
-    todo = [c for c in cases() if only is None or c.name in only]
+    todo = scene_cases(scenes) if scenes else [c for c in cases() if only is None or c.name in only]
     jobs = [(c, m) for c in todo for m in (c.quick_methods if quick else c.methods) if methods is None or m in methods]
     refs = {}
     for case, method in output.progress(jobs, "stress", lambda j: f"{j[0].name} {j[1]}", progress):
-        spec = _load_spec(case.scene)
+        spec = case.spec or _load_spec(case.scene)
         ts = _ts(spec, case, quick)
         if case.reference and case.name not in refs:
-            ref = run_one(spec, case, case.reference, ts, rtol=1e-11, atol=1e-13, budget=120.0)
-            refs[case.name] = ref["Y"] if ref["status"] == "completed" else None
+            refs[case.name] = None
+            for ref_method in dict.fromkeys((case.reference, "radau5")):  # the stiff fall-back
+                ref = run_one(spec, case, ref_method, ts, rtol=1e-11, atol=1e-13, budget=120.0)
+                if ref["status"] == "completed":
+                    refs[case.name] = ref["Y"]
+                    break
         r = run_one(spec, case, method, ts)
         err = ""
         Yref = refs.get(case.name)
@@ -204,7 +228,54 @@ def run(out_dir=None, quick=False, progress=True, only=None, methods=None):
         os.makedirs(out_dir, exist_ok=True)
         output.write_csv(rows, os.path.join(out_dir, "stress.csv"), COLUMNS, 4)
         files.write_text(os.path.join(out_dir, "stress.md"), markdown(rows, quick))
+        plot(rows, os.path.join(out_dir, "stress.png"))
     return rows
+
+
+OUTCOMES = {  # (status, as expected?) → (colour, word) of the plot's cells
+    "completed": ("#4caf50", "ok"), "failed": ("#ffb74d", "failed"), "budget": ("#bdbdbd", "budget"),
+    "CRASH": ("#e53935", "CRASH"), "NO": ("#e53935", "NO")}
+
+
+def _cell(r):
+    """(colour, text) of one run: not as expected shows NO whatever the status; a completed run its error."""
+    if r["status"] == "failed" and r["expected"] == "yes":  # a refusal the case asks for
+        return "#a5d6a7", "failed, ok"
+    colour, word = OUTCOMES["NO" if r["expected"] == "NO" else r["status"]]
+    if r["status"] == "completed" and isinstance(r["error"], float):
+        word = f"{r['error']:.0e}" if r["expected"] != "NO" else f"NO {r['error']:.0e}"
+    return colour, word
+
+
+def plot(rows, path):
+    """The case × method summary as a grid: a cell's colour says how the run ended (green completed, light green
+    a failure the case expects, orange a clean failure, grey the budget, red a crash or not as expected), its text
+    the error against the reference."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+    case_names = list(dict.fromkeys(r["case"] for r in rows))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    grid = np.ones((len(case_names), len(methods), 3))
+    fig, ax = plt.subplots(figsize=(1.3 + 1.1 * len(methods), 1.2 + 0.4 * len(case_names)))
+    for r in rows:
+        i, j = case_names.index(r["case"]), methods.index(r["method"])
+        colour, word = _cell(r)
+        grid[i, j] = to_rgb(colour)
+        ax.text(j, i, word, ha="center", va="center", fontsize=7)
+    ax.imshow(grid, aspect="auto")
+    ax.set_xticks(range(len(methods)), methods)
+    ax.set_yticks(range(len(case_names)), case_names)
+    ax.xaxis.tick_top()
+    ax.set_xticks(np.arange(len(methods) + 1) - 0.5, minor=True)
+    ax.set_yticks(np.arange(len(case_names) + 1) - 0.5, minor=True)
+    ax.grid(which="minor", color="white", linewidth=2)
+    ax.tick_params(which="minor", length=0)
+    ax.set_title("max |y − y_ref| per case and method\ngreen: completed (light: failed as the case expects), "
+                 "orange: failed cleanly, grey: budget, red: crash or not as expected", fontsize=8, pad=22)
+    fig.tight_layout()
+    output.save_figure(fig, path, dpi=110, bbox_inches="tight")
 
 
 def _fmt(v, spec=".2e"):
@@ -225,6 +296,13 @@ def markdown(rows, quick):
                  f"{sum(r['status'] == 'budget' for r in rows)} stopped at the budget, {len(crashes)} crashes, "
                  f"{sum(r['expected'] == 'NO' for r in rows)} not as expected.**")
     lines.append("")
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    lines += ["## Summary", "", "Error against the reference, or how the run ended (![stress.png](stress.png)).", "",
+              "| case | " + " | ".join(methods) + " |", "|---|" + "---|" * len(methods)]
+    for case in dict.fromkeys(r["case"] for r in rows):
+        cells = {r["method"]: _cell(r)[1] for r in rows if r["case"] == case}
+        lines.append(f"| {case} | " + " | ".join(cells.get(m, "") for m in methods) + " |")
+    lines.append("")
     for case in dict.fromkeys(r["case"] for r in rows):
         rr = [r for r in rows if r["case"] == case]
         lines += [f"## {case}", "", f"{rr[0]['description']} — {rr[0]['n_comm']} communication steps of "
@@ -242,15 +320,23 @@ def markdown(rows, quick):
 
 
 def stress_main(argv=None):
-    from ..cli import CommandParser
-    p = CommandParser(prog="mbsfmu stress", description="Numerical stability suite")
-    p.add_argument("--out", required=True, help="output directory")
+    from ..cli import CommandParser, _need_scene, fresh_folder
+    p = CommandParser(prog="mbsfmu stress", description="Numerical stability suite: the built-in stiff and "
+                      "extreme cases, or your scenes, × every integration method")
+    p.add_argument("scenes", nargs="*", metavar="SCENE",
+                   help="scene files (.yaml) or URDFs to stress instead of the built-in cases, each over every method")
+    p.add_argument("--out", help="output directory (default: a fresh stress-<time>/ folder here)")
     p.add_argument("--quick", action="store_true", help="shorter runs and fewer methods")
     p.add_argument("--cases", nargs="+", default=None, help="subset of: " + " ".join(c.name for c in cases()))
     p.add_argument("--methods", nargs="+", default=None, help="subset of: " + " ".join(METHODS))
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
-    rows = run(a.out, quick=a.quick, progress=not a.no_progress, only=a.cases, methods=a.methods)
+    if a.scenes and a.cases:
+        p.error("--cases chooses among the built-in cases; with scenes, give the scenes only")
+    for scene in a.scenes:
+        _need_scene(scene)
+    a.out = a.out or fresh_folder("stress", a.scenes[0] if len(a.scenes) == 1 else None)
+    rows = run(a.out, quick=a.quick, progress=not a.no_progress, only=a.cases, methods=a.methods, scenes=a.scenes)
     bad = [r for r in rows if r["status"] == "CRASH"]
-    print(f"{len(rows)} runs → {os.path.join(a.out, 'stress.md')}; {len(bad)} crashes")
+    print(f"{len(rows)} runs → {os.path.join(a.out, 'stress.md')}, stress.csv, stress.png; {len(bad)} crashes")
     return 1 if bad else 0

@@ -494,10 +494,10 @@ def summary(rows, spec, ts, ref_cpu, floor, notes, head=None):
 
 
 def bench_main(argv=None):
-    from ..cli import CommandParser
+    from ..cli import CommandParser, fresh_folder
     p = CommandParser(prog="mbsfmu bench", description="Work-precision benchmark of one scene")
     p.add_argument("scene")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", help="output directory (default: a fresh bench-<scene>-<time>/ folder here)")
     p.add_argument("--quick", action="store_true", help="3 tolerances, 2 fixed steps")
     p.add_argument("--methods", nargs="+", default=None,
                    help=f"subset of: {' '.join(MBSFMU_METHODS + SCIPY_METHODS + EXUDYN_METHODS)}")
@@ -505,6 +505,7 @@ def bench_main(argv=None):
     p.add_argument("--budget", type=float, default=None, help="CPU seconds per run before it is abandoned")
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
+    a.out = a.out or fresh_folder("bench", a.scene)
     rows = run(a.scene, a.out, methods=a.methods, quick=a.quick, progress=not a.no_progress, stop=a.stop, budget=a.budget)
     print(f"{len(rows)} runs → {os.path.join(a.out, 'work_precision.csv')}, work_precision.png, summary.md")
     return 0

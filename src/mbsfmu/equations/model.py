@@ -139,15 +139,17 @@ class Model:
         self.bind(self.parameters)
 
     def coordinate_units(self):
-        """Units of y and ẏ entries (contract order): the joint table's, then 1 for elastic coordinates."""
+        """Units of y and ẏ entries (contract order): the joint table's, then the elastic coordinates': m for
+        FE and beam modes (scaled so that the largest node translation is 1), rad for a beam's pure torsion
+        mode (its largest rotation 1), 1 for nodal data as given."""
         pos, vel = [], []
         for b in (self.bodies[self.index[s["name"]]] for s in self.spec["bodies"]):
             pos += [u for u, dr in zip(b.type.units, b.driven) if not dr]
             vel += [u + "/s" for u, dr in zip(b.type.velocity_units, b.driven) if not dr or b.quat is not None]
             if b.elastic:
-                n_e = len(b.elastic["coordinates"])
-                pos += ["1"] * n_e
-                vel += ["1/s"] * n_e
+                units = [_mode_unit(b.elastic, b.nodal.Phi[:, :, k]) for k in range(b.nodal.Phi.shape[2])]
+                pos += units
+                vel += [u + "/s" for u in units]
         return pos, vel
 
     def bind(self, params):
@@ -195,3 +197,11 @@ def initial_rotation(rot, env):
     """Initial rotation matrix of a spherical/free joint (identity when not given)."""
     return np.eye(3) if rot is None else _rotation(rot, env)
 
+
+def _mode_unit(elastic, phi):
+    """The unit of a modal coordinate (Model.coordinate_units): how its source scaled the mode."""
+    if "fe" in elastic:
+        return "m"
+    if "beam" in elastic:
+        return "m" if np.abs(phi).max(initial=0.0) > 1e-6 else "rad"  # a torsion mode: bodies/beam.py _mode_scale
+    return "1"

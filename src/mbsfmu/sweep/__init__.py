@@ -13,7 +13,7 @@ RESERVED = ("case", "status", "wall_time")  # result columns besides the varied 
 
 
 def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outputs=None, inputs=None,
-          scheduler=None, workers=None, series=False, progress=None):
+          scheduler=None, workers=None, series=False, progress=None, input_table=None, inputs_interpolation="hold"):
     """Run `model` (scene file, loaded scene, or built .fmu) once per case; returns a pandas DataFrame with a
     row per case: `case`, the varied names, each output at the stop time (named as the FMU variable),
     `status` ("ok" or the case's failure message) and `wall_time` [s]. With `series=True` returns
@@ -23,6 +23,8 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
       with `samples=N` a range "lo:hi" / (lo, hi) (N Latin-hypercube samples, reproducible with `seed`); or a
       DataFrame with a row per case. Names: tunable parameters, inputs (held), `integrator.*`,
       initial values `y0.<coordinate>` / `yd0.<coordinate>`.
+    input_table: an input CSV for every case, read as mbsfmu.simulate reads it (each row held until the next
+      row's time; inputs_interpolation="linear": interpolated, sampled at every communication point).
     scheduler: None (embedded LocalCluster, `workers` processes, default one per core), "tcp://host:port" of a
       running Dask scheduler (waits for `workers` workers, default 1), a dask.distributed.Client, or
       "inprocess" (no Dask). progress: a bar with the time left on stderr (default: when stderr is a terminal).
@@ -37,10 +39,19 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
     if clash:
         raise ValueError(f"cannot vary {clash[0]!r}: the name is a result column ({', '.join(RESERVED)})")
     data, info = _model(model)
+    _words_only_for_strings(columns, info)
     inputs = {str(k): v for k, v in (inputs or {}).items()}
     info.check({**inputs, **{k: columns[k][0] for k in names}})
     outputs = info.outputs if outputs is None else _chosen_outputs(info, outputs)
-    setup = Setup(_times(info, stop, step), tuple(outputs), inputs, bool(series))
+    table = None
+    if input_table is not None:
+        from ..inputs import InputTable, interpolation
+        table = InputTable.read(input_table, info.inputs, info.name, interpolation(inputs_interpolation))
+        both = [n for n in table.names if n in names or n in inputs]
+        if both:
+            raise ValueError(f"{both[0]!r} is a column of the input table {input_table} and set otherwise too "
+                             "(--vary or --input NAME=VALUE): give it one way")
+    setup = Setup(_times(info, stop, step), tuple(outputs), inputs, bool(series), table)
     rows = run_cases(data, Cases.from_columns(columns), setup, scheduler, workers, progress)
     table = pd.DataFrame({"case": np.arange(n), **columns, **{o: rows.final[:, k] for k, o in enumerate(outputs)},
                           "status": rows.status, "wall_time": rows.wall})
@@ -52,6 +63,16 @@ def sweep(model, vary=None, samples=None, seed=None, stop=None, step=None, outpu
     long = pd.DataFrame({"case": np.repeat([i for i, _ in ok], len(ts)).astype(int), "time": np.tile(ts, len(ok)),
                          **{o: S[:, k] for k, o in enumerate(outputs)}})
     return table, long
+
+
+def _words_only_for_strings(columns, info):
+    """A value that is not a number is refused before any case runs, unless its name takes text
+    (integrator.method): `0.5-1.5` would otherwise fail every case."""
+    from .cases import not_a_number
+    for name, values in columns.items():
+        word = next((v for v in values if isinstance(v, str)), None)
+        if word is not None and name not in info.strings:
+            raise ValueError(not_a_number(name, word))
 
 
 def _require(scheduler):
@@ -69,8 +90,10 @@ def _require(scheduler):
 class _Info:
     """What the client knows about the model: settable names, outputs, default experiment, a name check."""
 
-    def __init__(self, name, outputs, experiment, check):
+    def __init__(self, name, outputs, experiment, check, strings, inputs):
         self.name, self.outputs, self.experiment, self.check = name, outputs, experiment, check
+        self.strings = strings  # names that take text (integrator.method)
+        self.inputs = inputs    # the model's input names (an input table's columns)
 
 
 def _model(model):
@@ -119,7 +142,9 @@ def _new_scene(spec, text, key):
 
     e = spec["experiment"]
     data = ModelData("scene", key, text, spec["name"])
-    return data, _Info(spec["name"], outs, (e["start"], e["stop"], e["step"]), check)
+    strings = {v.name for v in probe.variables if v.type == "String"}
+    inputs = {v.name for v in probe.variables if v.causality == "input"}
+    return data, _Info(spec["name"], outs, (e["start"], e["stop"], e["step"]), check, strings, inputs)
 
 
 def _fmu(path):
@@ -143,7 +168,9 @@ def _fmu(path):
     t1 = d.stopTime if d and d.stopTime is not None else None
     h = d.stepSize if d and d.stepSize is not None else None
     exp = tuple(None if x is None else float(x) for x in (t0, t1, h))
-    return ModelData("fmu", _digest(blob), blob, md.modelName), _Info(md.modelName, outs, exp, check)
+    strings = {v.name for v in md.modelVariables if v.type == "String"}
+    inputs = {v.name for v in md.modelVariables if v.causality == "input"}
+    return ModelData("fmu", _digest(blob), blob, md.modelName), _Info(md.modelName, outs, exp, check, strings, inputs)
 
 
 def _digest(b):

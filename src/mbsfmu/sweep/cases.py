@@ -100,6 +100,16 @@ def finite_number(text, where):
     return value
 
 
+def not_a_number(name, text):
+    """The message for a value that is neither a number nor a range; `a-b` is taken for a range meant."""
+    import re
+    num = r"\s*[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*"
+    dash = re.fullmatch(f"({num})-({num})", str(text))
+    hint = (f": a range is start:stop:count, e.g. {dash.group(1).strip()}:{dash.group(4).strip()}:11"
+            if dash else ": give a number, a comma list or a range start:stop:count")
+    return f"--vary {name}: '{text}' is not a number{hint}"
+
+
 def _number(name, spec, text):
     return finite_number(text, f"--vary {name}={spec}")
 

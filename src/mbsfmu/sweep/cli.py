@@ -1,8 +1,11 @@
 """`mbsfmu sweep`: the command-line face of mbsfmu.sweep (table to .parquet/.csv, optional series and plot)."""
 
+import sys
 from pathlib import Path
 
 from .. import files
+from ..errors import printable
+from ..inputs import INTERPOLATIONS
 
 HELP = """examples:
   mbsfmu sweep models/pendulum.yaml --vary L=0.5:1.5:11 --vary m_bob=0.5,1,2 --stop 5 --out grid.csv
@@ -24,7 +27,12 @@ def configure(p):
     p.add_argument("--stop", type=float, help="stop time (default: the model's experiment)")
     p.add_argument("--step", type=float, help="communication step (default: the model's experiment)")
     p.add_argument("--outputs", help="comma list of outputs (default: every output)")
-    p.add_argument("--input", action="append", default=[], metavar="NAME=VALUE", help="an input held constant")
+    p.add_argument("--input", action="append", default=[], metavar="NAME=VALUE|FILE",
+                   help="an input held constant (repeatable), or an input CSV for every case: a 'time' column, "
+                        "then input names, each row's values held until the next row's time")
+    p.add_argument("--interpolate", choices=INTERPOLATIONS, default="hold",
+                   help="an input CSV between rows: hold (default) or linear (interpolated, sampled at every "
+                        "communication point)")
     p.add_argument("--out", help="results table: .parquet or .csv (default: print it)")
     p.add_argument("--series", metavar="FILE", help="also write every output at every communication point "
                                                    "(.parquet or .csv, a row per case and time)")
@@ -34,6 +42,8 @@ def configure(p):
                                                "existing cluster: workers to wait for")
     p.add_argument("--plot", metavar="FILE.png", help="plot the outputs against the varied name(s)")
     p.add_argument("--plot-vs", metavar="NAME[,NAME]", help="varied name(s) for the plot's axes (default: the first two)")
+    p.add_argument("--allow-failures", action="store_true",
+                   help="exit 0 even when cases failed (default: exit 1, after writing the results)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
@@ -42,14 +52,20 @@ def run(args):
     from . import sweep
     from .cases import finite_number
     vary = dict(_pair(v, "--vary") for v in args.vary)
-    inputs = {k: finite_number(v, f"--input {k}={v}") for k, v in (_pair(i, "--input") for i in args.input)}
+    tables = [i for i in args.input if "=" not in i]
+    if len(tables) > 1:
+        raise ValueError(f"--input: one input CSV per sweep (got {', '.join(tables)})")
+    inputs = {k: finite_number(v, f"--input {k}={v}")
+              for k, v in (_pair(i, "--input") for i in args.input if "=" in i)}
     for path in (args.out, args.series):
         if path:
             _format(path)
-    files.check({"--out": args.out, "--series": args.series, "--plot": args.plot}, {"the model": args.model})
+    files.check({"--out": args.out, "--series": args.series, "--plot": args.plot},
+                {"the model": args.model, "--input": tables[0] if tables else None})
     res = sweep(args.model, vary=vary, samples=args.samples, seed=args.seed, stop=args.stop, step=args.step,
                 outputs=args.outputs, inputs=inputs, scheduler=args.scheduler, workers=args.workers,
-                series=bool(args.series), progress=not args.quiet)
+                series=bool(args.series), progress=not args.quiet, input_table=tables[0] if tables else None,
+                inputs_interpolation=args.interpolate)
     table, series = res if args.series else (res, None)
     failed = int((table["status"] != "ok").sum())
     print(f"{len(table)} cases, {failed} failed, {table['wall_time'].sum():.3g} s of run time")
@@ -68,6 +84,11 @@ def run(args):
         outputs = [c for c in table.columns if c not in vary and c not in ("case", "status", "wall_time")]
         plot(table, varied[:2], outputs, args.plot)
         print(f"wrote {args.plot}")
+    if failed and not args.allow_failures:
+        first = table.loc[table["status"] != "ok", "status"].iloc[0]
+        print(printable(f"error: {failed} of {len(table)} cases failed (the first: {first}); "
+                        "--allow-failures to exit 0 all the same"), file=sys.stderr)
+        return 1
 
 
 def _pair(text, option):

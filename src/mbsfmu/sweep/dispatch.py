@@ -19,6 +19,7 @@ BATCH_SECONDS = 0.2    # yet at least this much work per batch: each costs a rou
 MAX_BATCH = 256        # long sweeps still report progress and lose little to a dying worker
 AHEAD = 2              # batches in flight per worker thread: the next is there when one ends
 WAIT_FOR_WORKERS = 60  # seconds an existing cluster may take to offer its first worker
+HANDSHAKE_SECONDS = 3  # a Dask scheduler sends its handshake at once on a connection
 LARGE_MODEL = 1 << 16  # bytes: larger models (FMUs) go to each station once; a scene's JSON rides with each batch
 
 
@@ -26,15 +27,28 @@ def run_cases(model, cases, setup, scheduler=None, workers=None, progress=None):
     """cases (a runner.Cases) → runner.Rows, in case order."""
     if progress is None:
         progress = sys.stderr.isatty()
-    with _bar(len(cases), progress) as bar:
-        if scheduler == "inprocess":
+    say = _say if progress else (lambda line: None)
+    if scheduler == "inprocess":
+        with _bar(len(cases), progress) as bar:
             parts = []
             for positions in batches(len(cases), 1, contiguous=True):
                 parts.append(run_batch(model, cases.take(positions), setup))
                 bar.update(len(positions))
             return Rows.join(parts, len(setup.outputs))
-        with _client(scheduler, workers) as client:
-            return _on_cluster(client, model, cases, setup, bar)
+    with _client(scheduler, workers, say) as client:
+        say(f"{len(cases)} case{'s' if len(cases) != 1 else ''} on {len(_threads(client))} worker(s); the first "
+            "runs alone (it builds the model on a worker and times it) …")
+        try:
+            with _bar(len(cases), progress) as bar:  # from here: the cluster's start-up is no part of the rate
+                return _on_cluster(client, model, cases, setup, bar)
+        except KeyboardInterrupt:  # the calls in flight fail as the client closes: Dask's and asyncio's reports
+            for name in ("asyncio", "distributed", "tornado"):  # of them would be tracebacks; Ctrl-C is one line
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+            raise
+
+
+def _say(line):
+    print(line, file=sys.stderr, flush=True)
 
 
 def batches(n, slots, cost=None, contiguous=False):
@@ -150,7 +164,9 @@ async def _drive(stations, slots, model, chunks, setup, bar):
 
     def start(addr):
         chunk = todo.popleft()
-        running[asyncio.ensure_future(call(addr, chunk))] = (addr, chunk)
+        task = asyncio.ensure_future(call(addr, chunk))
+        task.add_done_callback(_quiet)
+        running[task] = (addr, chunk)
 
     for addr in slots[:len(todo)]:
         start(addr)
@@ -167,6 +183,13 @@ async def _drive(stations, slots, model, chunks, setup, bar):
             if todo and addr not in dead:
                 start(addr)
     return done, failed, list(todo)
+
+
+def _quiet(task):
+    """A call still running when the sweep stops (Ctrl-C, an error) fails as the client closes: its error is
+    taken here, not printed by asyncio as a traceback ("Task exception was never retrieved")."""
+    if not task.cancelled():
+        task.exception()
 
 
 class Station:
@@ -209,19 +232,21 @@ def _stations(client, threads):
 def local_cluster(n):
     """The embedded cluster: n single-threaded worker processes; the scheduler hands every task to a
     worker at once (no root-task queuing), so a worker never waits a round trip between batches; the workers'
-    statistical profiler is off (sampling every 10 ms, it cost a worker up to a third of its speed here)."""
+    statistical profiler is off (sampling every 10 ms, it cost a worker up to a third of its speed here); the
+    workers ignore Ctrl-C (sweep/worker_setup.py)."""
     import dask
     from dask.distributed import LocalCluster
-    with dask.config.set({"distributed.scheduler.worker-saturation": math.inf,
+    with dask.config.set({"distributed.worker.preload": ["mbsfmu.sweep.worker_setup"],
+                          "distributed.scheduler.worker-saturation": math.inf,
                           "distributed.worker.profile.enabled": False,
                           "distributed.admin.tick.interval": "200ms",
                           "distributed.admin.system-monitor.interval": "2s"}):
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                            dashboard_address=None, silence_logs=logging.ERROR)
+                            dashboard_address=":0", silence_logs=logging.ERROR)  # a free port: no note that 8787 is taken
 
 
 @contextlib.contextmanager
-def _client(scheduler, workers):
+def _client(scheduler, workers, say=lambda line: None):
     """A Dask client: on an embedded LocalCluster (closed afterwards), an address, or a Client given; on an
     existing cluster wait until `workers` workers (default 1) have joined (a sweep then uses all it finds)."""
     from dask.distributed import Client
@@ -229,10 +254,14 @@ def _client(scheduler, workers):
         n = int(workers or os.cpu_count() or 1)
         if n < 1:
             raise ValueError(f"workers must be at least 1, got {workers}")
+        say(f"starting a local Dask cluster of {n} worker process{'es' if n != 1 else ''} …")
         with local_cluster(n) as cluster, Client(cluster, direct_to_workers=True) as client:  # ours: reachable
             yield client
         return
     with contextlib.ExitStack() as stack:
+        if not isinstance(scheduler, Client):
+            say(f"connecting to the Dask scheduler at {scheduler} …")
+            check_scheduler(scheduler)
         client = scheduler if isinstance(scheduler, Client) else stack.enter_context(
             Client(scheduler, timeout=WAIT_FOR_WORKERS))
         need = int(workers or 1)
@@ -243,6 +272,43 @@ def _client(scheduler, workers):
                 raise TimeoutError(f"fewer than {need} Dask workers joined {client.scheduler.address} within "
                                    f"{WAIT_FOR_WORKERS} s (start them with: dask worker ADDRESS)") from None
         yield client
+
+
+def check_scheduler(address, timeout=HANDSHAKE_SECONDS):
+    """A tcp:// address answers as a Dask scheduler: on a connection it sends its handshake unasked, a message
+    framed by its length (8 bytes, little-endian). An HTTP server (the dashboard's port) sends nothing, and
+    Dask would wait for ever; another server sends bytes that Dask would take for a length of exabytes.
+    Other schemes (tls://, ucx://, ...) are left to Dask."""
+    import socket
+    import struct
+    from urllib.parse import urlsplit
+    text = str(address)
+    url = urlsplit(text if "://" in text else f"tcp://{text}")
+    if url.scheme != "tcp":
+        return
+    try:
+        host, port = url.hostname, url.port
+    except ValueError:
+        port = None
+    if not host or port is None:
+        raise ValueError(f"--scheduler {text}: expected tcp://HOST:PORT")
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as sock:
+            head = b""
+            while len(head) < 8:
+                got = sock.recv(8 - len(head))
+                if not got:
+                    break
+                head += got
+    except socket.timeout:
+        raise TimeoutError(f"{text} is not a Dask scheduler: it sent no Dask handshake within {timeout:g} s "
+                           "(a dashboard or another server? the scheduler's address is printed when it starts, "
+                           "default port 8786)") from None
+    except OSError as e:
+        raise OSError(f"cannot connect to the Dask scheduler at {text}: {e.strerror or e}") from None
+    size = struct.unpack("<Q", head)[0] if len(head) == 8 else 0
+    if not 0 < size <= 1 << 20:  # a handshake is a few hundred bytes
+        raise ValueError(f"{text} is not a Dask scheduler: it answered with something else than a Dask handshake")
 
 
 def _threads(client):
@@ -260,11 +326,28 @@ class _NoBar:
         pass
 
 
+class _Bar:
+    """tqdm's bar, its time left shown once enough cases have finished to estimate it (the first case alone
+    also builds the model on its worker: its time says little of the rest), from the average rate since the
+    cluster was up."""
+
+    WAITING = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}, time left: estimating]"
+
+    def __init__(self, bar):
+        self.bar, self.enough = bar, max(2, math.ceil(bar.total / 20))
+
+    def update(self, n):
+        if self.bar.n < self.enough <= self.bar.n + n:
+            self.bar.bar_format = None  # tqdm's own: with the time left
+        self.bar.update(n)
+
+
 @contextlib.contextmanager
 def _bar(total, enabled):
     if not enabled:
         yield _NoBar()
         return
     from tqdm import tqdm
-    with tqdm(total=total, desc="sweep", unit="case", file=sys.stderr, smoothing=0.1) as bar:
-        yield bar
+    with tqdm(total=total, desc="sweep", unit="case", file=sys.stderr, smoothing=0,
+              bar_format=_Bar.WAITING) as bar:
+        yield _Bar(bar)

@@ -12,6 +12,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..inputs import InputTable, step_through
+
+_NO_TABLE = InputTable([], [0.0], np.zeros((1, 0)), "linear")  # no input table: a piece per communication step
+
 _MODELS = {}          # (model key, thread) → runner: a worker process builds each model once
 _MAX_MODELS = 8       # long-lived cluster workers see many sweeps: keep only the latest models
 
@@ -25,11 +29,13 @@ class ModelData(NamedTuple):
 
 
 class Setup(NamedTuple):
-    """What every case shares: communication points, outputs read, inputs held, whether to keep series."""
+    """What every case shares: communication points, outputs read, inputs held, whether to keep series, and
+    an input table (mbsfmu.inputs.InputTable) or None."""
     ts: np.ndarray
     outputs: tuple
     inputs: dict
     series: bool
+    table: object = None
 
 
 class Cases:
@@ -154,6 +160,14 @@ class SceneRunner:
         sim.reset()
         sim.set_many({**setup.inputs, **values})  # together: parameters that only make sense together
         sim.initialize(ts[0])
+        if setup.table is not None:  # the rows held as mbsfmu.simulate holds them
+            S = np.empty((len(ts), len(setup.outputs))) if setup.series else None
+
+            def sample(k):
+                if S is not None:
+                    S[k] = [sim.get(n) for n in setup.outputs]
+            step_through(setup.table, ts, sim.set_many, lambda a, b: sim.do_step(a, b - a), sample)
+            return [sim.get(n) for n in setup.outputs], S
         if not setup.series:
             sim.run(ts)
             return [sim.get(n) for n in setup.outputs], None
@@ -232,12 +246,14 @@ class FmuRunner:
         fmu.exitInitializationMode()
         vrs = [self.vars[n].valueReference for n in setup.outputs]
         S = np.empty((len(ts), len(vrs))) if setup.series else None
-        if S is not None:
-            S[0] = fmu.getReal(vrs)
-        for k in range(len(ts) - 1):
-            fmu.doStep(currentCommunicationPoint=ts[k], communicationStepSize=ts[k + 1] - ts[k])
+        table = setup.table if setup.table is not None else _NO_TABLE
+        table_vrs = [self.vars[n].valueReference for n in table.names]
+
+        def sample(k):
             if S is not None:
-                S[k + 1] = fmu.getReal(vrs)
+                S[k] = fmu.getReal(vrs)
+        step_through(table, ts, lambda u: table_vrs and fmu.setReal(table_vrs, list(u.values())),
+                     lambda a, b: fmu.doStep(currentCommunicationPoint=a, communicationStepSize=b - a), sample)
         final = fmu.getReal(vrs)
         fmu.terminate()
         return final, S
