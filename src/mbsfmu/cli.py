@@ -303,9 +303,9 @@ def _run_fmu(path, args):
 
 def _read_input_csv(path, md):
     """A structured array for fmpy's ``input=``: a ``time`` column plus FMU input names, every cell a number."""
-    from .csvfile import check_inputs, read_csv
+    from .csvfile import check_fmu_inputs, read_csv
     names, _, data = read_csv(path, "input")
-    check_inputs(path, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
+    check_fmu_inputs(path, names, md)
     return data
 
 
@@ -351,7 +351,22 @@ def _info(args):
         _say(f"  {causality}s ({len(vs)}):")
         for v in vs:
             unit = f" [{v.unit}]" if getattr(v, "unit", None) else ""
-            _say(f"    {v.name}{unit} = {v.start}  {v.description or ''}")
+            name, description, elements = _fmi_names(v)
+            _say(f"    {name}{unit} = {v.start}  {description or ''}")
+            if elements:
+                _say("      FMI 2.0: " + ", ".join(f"{v.name}[{k}] = {e}" for k, e in enumerate(elements, 1)))
+
+
+def _fmi_names(v):
+    """(name, description, FMI 2.0 names of its elements or None) of an FMU variable as info shows it: an FMI
+    3.0 array with its size, its elements' FMI 2.0 names from its description (fmu/variables.py writes them
+    there; an FMI 2.0 element's description names its FMI 3.0 element)."""
+    from .fmu.variables import fmi2_elements
+    dims = [str(d.start) for d in getattr(v, "dimensions", None) or ()]
+    if not dims:
+        return v.name, v.description, None
+    description, elements = fmi2_elements(v.description)
+    return f"{v.name}[{','.join(dims)}]", description, elements
 
 
 def _say(line):

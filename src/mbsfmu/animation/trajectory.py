@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..csvfile import check_inputs, read_csv
+from ..csvfile import check_fmu_inputs, check_inputs, read_csv
 
 
 def from_scene(spec, stop=None, input_csv=None):
@@ -73,7 +73,7 @@ def from_fmu(path, coordinates, stop=None, input_csv=None):
     inp = None
     if input_csv:
         names, _, inp = read_csv(input_csv, "input")
-        check_inputs(input_csv, names, {v.name for v in md.modelVariables if v.causality == "input"}, md.modelName)
+        check_fmu_inputs(input_csv, names, md)
     outputs = [f"y.{c}" for c in coordinates]
     missing = set(outputs) - {v.name for v in md.modelVariables if v.causality == "output"}
     if missing:
