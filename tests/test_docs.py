@@ -295,7 +295,7 @@ def _documented_commands(page):
     lines = [ln for b in blocks(page, "bash") for ln in b.replace("\\\n", " ").splitlines()]
     lines += [s for s in re.findall(r"`(mbsfmu [^`\n]*)`", text)
               if not re.search(r"…|\.\.\.|<|\b[A-Z]{2,}\b", s)]
-    for line in lines:
+    for line in (part for ln in lines for part in ln.split(" && ")):  # each command of a chain
         words = shlex.split(line, comments=True)
         if words[:1] == ["mbsfmu"]:
             yield line, words[1:]
