@@ -280,3 +280,118 @@ def test_no_python_block_writes_one_fmu_twice():
                     if len(args) == 2:
                         targets.append((Path(args[0]).stem, Path(args[1])))
             assert len(targets) == len(set(targets)), f"{page.name}: {targets}"
+
+
+# What a documented command reads and writes (argparse attributes of mbsfmu.cli.parse's namespace)
+READS = ("scene", "model", "urdf", "fmu", "input", "result")
+WRITES = ("output", "csv", "plot", "out", "series")
+SHIPPED = ("models", "docs")  # the folders a command may read from: what a fresh checkout has
+
+
+def _documented_commands(page):
+    """(line, argv of mbsfmu) of every runnable command on a page: the `mbsfmu …` and `python3 build_fmu.py …`
+    lines of its bash blocks, and inline `mbsfmu …` spans that name no placeholder (SCENE, <head>, …)."""
+    text = page.read_text(encoding="utf-8")
+    lines = [ln for b in blocks(page, "bash") for ln in b.replace("\\\n", " ").splitlines()]
+    lines += [s for s in re.findall(r"`(mbsfmu [^`\n]*)`", text)
+              if not re.search(r"…|\.\.\.|<|\b[A-Z]{2,}\b", s)]
+    for line in (part for ln in lines for part in ln.split(" && ")):  # each command of a chain
+        words = shlex.split(line, comments=True)
+        if words[:1] == ["mbsfmu"]:
+            yield line, words[1:]
+        elif words[:2] == ["python3", "build_fmu.py"]:
+            yield line, ["build", *words[2:]]
+
+
+def _files(line, argv):
+    """(files the command reads, files it writes) as paths relative to the repository; a build writes
+    DIR/<the scene's name:>.fmu per scene (an FMU is named after its scene, not its file)."""
+    try:
+        args = parse(argv)
+    except SystemExit:
+        return None  # an incomplete span (`mbsfmu simulate`): test_documented_commands_parse covers blocks
+    reads = [getattr(args, a, None) for a in READS]
+    if args.command in ("bench",):
+        reads += [w for w in args.rest[:1] if not w.startswith("-")]
+    reads = [p for r in reads for p in (r if isinstance(r, list) else [r])
+             if isinstance(p, str) and "=" not in p and not p.startswith("tcp://")]
+    reads = [str(p.relative_to(REPO)) for r in reads for p in (sorted(REPO.glob(r)) or [REPO / r])]
+    writes = [w for a in WRITES for w in [getattr(args, a, None)] if isinstance(w, str)]
+    if args.command == "build":
+        import yaml
+        writes = [str(Path(args.output) / f"{yaml.safe_load((REPO / s).read_text(encoding='utf-8'))['name']}.fmu")
+                  for s in reads if (REPO / s).is_file()]
+    return reads, [os.path.normpath(w) for w in writes], (getattr(args, "kind", None), getattr(args, "fmi", None))
+
+
+def _readme_outputs():
+    return {w for line, argv in _documented_commands(REPO / "README.md") for w in (_files(line, argv) or ((), (), None))[1]}
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_documented_commands_name_files_that_exist(page):
+    """Every file a documented command reads is shipped (models/, docs/) or written by a line before it (on its
+    page or, for docs/ pages, in the README, which a reader follows first), so each line runs as written from
+    the repository's root; and no line replaces an FMU another line of the page built otherwise (both kinds of
+    one scene into one folder: the second silently replaces the first)."""
+    made = set() if page.name == "README.md" or page.parent != DOCS else _readme_outputs()
+    written = {}
+    for line, argv in _documented_commands(page):
+        files = _files(line, argv)
+        if files is None:
+            continue
+        reads, writes, how = files
+        for r in reads:
+            shipped = r.split("/")[0] in SHIPPED and (REPO / r).exists()
+            assert shipped or os.path.normpath(r) in made, f"{page.name}: `{line.strip()}` reads {r}: not shipped, not written before"
+        for w in writes:
+            if w.endswith(".fmu") and w in written:
+                assert written[w][0] == how, f"{page.name}: `{line.strip()}` replaces {w}, built by `{written[w][1]}`"
+            written[w] = how, line.strip()
+        made |= set(writes)
+
+
+def _run_here(tmp_path, monkeypatch):
+    for d in SHIPPED:
+        (tmp_path / d).symlink_to(REPO / d)
+    monkeypatch.chdir(tmp_path)
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_documented_check_and_convert_lines_run(page, tmp_path, monkeypatch, capsys):
+    """The fast documented commands (check, convert) run as written from the repository's root: exit 0."""
+    from mbsfmu.cli import main
+    _run_here(tmp_path, monkeypatch)
+    for line, argv in _documented_commands(page):
+        if argv[:1] in (["check"], ["convert"]) and _files(line, argv) is not None:
+            capsys.readouterr()
+            assert main(argv) == 0, f"{page.name}: `{line.strip()}`: {capsys.readouterr().err}"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_python_blocks_import_what_they_use(page):
+    """A reader copies one block: every module a block uses it imports itself, and every other name it reads
+    is bound in it or in a block before it on the page (python-api.md's blocks build on each other)."""
+    import ast
+    import builtins
+    modules, bound = set(), set(dir(builtins))
+    for code in blocks(page, "python"):
+        tree = ast.parse(code)
+        imported, here = set(), set()
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                imported |= {(a.asname or a.name).split(".")[0] for a in node.names}
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, (ast.Store, ast.Del)):
+                here.add(node.id)
+            elif isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                here.add(node.name)
+            elif isinstance(node, ast.arg):
+                here.add(node.arg)
+            elif isinstance(node, ast.ExceptHandler) and node.name:
+                here.add(node.name)
+        modules |= imported
+        used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
+        missing = {n for n in used if n in modules and n not in imported | here}
+        missing |= used - modules - bound - imported - here
+        assert not missing, f"{page.name}: a python block uses {sorted(missing)} without importing or defining it:\n{code}"
+        bound |= imported | here

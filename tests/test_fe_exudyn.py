@@ -26,9 +26,7 @@ E, NU, RHO = 7.0e10, 0.33, 2700.0
 MODES, T_END = 6, 0.2
 
 
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_fe_cache")  # conftest.py: each test's own FE cache
 
 
 def strip_mesh(folder):

@@ -21,9 +21,7 @@ L, H = 1.0, 0.1
 E, RHO = 2.1e11, 7850.0
 
 
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_fe_cache")  # conftest.py: each test's own FE cache
 
 
 def dofs(nodes):

@@ -29,9 +29,7 @@ L, H = 1.0, 0.1
 E, NU, RHO = 2.1e11, 0.3, 7850.0
 
 
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_fe_cache")  # conftest.py: each test's own FE cache
 
 
 def bar(p2=True, nx=6, n=1, size=(L, H, H)):

@@ -30,9 +30,7 @@ E, NU, RHO = 2.1e11, 0.3, 7850.0
 MATERIAL = "{E: 2.1e+11, nu: 0.3, rho: 7850}"
 
 
-@pytest.fixture(autouse=True)
-def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("MBSFMU_CACHE", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("private_fe_cache")  # conftest.py: each test's own FE cache
 
 
 def von_mises(s):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import json
 import os
+import re
 import subprocess
 import sys
 import warnings
@@ -637,6 +638,70 @@ def test_fmi3_is_native_only(tmp_path):
                        timeout=120, env=os.environ)
     assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1 and "--kind native" in r.stderr, r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def _info_elements(fmu, capsys):
+    """{FMI 3.0 array: [FMI 2.0 name of element 1, 2, ...]} as `mbsfmu info` prints them."""
+    from mbsfmu.cli import main
+    capsys.readouterr()
+    assert main(["info", str(fmu)]) == 0
+    out = {}
+    for line in capsys.readouterr().out.splitlines():
+        if line.strip().startswith("FMI 2.0: "):
+            pairs = [p.split(" = ") for p in line.strip()[len("FMI 2.0: "):].split(", ")]
+            out[pairs[0][0].rsplit("[", 1)[0]] = [e for _, e in pairs]
+    return out
+
+
+@pytest.mark.parametrize("model", ["crane", "robot_arm_elastic"])
+def test_info_names_both_versions_and_a_host_reaches_the_same_variable_under_either(built, model, capsys):
+    """A start value under the FMI 2.0 name of an array element (F_bridge.y) is unknown to an FMI 3.0 host:
+    `mbsfmu info` of the FMI 3.0 FMU prints each array's FMI 2.0 names, that of the FMI 2.0 FMU each scalar's
+    FMI 3.0 element. Held against the two FMUs themselves: input element k set to 1 in the FMI 3.0 FMU and the
+    scalar info names set to 1 in the FMI 2.0 FMU give the same outputs, element for element under those names."""
+    fmu3, fmu2 = built[model]
+    arrays = _info_elements(fmu3, capsys)
+    md3 = {v.name: v for v in read_model_description(str(fmu3)).modelVariables}
+    assert arrays and set(arrays) == {n for n, v in md3.items() if v.dimensions and v.causality != "local"}
+    capsys.readouterr()
+    from mbsfmu.cli import main
+    main(["info", str(fmu2)])
+    text = capsys.readouterr().out
+    for a, names in arrays.items():
+        for k, n in enumerate(names, 1):
+            if not n.startswith("der("):  # the derivatives are local: info lists its parameters, inputs, outputs
+                assert re.search(rf"^    {re.escape(n)} .*\(FMI 3\.0: {re.escape(a)}\[{k}\]\)$", text, re.M), (a, k, n)
+    for a in (a for a, v in md3.items() if v.causality == "input" and v.dimensions):
+        for k, n in enumerate(arrays[a]):
+            start = np.zeros(len(arrays[a]))
+            start[k] = 1.0
+            r3 = simulate_fmu(str(fmu3), stop_time=0.05, output_interval=0.05, start_values={a: list(start)})
+            r2 = simulate_fmu(str(fmu2), stop_time=0.05, output_interval=0.05, start_values={n: 1.0})
+            for b, elements in arrays.items():
+                if b in r3.dtype.names:
+                    got = np.asarray(r3[b]).reshape(len(r3), -1)
+                    want = np.column_stack([r2[e] for e in elements])
+                    assert np.array_equal(got, want), (a, n, b)
+            moved = [c for c in r2.dtype.names if c != "time" and r2[c][-1] != 0.0]
+            assert moved, f"setting {n} moves nothing: the check would pass with any mapping"
+
+
+def test_input_csv_under_an_fmi2_element_name_is_refused_naming_the_element(built, tmp_path, capsys):
+    """`mbsfmu simulate FMI3.fmu --input` with a column F_bridge.y (FMI 2.0's name) or F_bridge (an array, one
+    number per cell) stops before running, naming the FMI 3.0 element; q.* columns (scalars) still run."""
+    from mbsfmu.cli import main
+    fmu3, _ = built["crane"]
+    for column, says in (("F_bridge.y", "F_bridge.y' is FMI 2.0's name of F_bridge[2], an element of the array input F_bridge"),
+                         ("F_bridge", "F_bridge' is the array input F_bridge")):
+        csv = tmp_path / "in.csv"
+        csv.write_text(f"time,{column}\n0,1\n")
+        capsys.readouterr()
+        assert main(["simulate", str(fmu3), "--input", str(csv), "--stop", "0.1"]) == 1
+        err = capsys.readouterr().err
+        assert says in err and ("F_bridge.x, F_bridge.y, F_bridge.z" in err or "where it is F_bridge.y" in err), err
+    q = next(v.name for v in read_model_description(str(fmu3)).modelVariables if v.name.startswith("q."))
+    csv.write_text(f"time,{q}\n0,1\n")
+    assert main(["simulate", str(fmu3), "--input", str(csv), "--stop", "0.1"]) == 0
 
 
 # ---- a plain C host, where no Python can be found ---------------------------------------------------------

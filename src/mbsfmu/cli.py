@@ -293,8 +293,7 @@ def _run_fmu(path, args):
     inp = None
     if args.input:
         from .inputs import InputTable
-        inp = InputTable.read(args.input, {v.name for v in md.modelVariables if v.causality == "input"},
-                              md.modelName, args.interpolate).fmpy_signals()
+        inp = InputTable.for_fmu(args.input, md, args.interpolate).fmpy_signals()
     with _stdout_to_stderr():  # fmpy's notes ("missing input for variable ...") are not rows of the table
         res = simulate_fmu(path, stop_time=stop, output_interval=step, input=inp, start_values=start_values,
                            output=[v.name for v in outputs])
@@ -375,8 +374,23 @@ def _info(args):
         _say(f"  {causality}s ({len(vs)}):")
         for v in vs:
             unit = f" [{v.unit}]" if getattr(v, "unit", None) else ""
+            name, description, elements = _fmi_names(v)
             start = f" = {v.start}" if v.start is not None else ""  # outputs and inputs may have none
-            _say(f"    {v.name}{unit}{start}  {v.description or ''}")
+            _say(f"    {name}{unit}{start}  {description or ''}")
+            if elements:
+                _say("      FMI 2.0: " + ", ".join(f"{v.name}[{k}] = {e}" for k, e in enumerate(elements, 1)))
+
+
+def _fmi_names(v):
+    """(name, description, FMI 2.0 names of its elements or None) of an FMU variable as info shows it: an FMI
+    3.0 array with its size, its elements' FMI 2.0 names from its description (fmu/variables.py writes them
+    there; an FMI 2.0 element's description names its FMI 3.0 element)."""
+    from .fmu.variables import fmi2_elements
+    dims = [str(d.start) for d in getattr(v, "dimensions", None) or ()]
+    if not dims:
+        return v.name, v.description, None
+    description, elements = fmi2_elements(v.description)
+    return f"{v.name}[{','.join(dims)}]", description, elements
 
 
 def _say(line):

@@ -66,3 +66,22 @@ def check_inputs(path, names, valid, model_name):
     unknown = [n for n in names if n not in valid]
     if unknown:
         raise ValueError(f"{path}: not inputs of {model_name}: {', '.join(unknown)} (inputs: {', '.join(sorted(valid)) or 'none'})")
+
+
+def check_fmu_inputs(path, names, md):
+    """check_inputs against an FMU's modelDescription (fmpy's). An FMI 3.0 array input takes no column: one
+    number per cell cannot fill it, and fmpy's input table cannot mix arrays and scalars; a column under an
+    element's FMI 2.0 name (``T_motor.y``, which FMI 3.0 hosts do not know) is refused naming the element."""
+    from .fmu.variables import fmi2_elements
+    inputs = [v for v in md.modelVariables if v.causality == "input"]
+    arrays = {v.name: fmi2_elements(v.description)[1] or [] for v in inputs if getattr(v, "dimensions", None)}
+    element = {e: (a, k) for a, es in arrays.items() for k, e in enumerate(es, 1)}
+    for n in names:
+        if n in arrays or n in element:
+            a, k = element.get(n, (n, None))
+            what = f"is FMI 2.0's name of {a}[{k}], an element of" if k else "is"
+            there = n if k else ", ".join(arrays[a]) or "scalars"
+            raise ValueError(f"{path}: column '{n}' {what} the array input {a} of {md.modelName} (an FMI "
+                             f"{md.fmiVersion} FMU); an input CSV sets scalar inputs only: give it through the scene's "
+                             f"FMI 2.0 FMU (mbsfmu build without --fmi 3), where it is {there}")
+    check_inputs(path, names, {v.name for v in inputs if v.name not in arrays}, md.modelName)

@@ -35,6 +35,15 @@ class InputTable:
         check_inputs(path, names, valid, model_name)
         return cls(names, t, np.column_stack([data[n] for n in names]) if names else np.zeros((len(t), 0)), how)
 
+    @classmethod
+    def for_fmu(cls, path, md, how="hold"):
+        """read, its columns checked against an FMU's modelDescription (csvfile.check_fmu_inputs: FMI 3.0 arrays
+        named)."""
+        from .csvfile import check_fmu_inputs, read_csv
+        names, t, data = read_csv(path, "input")
+        check_fmu_inputs(path, names, md)
+        return cls(names, t, np.column_stack([data[n] for n in names]) if names else np.zeros((len(t), 0)), how)
+
     def at(self, t):
         """{name: value} applied from time t on (for "linear": over the step that starts at t)."""
         if self.how == "linear":

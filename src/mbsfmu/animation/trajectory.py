@@ -68,8 +68,7 @@ def from_fmu(path, coordinates, stop=None, input_csv=None):
     md = read_model_description(path)
     inp = None
     if input_csv:
-        inp = InputTable.read(input_csv, {v.name for v in md.modelVariables if v.causality == "input"},
-                              md.modelName).fmpy_signals()
+        inp = InputTable.for_fmu(input_csv, md).fmpy_signals()
     outputs = [f"y.{c}" for c in coordinates]
     missing = set(outputs) - {v.name for v in md.modelVariables if v.causality == "output"}
     if missing:

@@ -13,7 +13,12 @@ tolerance is rtol × nominal, so each is the size the state physically has in th
 FMI 3.0 groups runs of these scalars into arrays (``fmi3_variables``): a force input's three components, an
 output point's position and its velocity, an elastic body's modal coordinates (y, ẏ, their generalized forces and
 derivatives). Each Variable names the array it belongs to (``array``), so the grouping is written here once.
+A host that knows only the other version's names silently ignores a start value under them, so each side's
+descriptions name the other's (``_name_both_versions``): an element's ends in ``(FMI 3.0: F_a[2])``, an array's
+in ``(FMI 2.0: F_a.x, F_a.y, F_a.z)`` (``fmi2_elements`` reads it back: ``mbsfmu info``, input CSVs).
 """
+
+
 
 import numpy as np
 
@@ -62,7 +67,28 @@ def variables(spec, model=None, derivatives=False):
         out += _derivatives(out, model)
     for vr, v in enumerate(out):
         v.vr = vr
+    _name_both_versions(out)
     return out
+
+
+FMI3_ELEMENT = " (FMI 3.0: {}[{}])"  # 1-based, as FMI's structured names count
+FMI2_NAMES = " (FMI 2.0: {})"
+
+
+def _name_both_versions(variables):
+    """Each element of an FMI 3.0 array says which one it is, each array which FMI 2.0 scalars it holds."""
+    for name, vs, description in fmi3_variables(variables):
+        if name != vs[0].name:
+            for k, v in enumerate(vs, 1):
+                v.description += FMI3_ELEMENT.format(name, k)
+                v.array = (name, description + FMI2_NAMES.format(", ".join(e.name for e in vs)))
+
+
+def fmi2_elements(description):
+    """(description without the names, [FMI 2.0 names of the elements]) of an FMI 3.0 array's description as
+    ``_name_both_versions`` writes it; (description, None) for any other text."""
+    text, mark, names = (description or "").rpartition(FMI2_NAMES.split("{")[0])
+    return (text, names[:-1].split(", ")) if mark and names.endswith(")") else (description, None)
 
 
 def _parameters(spec):

@@ -1,0 +1,41 @@
+"""The test session's one setting: BLAS (OpenBLAS, MKL, OpenMP) on one thread. The suite runs one test at a
+time; on a machine whose cores are busy, a BLAS thread pool spinning for a core it does not get costs 15-30×
+(the 1275-DOF dense eigh of tests/test_fe_reduce.py: 17 s instead of 1 s on two busy cores), and with the cores
+idle a second thread saves little at these sizes. The variables reach every child process (fresh interpreters,
+Dask workers, mbsfmu's own subprocesses); threadpoolctl limits the libraries this process may have loaded
+before this file (a plugin importing numpy)."""
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+try:
+    from threadpoolctl import threadpool_limits
+except ImportError:  # not installed: the variables above still hold for what loads from here on
+    pass
+else:
+    _BLAS = threadpool_limits(1)  # kept: the limit holds for the session
+
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def private_fe_cache(tmp_path, monkeypatch):
+    """$MBSFMU_CACHE in the test's own folder, so that FE reductions are made and cached afresh (tests/test_fe_*.py),
+    with the compiled engine and its fastcall extension linked in from the shared cache: that cache is keyed by
+    the engine's sources, and compiling it again costs about 20 s of CPU in every test that builds a pythonfmu
+    FMU or starts a fresh interpreter."""
+    from pathlib import Path
+
+    from mbsfmu.engine import build
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    for find in (build.library_path, build.fastcall_path):
+        try:
+            path = find()
+        except Exception:  # no compiler: the test meets the same failure where it needs the engine
+            path = None
+        if path is not None:
+            (cache / Path(path).name).symlink_to(path)
+    monkeypatch.setenv("MBSFMU_CACHE", str(cache))
