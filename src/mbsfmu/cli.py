@@ -553,6 +553,8 @@ def main(argv=None):
     args = parse(argv)
     with warnings.catch_warnings():
         warnings.showwarning = _note  # restored on return
+        for category in (UserWarning, RuntimeWarning):  # notes to the user, whatever filters the caller set
+            warnings.filterwarnings("default", category=category)
         return _run(args)
 
 
