@@ -67,6 +67,7 @@ static int switch_to_radau5(MbsIntegrator *it)
     if (mbs_integ_reset(st, ns->c->t, ns->x)) return child_failed(it, st);
     st->c->h = ns->c->h;
     st->c->has_h = ns->c->has_h;
+    st->c->restarted = ns->c->restarted; /* a switch inside an advance after an input change still lands */
     state(it)->phase = 1;
     state(it)->switched_at = ns->c->t;
     return 0;

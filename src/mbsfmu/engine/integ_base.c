@@ -241,7 +241,14 @@ static void failure_reason(MbsIntegrator *it)
 }
 
 /* The adaptive driver: the proposed h is clipped to hit t_end exactly (or, with dense output, steps past it),
- * and the unclipped h is carried over to the next call. */
+ * and the unclipped h is carried over to the next call.
+ * Right after f jumped (c->restarted: inputs or parameters changed at t) the advance lands exactly on t_end even
+ * with dense output, and a first step shortened to land there proposes the next h itself. A master that changes
+ * inputs at one point usually changes them at the next, so a step past t_end would be thrown away there, and the
+ * point would come from the continuous extension of a step much longer than the interval: its error is that of
+ * the long step (not of the short one the interval needs), and where the error estimate is ~0 (a solution
+ * polynomial in t, e.g. a free mass under a held force) h grew tenfold per restart until interpolating near the
+ * step's start lost every digit (2e-3 off at rtol 1e-10 for a slider pushed by a ramp). */
 int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
 {
     const MbsMethodClass *cls = it->cls;
@@ -249,6 +256,7 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
     size_t nb = (size_t)it->n * sizeof(double);
     double min_step;
     long attempts = 0;
+    int dense = it->dense && !c->restarted, first = c->restarted; /* first: the proposal predates the jump */
     if (cls->start(it, t_end)) return 1;
     min_step = 10.0 * MBS_EPS * mbs_pymax(fabs(c->t), fabs(t_end));
     while (c->t < t_end) {
@@ -269,7 +277,7 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
             c->t = t_end;
             break;
         }
-        if (it->dense) { /* natural step, possibly past t_end: the continuous extension gives x(t_end) */
+        if (dense) { /* natural step, possibly past t_end: the continuous extension gives x(t_end) */
             t_new = t + h_prop;
             clipped = 0;
         } else { /* stretch by up to 1 % rather than leave a tiny last step (as Hairer's DOPRI5) */
@@ -302,7 +310,7 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
         c->steps++;
         if (cls->accepted && cls->accepted(it)) return 1;
         mbs_integ_observe(it, t_end);
-        if (it->dense && t_new > t_end) {
+        if (dense && t_new > t_end) {
             /* the stages of this step are still in scratch: build its continuous extension */
             if (cls->dense_coeffs(it, t, it->xold, it->x, h, it->Q)) return 1;
             c->seg_t = t;
@@ -317,10 +325,12 @@ int mbs_integ_adaptive(MbsIntegrator *it, double t_end)
         }
         /* a step shortened to land on the point says little about the next one: keep the larger proposal
          * unless this step itself asked for a reduction */
-        if (clipped && h < h_prop && c->h >= h) c->h = mbs_pymax(c->h, h_prop);
+        if (clipped && h < h_prop && c->h >= h && !first) c->h = mbs_pymax(c->h, h_prop);
+        first = 0;
         c->h = mbs_pymin(c->h, it->max_step);
         if (cls->stop_early && cls->stop_early(it)) return 0;
     }
+    c->restarted = 0;
     return 0;
 }
 
@@ -505,7 +515,7 @@ static int single_reset(MbsIntegrator *it, double t0, const double *x0)
     c->steps = c->rejected = c->rhs_evaluations = c->jac_evaluations = c->lu_decompositions = 0;
     c->nonfinite = 0;
     c->last_failure = MBS_LAST_NONE;
-    c->has_ahead = c->has_seg = 0;
+    c->has_ahead = c->has_seg = c->restarted = 0;
     c->started = 1;
     it->cls->reset_history(it);
     return 0;
@@ -525,9 +535,11 @@ void mbs_integ_set_observer(MbsIntegrator *it, MbsStepObserver fn, void *env)
 static void single_inputs_changed(MbsIntegrator *it)
 {
     /* with dense output restart from the visible (interpolated) state, so the new inputs act from t on;
-     * cached derivatives (FSAL stage, f at the step start) are stale */
+     * cached derivatives (FSAL stage, f at the step start) are stale; the next advance lands on its end
+     * (mbs_integ_adaptive) */
     drop_ahead(it);
     it->cls->invalidate_derivative(it);
+    it->c->restarted = 1;
 }
 
 static int single_advance(MbsIntegrator *it, double t_end)
@@ -679,7 +691,8 @@ static int flag_ok(int v) { return v == 0 || v == 1; }
 static int check_candidate(const MbsIntegrator *it)
 {
     const MbsCommon *c = (const MbsCommon *)it->hist_tmp;
-    if (!flag_ok(c->started) || !flag_ok(c->has_h) || !flag_ok(c->has_ahead) || !flag_ok(c->has_seg))
+    if (!flag_ok(c->started) || !flag_ok(c->has_h) || !flag_ok(c->has_ahead) || !flag_ok(c->has_seg) ||
+        !flag_ok(c->restarted))
         return 1;
     if (c->nonfinite < 0 || c->nonfinite > MBS_MAX_NONFINITE_TRIALS) return 1;
     if (c->last_failure < MBS_LAST_NONE || c->last_failure > MBS_LAST_NEWTON) return 1;

@@ -91,6 +91,7 @@ typedef struct {
     long long steps, rejected, rhs_evaluations, jac_evaluations, lu_decompositions;
     int started;         /* reset succeeded: t, x valid */
     int has_h, has_ahead, has_seg;
+    int restarted;       /* f jumped at t (inputs or parameters changed): the next advance lands exactly on its end */
     int nonfinite;       /* consecutive non-finite trials, 0..MBS_MAX_NONFINITE_TRIALS */
     int last_failure;    /* MBS_LAST_* */
 } MbsCommon;
