@@ -10,6 +10,8 @@
 
 import numpy as np
 
+from .csvfile import check_fmu_inputs, check_inputs, read_csv
+
 INTERPOLATIONS = ("hold", "linear")
 
 
@@ -30,18 +32,18 @@ class InputTable:
     @classmethod
     def read(cls, path, valid, model_name, how="hold"):
         """A CSV (csvfile.read_csv: every cell a finite number) whose columns after `time` are inputs in `valid`."""
-        from .csvfile import check_inputs, read_csv
-        names, t, data = read_csv(path, "input")
-        check_inputs(path, names, valid, model_name)
-        return cls(names, t, np.column_stack([data[n] for n in names]) if names else np.zeros((len(t), 0)), how)
+        return cls._read(path, lambda names: check_inputs(path, names, valid, model_name), how)
 
     @classmethod
     def for_fmu(cls, path, md, how="hold"):
-        """read, its columns checked against an FMU's modelDescription (csvfile.check_fmu_inputs: FMI 3.0 arrays
-        named)."""
-        from .csvfile import check_fmu_inputs, read_csv
+        """read, its columns checked against an FMU's modelDescription (csvfile.check_fmu_inputs: an FMI 3.0
+        array's elements named)."""
+        return cls._read(path, lambda names: check_fmu_inputs(path, names, md), how)
+
+    @classmethod
+    def _read(cls, path, check, how):
         names, t, data = read_csv(path, "input")
-        check_fmu_inputs(path, names, md)
+        check(names)
         return cls(names, t, np.column_stack([data[n] for n in names]) if names else np.zeros((len(t), 0)), how)
 
     def at(self, t):
