@@ -39,3 +39,25 @@ def private_fe_cache(tmp_path, monkeypatch):
         if path is not None:
             (cache / Path(path).name).symlink_to(path)
     monkeypatch.setenv("MBSFMU_CACHE", str(cache))
+
+
+# fmpy's logger proxy (fmpy/logging, addLoggerProxy) keeps ONE process-wide C pointer, s_logger, to the Python
+# logger of the last fmi2CallbackFunctions it was given, and every FMI 2.0 message of every FMU whose callbacks went
+# through it (fmpy's defaultCallbacks too) is formatted and passed to that pointer. A test's callbacks that die with
+# the test (tests/test_fmu3.py's extreme-state test) leave it dangling: the freed ctypes thunk's memory is handed to
+# the next one (an FMI 3.0 intermediateUpdate callback of tests/test_fmu3_intermediate.py), and the next FMI 2.0
+# message (a pythonfmu FMU's discard in tests/test_fmu_build.py) called that callback on a freed FMU: a segfault.
+# So every callbacks structure registered with the proxy lives for the session (a few per session).
+try:
+    import fmpy.logging as _fmpy_logging
+except Exception:  # no fmpy, or no proxy for this platform: nothing keeps a pointer
+    pass
+else:
+    _PROXIED = []
+    _add_logger_proxy = _fmpy_logging.addLoggerProxy
+
+    def _add_logger_proxy_kept(callbacks):
+        _PROXIED.append(getattr(callbacks, "_obj", callbacks))  # byref(s) -> s, with its thunks
+        return _add_logger_proxy(callbacks)
+
+    _fmpy_logging.addLoggerProxy = _add_logger_proxy_kept

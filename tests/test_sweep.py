@@ -509,3 +509,36 @@ def test_an_input_table_is_held_in_every_case(tmp_path, capsys):
     assert np.allclose(pd.read_csv(out)["y.x"], [x(1.0), x(2.0)], rtol=0, atol=1e-12)
     assert main(["sweep", str(scene), "--vary", "q.x=1,2", "--input", str(table), "--scheduler", "inprocess"]) == 1
     assert "'q.x' is a column of the input table" in capsys.readouterr().err
+
+
+PROXY_AFTER_SWEEP = """
+import ctypes, gc, sys
+import mbsfmu
+from mbsfmu.sweep import runner
+table = mbsfmu.sweep(sys.argv[1], vary={"L": [0.5, 1.0]}, stop=0.1, step=0.05, outputs=["y.theta"],
+                     scheduler="inprocess", progress=False)
+assert (table["status"] == "ok").all(), table
+for r in list(runner._MODELS.values()):
+    r.close()
+runner._MODELS.clear()
+gc.collect()
+from fmpy.fmi2 import defaultCallbacks
+from fmpy.fmi3 import fmi3IntermediateUpdateCallback
+called = []
+decoys = [fmi3IntermediateUpdateCallback(lambda *a: called.append(a)) for _ in range(8)]  # take freed thunks
+defaultCallbacks.logger(None, b"other", 2, b"logStatusDiscard", b"another FMU's message")  # fmpy's C proxy
+print("decoy called" if called else "ok")
+"""
+
+
+def test_fmu_sweep_leaves_no_dangling_fmpy_logger(tmp_path):
+    """fmpy's logger proxy keeps one pointer per process to the last FMI 2.0 logger it was given; a sweep of an
+    FMU in this process gives it the runner's, which must outlive the runner: after the sweep (runners closed), a
+    ctypes callback made afresh is never called by another FMU's message (before: the freed logger's memory was
+    the new callback's, and the message called it, here a harmless decoy, in the suite a freed FMU's
+    intermediateUpdate: a segfault). In a fresh interpreter: conftest.py keeps the suite's loggers alive."""
+    import sys
+    fmu = mbsfmu.build_fmu(MODELS / "pendulum.yaml", tmp_path, kind="native")
+    r = subprocess.run([sys.executable, "-c", PROXY_AFTER_SWEEP, str(fmu)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0 and r.stdout.split()[-1:] == ["ok"], (r.returncode, r.stdout[-2000:], r.stderr[-2000:])

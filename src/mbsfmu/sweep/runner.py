@@ -19,6 +19,41 @@ _NO_TABLE = InputTable([], [0.0], np.zeros((1, 0)), "linear")  # no input table:
 _MODELS = {}          # (model key, thread) → runner: a worker process builds each model once
 _MAX_MODELS = 8       # long-lived cluster workers see many sweeps: keep only the latest models
 
+# The FMU's messages. fmpy formats an FMI 2.0 FMU's variadic messages in a C proxy (fmpy.logging.addLoggerProxy)
+# that keeps ONE pointer per process to the Python logger it was given last, and calls it for every FMI 2.0
+# message of every FMU of the process. A logger made per instance (instantiate_fmu(logger=f) wraps f in a new
+# ctypes thunk) leaves that pointer dangling once the instance is freed: the thunk's memory goes to the next
+# ctypes callback made in the process, which the next FMI 2.0 message anywhere then calls with a logger's
+# arguments (a segfault of the test suite: an FMI 3.0 intermediateUpdate callback of a freed FMU called by a
+# pythonfmu FMU's discard message). So one thunk for the process, never freed, handed to fmpy by its address
+# (no new thunk), and the messages go to the runner whose case this thread runs.
+_SINK = threading.local()  # .log: the messages list of the FmuRunner running a case in this thread
+_LOGGER = []               # [the process's one fmi2CallbackLoggerTYPE thunk], made at the first FMU instance
+_LOGGER_LOCK = threading.Lock()
+
+
+def _log_message(component, instance, status, category, message):
+    log = getattr(_SINK, "log", None)
+    if log is not None and status >= 2 and message:  # Discard, Error, Fatal: the reason a call failed
+        log.append(message.decode("utf-8", "replace"))
+
+
+def _log_message3(env, status, category, message):  # FMI 3.0: no proxy, fmpy keeps the thunk with the instance
+    _log_message(None, None, status, category, message)
+
+
+def _fmu_logger(fmi_version):
+    """The address of the process's logger thunk (an int: fmpy's fmi2CallbackLoggerTYPE(address) makes no thunk);
+    FMI 3.0's logger (another signature, not through the proxy) as a function."""
+    import ctypes
+    if fmi_version.startswith("3"):
+        return _log_message3
+    with _LOGGER_LOCK:
+        if not _LOGGER:
+            from fmpy.fmi2 import fmi2CallbackLoggerTYPE
+            _LOGGER.append(fmi2CallbackLoggerTYPE(_log_message))
+        return ctypes.cast(_LOGGER[0], ctypes.c_void_p).value
+
 
 class ModelData(NamedTuple):
     """What travels to the workers: a scene as normalized JSON ("scene") or the bytes of an FMU ("fmu")."""
@@ -204,14 +239,10 @@ class FmuRunner:
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.fmu, self.fresh, self.log = None, True, []
 
-    def _logger(self, component, instance, status, category, message):
-        if status >= 2:  # Discard, Error, Fatal: the reason a call failed
-            self.log.append(message.decode("utf-8", "replace"))
-
     def _instance(self):
         from fmpy import instantiate_fmu
         if self.fmu is None:
-            self.fmu = instantiate_fmu(self.unzipdir, self.md, "CoSimulation", logger=self._logger,
+            self.fmu = instantiate_fmu(self.unzipdir, self.md, "CoSimulation", logger=_fmu_logger(self.md.fmiVersion),
                                        debug_logging=True)  # pythonfmu forwards messages only with logging on
             self.fresh = True
         elif not self.fresh:
@@ -223,6 +254,7 @@ class FmuRunner:
         from ..simulation import as_real
         ts = setup.ts
         self.log.clear()
+        _SINK.log = self.log  # this thread's FMU messages, from here to the next case (failed() reads them)
         fmu = self._instance()
         reals = {}  # set in one fmi2SetReal: parameters that only make sense together are checked together
         for name, v in {**setup.inputs, **values}.items():
