@@ -179,21 +179,24 @@ def test_structural_parameter_refused_before_recompiling(tmp_path):
 
 
 def test_sweep_case_fails_naming_the_value_it_could_not_use():
-    """Item 4: NaN initial values, a negative mass, an rtol out of range and text for a number fail their case
-    naming the value; the valid cases start exactly at the values they name."""
+    """Item 4: NaN initial values, a negative mass and an rtol out of range fail their case naming the value; the
+    valid cases start exactly at the values they name. Text for a number is refused before any case runs."""
     import pandas as pd
     nan = math.nan
     cases = pd.DataFrame({"y0.phi1": [nan, 0.3, 0.3, 0.3, 0.3, 0.3], "yd0.phi2": [0.0, nan, 0.0, 0.0, 0.0, -0.25],
                           "m": [1.0, 1.0, -1.0, 1.0, 1.0, 2.0], "integrator.rtol": [1e-8, 1e-8, 1e-8, 1e9, 1e-8, 1e-8],
-                          "L": [1.0, 1.0, 1.0, 1.0, "long", 0.7]})
+                          "L": [1.0, 1.0, 1.0, 1.0, 1.0, 0.7]})
+    with pytest.raises(ValueError, match="L: 'long' is not a number"):
+        mbsfmu.sweep(REPO / "models" / "double_pendulum.yaml", vary=cases.assign(L=[1.0, 1.0, 1.0, 1.0, "long", 0.7]),
+                     stop=0.1, step=0.05, scheduler="inprocess")
     table, series = mbsfmu.sweep(REPO / "models" / "double_pendulum.yaml", vary=cases, stop=0.1, step=0.05,
                                  scheduler="inprocess", series=True)
     status = table["status"].tolist()
     for k, words in enumerate([["y0.phi1 = nan", "not finite"], ["yd0.phi2 = nan", "not finite"],
                                ["m = -1 makes bodies.link1.mass = -1", "must not be negative"],
-                               ["integrator.rtol = 1e+09", "[1e-14, 1]"], ["L = 'long'", "real number"]]):
+                               ["integrator.rtol = 1e+09", "[1e-14, 1]"]]):
         assert all(w in status[k] for w in words), (k, status[k])
-    assert status[5] == "ok"
+    assert status[4] == status[5] == "ok"
     first = series[(series["case"] == 5) & (series["time"] == 0.0)].iloc[0]
     assert first["y.phi1"] == 0.3 and first["yd.phi2"] == -0.25 and first["y.phi2"] == 0.0
 
@@ -395,17 +398,21 @@ def test_quaternion_start_values_must_be_a_rotation():
 
 @pytest.mark.skipif(not sys.platform.startswith("linux") or CC is None, reason="FMU binaries for linux64")
 def test_fmu_sweep_case_fails_naming_the_value(tmp_path):
-    """Through a built FMU (fmpy): a negative mass, a bool and text for a Real, an rtol out of range fail their
-    case naming the value, once; the valid case runs as the same case in-process."""
+    """Through a built FMU (fmpy): a negative mass, a bool for a Real, an rtol out of range fail their case naming
+    the value, once; the valid case runs as the same case in-process. Text for a Real is refused before any case."""
     import pandas as pd
     fmu = mbsfmu.build_fmu(REPO / "models" / "pendulum.yaml", tmp_path)
-    cases = pd.DataFrame({"m_bob": [-0.05, True, 1.0, 1.0, 0.5], "L": [0.8, 0.8, "long", 0.8, 0.7],
+    cases = pd.DataFrame({"m_bob": [-0.05, True, 1.0, 1.0, 0.5], "L": [0.8, 0.8, 0.8, 0.8, 0.7],
                           "integrator.rtol": [1e-8, 1e-8, 1e-8, 1e9, 1e-10]})
+    with pytest.raises(ValueError, match="L: 'long' is not a number"):
+        mbsfmu.sweep(str(fmu), vary=cases.assign(L=[0.8, 0.8, "long", 0.8, 0.7]), stop=0.2, step=0.05,
+                     scheduler="inprocess")
     table = mbsfmu.sweep(str(fmu), vary=cases, stop=0.2, step=0.05, scheduler="inprocess", outputs=["y.theta"])
     status = table["status"].tolist()
-    for k, words in enumerate([["m_bob = -0.05 makes bodies.bob.mass"], ["m_bob = True", "real number"],
-                               ["L = 'long'", "real number"], ["integrator.rtol = 1e+09", "[1e-14, 1]"]]):
+    for k, words in {0: ["m_bob = -0.05 makes bodies.bob.mass"], 1: ["m_bob = True", "real number"],
+                     3: ["integrator.rtol = 1e+09", "[1e-14, 1]"]}.items():
         assert all(w in status[k] for w in words) and status[k].count(words[0]) == 1, (k, status[k])
+    assert status[2] == "ok"
     assert status[4] == "ok"
     same = mbsfmu.sweep(REPO / "models" / "pendulum.yaml", vary=cases.iloc[4:], stop=0.2, step=0.05,
                         scheduler="inprocess", outputs=["y.theta"])
