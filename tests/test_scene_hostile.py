@@ -543,7 +543,7 @@ def test_10000_body_chain_loads_and_compiles_within_seconds(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(proc.stdout)
     assert r["dof"] == 10_000
-    assert r["load"] < 6.0 and r["compile"] < 4.0, r      # CPU seconds (about 2 and 0.7 measured)
+    assert r["load"] < 6.0 and r["compile"] < 4.0, r      # CPU seconds (2.5 and 0.7 measured here, about 1.7 times that on CI)
 
 
 def test_pure_python_yaml_parser_has_the_same_limits():

@@ -17,7 +17,13 @@ def _is_zero(values):
 
 
 def _vec(values, env):
+    if all(type(v) is float for v in values):  # the loader writes numbers as floats, expressions as text
+        return np.array(values)
     return np.array([parse(v)(env) for v in values], dtype=float)
+
+
+def _number(value, env):
+    return value if type(value) is float else parse(value)(env)
 
 
 def _rotation(rot, env):
@@ -56,9 +62,9 @@ class Body:
                                     axes=[_vec(a, env) for a in j["axes"]] if "axes" in j else None)
         self.at = _vec(j["at"], env) if self.has_at else None
         self.R0 = _rotation(j["rotation"], env) if self.has_rotation else None
-        self.m = parse(s["mass"])(env)
+        self.m = _number(s["mass"], env)
         self.c = _vec(s["center_of_mass"], env) if self.has_com else None
-        self.I = np.array([[parse(x)(env) for x in row] for row in s["inertia"]], dtype=float)
+        self.I = np.array([_vec(row, env) for row in s["inertia"]])
         lam, V = np.linalg.eigh(self.I)
         self.L_T = (V * np.sqrt(np.clip(lam, 0.0, None))).T  # I = L L^T; rows of L^T weight J_R
         self.has_inertia = bool(np.any(lam > 0))
@@ -88,7 +94,9 @@ def _parents_first(bodies):
 class Model:
     """Structure of a scene's equations of motion; `bind(params)` sets its numbers."""
 
-    def __init__(self, spec):
+    def __init__(self, spec, bind=True):
+        """``bind=False``: the structure only (what the FMU variables are: their names, units and order), with
+        only the elastic bodies bound (their modes set their coordinates' units)."""
         self.spec = spec
         self.name = spec["name"]
         self.parameters = {p["name"]: p["value"] for p in spec["parameters"]}
@@ -136,7 +144,12 @@ class Model:
         self.forces = spec["forces"]
         self.outputs = spec["outputs"]
         self.inputs = [f["input"] for f in self.forces if "input" in f]
-        self.bind(self.parameters)
+        if bind:
+            self.bind(self.parameters)
+        else:
+            for b in self.bodies:
+                if b.elastic:
+                    b.bind(dict(self.parameters, t=0.0))
 
     def coordinate_units(self):
         """Units of y and ẏ entries (contract order): the joint table's, then the elastic coordinates': m for

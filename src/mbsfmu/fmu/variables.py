@@ -57,12 +57,13 @@ class Variable:
         return f"Variable({self.name!r}, {self.causality}, {self.unit})"
 
 
-def variables(spec, model=None, derivatives=False):
+def variables(spec, model=None, derivatives=False, nominals=True):
     """The FMU variables of a normalized spec, in value-reference order (``model``: its equations.Model, if
     already built; ``derivatives``: with the derivative variables of model exchange, after all others, so that
-    every other value reference is the same with or without them)."""
-    model = Model(spec) if model is None else model
-    out = _parameters(spec) + _settings(spec["integrator"]) + _inputs(spec, model) + _outputs(spec, model)
+    every other value reference is the same with or without them; ``nominals=False``: the states without their
+    nominal values, which need the model's numbers: names and order need only its structure)."""
+    model = Model(spec, bind=nominals) if model is None else model
+    out = _parameters(spec) + _settings(spec["integrator"]) + _inputs(spec, model) + _outputs(spec, model, nominals)
     if derivatives:
         out += _derivatives(out, model)
     for vr, v in enumerate(out):
@@ -139,7 +140,7 @@ def _inputs(spec, model):
     return out
 
 
-def _outputs(spec, model):
+def _outputs(spec, model, nominals=True):
     units_pos, units_vel = model.coordinate_units()
     modal = _modal(model)
     out = [_in_array(Variable(f"y.{c}", "output", "continuous", unit=u, description=f"position coordinate {c}",
@@ -150,7 +151,7 @@ def _outputs(spec, model):
                                kind=L.MBS_V_YD, index=i), f"yd.{modal[c]}" if c in modal else None,
                      f"modal velocities of {c.split('.')[0]}")
             for i, (c, u) in enumerate(zip(model.velocity_coordinates, units_vel))]
-    for v, nominal in zip(out, np.concatenate(state_nominals(model))):
+    for v, nominal in zip(out, np.concatenate(state_nominals(model)) if nominals else ()):
         v.nominal = float(nominal)
     for i, o in enumerate(spec["outputs"]):  # each output point: 6 engine values, r then v
         for s, (qty, sym, unit) in enumerate((("position", "r", "m"), ("velocity", "v", "m/s"))):

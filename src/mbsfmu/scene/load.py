@@ -235,6 +235,26 @@ class _Checker:
     def number(self, parent, key, path, allow_t=False, positive=False, nonneg=False, magnitude=True):
         """A numeric field: number or expression over parameters (and `t` where allowed) → JSON value."""
         value = _literal(parent[key])
+        if type(value) is float or type(value) is int:  # most fields: a plain number (bool is not of type int)
+            v = value = float(value)
+        else:
+            value, v = self._expression(parent, key, path, value, allow_t)
+            if v is None:  # a function of time: checked over the whole experiment by time_domains
+                return value
+        if not math.isfinite(v):
+            self.fail(parent, key, path, f"'{value if isinstance(value, str) else repr(v)}' is not finite",
+                      "give a finite number (.inf, .nan and overflowing expressions are refused)")
+        if positive and not v > 0:
+            self.fail(parent, key, path, f"must be positive, got {v:g}", "give a value > 0")
+        if nonneg and domains.check(domains.NONNEG, [v]):
+            self.fail(parent, key, path, domains.check(domains.NONNEG, [v]), "use 0 or a positive value")
+        if magnitude and domains.check(domains.MAGNITUDE, [v]):
+            self.fail(parent, key, path, domains.check(domains.MAGNITUDE, [v]),
+                      "products of such numbers over- or underflow in double precision; check the units")
+        return value
+
+    def _expression(self, parent, key, path, value, allow_t):
+        """(the expression text, its value; None if it depends on t) of a numeric field that is not a number."""
         if isinstance(value, Date):
             self.fail(parent, key, path, f"'{value}' reads as a date, not a number", "write the number; quote an expression that looks like a date")
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
@@ -247,28 +267,16 @@ class _Checker:
             e = parse(value)
         except ExprError as err:
             self.fail(parent, key, path, str(err), _EXPR_HINT)
-        allowed = set(self.params) | ({"t"} if allow_t else set())
         for name in e.names:
-            if name not in allowed:
+            if name not in self.params and not (allow_t and name == "t"):
                 hint = "'t' is only allowed in drives and force values" if name == "t" else _suggest(name, sorted(self.params) or ["(no parameters defined)"])
                 self.fail(parent, key, path, f"unknown name '{name}'", hint)
-        if "t" in e.names:  # a function of time: checked over the whole experiment by time_domains
-            return value
-        env = dict(self.params, t=0.0)
+        if "t" in e.names:
+            return value, None
         try:
-            v = e(env)
+            return value, e(self.params)  # t is not among its names here
         except (ValueError, ZeroDivisionError, OverflowError, TypeError) as err:
             self.fail(parent, key, path, f"cannot evaluate '{e.text}': {err}")
-        if not math.isfinite(v):
-            self.fail(parent, key, path, f"'{e.text}' is not finite", "give a finite number (.inf, .nan and overflowing expressions are refused)")
-        if positive and not v > 0:
-            self.fail(parent, key, path, f"must be positive, got {v:g}", "give a value > 0")
-        if nonneg and domains.check(domains.NONNEG, [v]):
-            self.fail(parent, key, path, domains.check(domains.NONNEG, [v]), "use 0 or a positive value")
-        if magnitude and domains.check(domains.MAGNITUDE, [v]):
-            self.fail(parent, key, path, domains.check(domains.MAGNITUDE, [v]),
-                      "products of such numbers over- or underflow in double precision; check the units")
-        return float(value) if isinstance(value, (int, float)) else value
 
     def value(self, spec_value):
         """Nominal numeric value of a normalized field."""

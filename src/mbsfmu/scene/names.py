@@ -10,7 +10,7 @@ from ..fmu.variables import variables
 
 def fmu_variables(spec):
     """[(FMU variable name, what gives it, key path of its source in the scene)] in value-reference order."""
-    model = Model(spec)
+    model = Model(spec, bind=False)
     coordinate = {}  # coordinate name → (what, path); the loader already refused a name two bodies give
     for b in spec["bodies"]:
         for c in b["joint"]["coordinates"] + b["joint"]["velocities"]:
@@ -43,7 +43,7 @@ def fmu_variables(spec):
               L.MBS_V_Y: lambda i: coordinate[model.coordinates[i]],
               L.MBS_V_QIN: lambda i: coordinate[model.velocity_coordinates[i]],
               L.MBS_V_YD: lambda i: coordinate[model.velocity_coordinates[i]]}
-    return [(v.name, *source.get(v.kind, setting)(v.index)) for v in variables(spec, model)]
+    return [(v.name, *source.get(v.kind, setting)(v.index)) for v in variables(spec, model, nominals=False)]
 
 
 def first_collision(spec):

@@ -94,55 +94,65 @@ class _Loader(SafeConstructor, Resolver, _Parser):
         return root
 
     def _compose(self):
-        anchors, open_, root = {}, [], None  # open_: (node, its children so far) of unfinished collections
+        anchors, open_ = {}, []  # open_: (node, its children so far) of unfinished collections
         self.open_ = open_
+        get_event, marks, mark_of, tags = self.get_event, self._line_marks, self._mark, self.tags
+        max_nodes, max_depth, max_entries = limits.NODES, limits.DEPTH, limits.ENTRIES
         while True:
-            event = self.get_event()
-            if isinstance(event, AliasEvent):
-                if event.anchor not in anchors:
-                    raise ComposerError(None, None, f"found undefined alias {event.anchor!r}", event.start_mark)
-                node = anchors[event.anchor]
-            elif isinstance(event, ScalarEvent):
+            event = get_event()
+            kind = type(event)
+            if kind is ScalarEvent:
                 if len(event.value) > limits.SCALAR_CHARS:
                     raise ModelError(f"a value of {len(event.value):,} characters (at most {limits.SCALAR_CHARS:,})", line=_line(event))
-                mark = self._mark(event.start_mark)
-                node = ScalarNode(self._scalar_tag(event), event.value, mark, mark, style=event.style)
-            elif isinstance(event, (SequenceStartEvent, MappingStartEvent)):
-                if len(open_) >= limits.DEPTH:
-                    raise ModelError(f"nested more than {limits.DEPTH} levels deep", line=_line(event))
-                seq = isinstance(event, SequenceStartEvent)
-                kind, default = (SequenceNode, self.DEFAULT_SEQUENCE_TAG) if seq else (MappingNode, self.DEFAULT_MAPPING_TAG)
+                mark = marks.get(event.start_mark.line) or mark_of(event.start_mark)
+                tag = event.tag
+                if tag in (None, "!"):
+                    key = (event.value, event.implicit)
+                    tag = tags.get(key)
+                    if tag is None:  # scenes repeat their scalars (0, 1.0, revolute): resolve each text once
+                        tag = tags[key] = self.resolve(ScalarNode, event.value, event.implicit)
+                node = ScalarNode(tag, event.value, mark, mark, event.style)
+                starts = False
+            elif kind is AliasEvent:
+                if event.anchor not in anchors:
+                    raise ComposerError(None, None, f"found undefined alias {event.anchor!r}", event.start_mark)
+                node, starts = anchors[event.anchor], False
+            elif kind is SequenceStartEvent or kind is MappingStartEvent:
+                if len(open_) >= max_depth:
+                    raise ModelError(f"nested more than {max_depth} levels deep", line=_line(event))
+                seq = kind is SequenceStartEvent
+                node_kind, default = (SequenceNode, self.DEFAULT_SEQUENCE_TAG) if seq else (MappingNode, self.DEFAULT_MAPPING_TAG)
                 tag = default if event.tag in (None, "!") else event.tag
-                node = kind(tag, [], self._mark(event.start_mark), None, flow_style=event.flow_style)
+                node = node_kind(tag, [], mark_of(event.start_mark), None, flow_style=event.flow_style)
+                starts = True
             else:  # the end of the innermost collection
                 node, children = open_.pop()
-                node.end_mark = self._mark(event.end_mark)
-                if isinstance(node, MappingNode):
+                node.end_mark = mark_of(event.end_mark)
+                if type(node) is MappingNode:
                     node.value = list(zip(children[::2], children[1::2]))
                 if not open_:
                     return node
                 continue
             self.nodes += 1
-            if self.nodes > limits.NODES:
-                raise ModelError(f"more than {limits.NODES:,} values in one scene", line=_line(event),
+            if self.nodes > max_nodes:
+                raise ModelError(f"more than {max_nodes:,} values in one scene", line=_line(event),
                                  hint="put large nodal data in an .npz file next to the scene")
-            starts = isinstance(event, (SequenceStartEvent, MappingStartEvent))
-            if event.anchor is not None and not isinstance(event, AliasEvent):
+            if event.anchor is not None and kind is not AliasEvent:
                 if event.anchor in anchors:
                     raise ComposerError(None, None, f"found duplicate anchor {event.anchor!r}", event.start_mark)
                 anchors[event.anchor] = node
                 self.anchored.add(id(node))
             if open_:
                 parent, children = open_[-1]
-                if len(children) >= limits.ENTRIES * (1 if isinstance(parent, SequenceNode) else 2):
-                    raise ModelError(f"a list or mapping of more than {limits.ENTRIES:,} entries", line=_line(event),
+                if len(children) >= max_entries * (1 if type(parent) is SequenceNode else 2):
+                    raise ModelError(f"a list or mapping of more than {max_entries:,} entries", line=_line(event),
                                      key=self.compose_path(len(open_) - 1),
                                      hint="scenes hold at most that many bodies, forces, outputs or parameters; large nodal data belong in an .npz")
                 children.append(node)
             elif not starts:
                 return node
             if starts:
-                open_.append((node, node.value if isinstance(node, SequenceNode) else []))
+                open_.append((node, node.value if type(node) is SequenceNode else []))
 
     def compose_path(self, levels=None):
         """The key path (`bodies.arm.joint`, `forces[3]`) of the place the composer has reached, for errors met there
@@ -163,10 +173,15 @@ class _Loader(SafeConstructor, Resolver, _Parser):
         scalar is not cached, a collection nobody else refers to drops its children): it never lives whole next to
         the values (a 10,000-body chain: 58 MiB of nodes)."""
         try:
-            data = super().construct_object(node, deep)
-            if isinstance(node, ScalarNode):
+            if type(node) is ScalarNode:  # a scalar has no children to recurse into: its constructor, directly
+                constructor = self.yaml_constructors.get(node.tag)
+                if constructor is not None:
+                    return constructor(self, node)
+                data = super().construct_object(node, deep)
                 self.constructed_objects.pop(node, None)
-            elif id(node) not in self.anchored:  # an anchor's children may be merged (<<) into another mapping
+                return data
+            data = super().construct_object(node, deep)
+            if id(node) not in self.anchored:  # an anchor's children may be merged (<<) into another mapping
                 node.value = []
             return data
         except (ModelError, yaml.YAMLError):
@@ -174,14 +189,6 @@ class _Loader(SafeConstructor, Resolver, _Parser):
         except (ValueError, TypeError, AttributeError, ArithmeticError) as e:
             raise ModelError(f"the value cannot be read as {node.tag.rsplit(':', 1)[-1]} ({type(e).__name__})", line=_line(node),
                              key=_join(self.key_path) or None, hint="use plain YAML values: numbers, text, lists and mappings") from None
-
-    def _scalar_tag(self, event):
-        if event.tag not in (None, "!"):
-            return event.tag
-        key = (event.value, event.implicit)
-        if key not in self.tags:  # scenes repeat their scalars (0, 1.0, revolute): resolve each text once
-            self.tags[key] = self.resolve(ScalarNode, event.value, event.implicit)
-        return self.tags[key]
 
 
 def _check_expansion(root, anchored=frozenset()):
@@ -301,6 +308,8 @@ def _refuse_surprise(loader, node):
 
 
 def _construct_int(loader, node):
+    if node.value.isdigit() and (node.value[0] != "0" or len(node.value) == 1) and len(node.value) <= 18:
+        return int(node.value)  # the common case (0, 3, 250): plain decimal digits, nothing to refuse
     if len(node.value) > limits.INT_CHARS:
         raise ModelError(f"an integer of {len(node.value):,} characters (at most {limits.INT_CHARS})", line=_line(node),
                          key=_join(loader.key_path) or None, hint="write large numbers as floats, e.g. 1.0e30")
@@ -347,7 +356,8 @@ def read_yaml(text, file=None):
         node = loader.get_single_node()
         if node is None:
             return None
-        _check_expansion(node, loader.anchored)
+        if loader.anchored:  # without anchors the composer's own depth and node limits already bound the graph
+            _check_expansion(node, loader.anchored)
         return loader.construct_document(node)
     except ModelError as e:
         raise ModelError(e.message, file=file, line=e.line, key=e.key or loader.compose_path(), hint=e.hint) from None
