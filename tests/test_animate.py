@@ -23,7 +23,7 @@ import mbsfmu
 from mbsfmu.animation import decimate, frames
 from mbsfmu.animation.mesh import read_mesh
 from mbsfmu.cli import main
-from mbsfmu.equations.model import Model
+from mbsfmu.compiler.model import Model
 
 MODELS = Path(__file__).resolve().parent.parent / "models"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

@@ -420,7 +420,7 @@ def test_fmu_sweep_case_fails_naming_the_value(tmp_path):
 
 
 def _corrupt(blob, sid, index, value):
-    """The compiled scene with entry `index` of section `sid` replaced (the layout of engine/compile.py: _pack)."""
+    """The compiled scene with entry `index` of section `sid` replaced (the layout of compiler/scene_file.py: _pack)."""
     import struct
     nsec = struct.unpack_from("<i", blob, 72)[0]
     table = {s: (k, off) for s, k, off, _ in (struct.unpack_from("<iiqq", blob, 76 + 24 * n) for n in range(nsec))}

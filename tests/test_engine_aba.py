@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import mbsfmu
-from mbsfmu.engine.compile import carriers, dense_path
+from mbsfmu.compiler.scene_file import carriers, dense_path
 from mbsfmu.engine import layout as L
 from mbsfmu.simulation import Simulation
 
@@ -190,11 +190,11 @@ def test_a_10000_body_chain_compiles_and_steps_within_200_MB(tmp_path):
 
 
 def test_bodies_are_ordered_parents_first_in_linear_time():
-    """equations.model's body order is the passes over the file that each place every body whose parent is placed
+    """compiler.model's body order is the passes over the file that each place every body whose parent is placed
     (the definition, run literally here on shuffled random trees), and a 10,000-body chain written leaves first is
     ordered in well under a second (the passes took 10,000 sweeps of the file)."""
     import time
-    from mbsfmu.equations.model import _parents_first
+    from mbsfmu.compiler.model import _parents_first
 
     def by_passes(bodies):
         order, placed = [], {"world"}
@@ -253,7 +253,7 @@ def test_welded_and_massless_links_join_their_carriers():
     k, q and ÿ equal the numpy reference's, which keeps every body, to 1e-12, also after the parameter that sets a
     welded body's mass changes (the composites are derived at bind time); output points on welded bodies (whose
     frames the recursive kinematics derive from their carriers') equal the reference's."""
-    from mbsfmu.engine.compile import carriers
+    from mbsfmu.compiler.scene_file import carriers
     spec = mbsfmu.loads(WELDED).spec
     ev, sim = mbsfmu.compile(spec), Simulation(spec)
     names = [b.name for b in ev.model.bodies]
@@ -281,12 +281,12 @@ def test_welded_and_massless_links_join_their_carriers():
 
 @pytest.mark.parametrize("model", sorted(p.stem for p in (REPO / "models").glob("*.yaml")))
 def test_either_path_evaluates_every_shipped_model(model):
-    """The compiler picks the faster path per scene (compile.py: dense_path); either evaluates every scene: each
+    """The compiler picks the faster path per scene (compiler/scene_file.py: dense_path); either evaluates every scene: each
     shipped model compiled for each path (elastic ones too: their bodies are nodes of the articulated-body
     algorithm) gives M, k, q of the reference (1e-12) and the same ÿ."""
     from mbsfmu.engine import Instance
-    from mbsfmu.engine.compile import compile_scene
-    from mbsfmu.fmu.variables import variables
+    from mbsfmu.compiler.scene_file import compile_scene
+    from mbsfmu.compiler.variables import variables
     spec = mbsfmu.load(REPO / "models" / f"{model}.yaml").spec
     ev = mbsfmu.compile(spec)
     rng = np.random.default_rng(0)

@@ -15,8 +15,8 @@ import pytest
 import mbsfmu
 from mbsfmu.bodies.tree import node_point
 from mbsfmu.engine import EngineError, Instance
-from mbsfmu.engine.compile import carriers, dense_path
-from mbsfmu.equations.model import Model
+from mbsfmu.compiler.scene_file import carriers, dense_path
+from mbsfmu.compiler.model import Model
 from mbsfmu.engine.layout import S_ELASTIC_D, S_ELASTIC_I
 from mbsfmu.simulation import Simulation, compiled
 
@@ -27,8 +27,8 @@ RTOL = 1e-12
 
 def engine(spec, dense=None):
     """The engine instance of a scene on the path the compiler picks (dense None) or on the one asked for."""
-    from mbsfmu.engine.compile import compile_scene
-    from mbsfmu.fmu.variables import variables
+    from mbsfmu.compiler.scene_file import compile_scene
+    from mbsfmu.compiler.variables import variables
     if dense is None:
         blob, _, model = compiled(spec)
         return Instance(blob), model
@@ -48,7 +48,7 @@ def random_state(ev, rng, scale=1.0):
 
 
 def on_dense_path(spec):
-    """The compiler's choice of evaluation path for the scene (compile.py: dense_path)."""
+    """The compiler's choice of evaluation path for the scene (compiler/scene_file.py: dense_path)."""
     model = Model(spec)
     return dense_path(model, carriers(model))
 

@@ -30,7 +30,7 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 import mbsfmu  # noqa: E402
 from mbsfmu.fmu import native  # noqa: E402
-from mbsfmu.fmu.variables import fmi3_variables, variables  # noqa: E402
+from mbsfmu.compiler.variables import fmi3_variables, variables  # noqa: E402
 from mbsfmu.simulation import Simulation  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -62,7 +62,7 @@ def _outputs(fmu):
 
 
 def _elements(model):
-    """{FMI 3.0 variable name: the FMI 2.0 scalars it holds} (fmu/variables.py: fmi3_variables)"""
+    """{FMI 3.0 variable name: the FMI 2.0 scalars it holds} (compiler/variables.py: fmi3_variables)"""
     return {name: [v.name for v in vs] for name, vs, _ in fmi3_variables(variables(SCENES[model].spec, derivatives=True))}
 
 

@@ -22,7 +22,7 @@ from fmpy.validation import validate_fmu  # noqa: E402
 
 import mbsfmu  # noqa: E402
 from mbsfmu.fmu import native  # noqa: E402
-from mbsfmu.fmu.variables import continuous_states, variables  # noqa: E402
+from mbsfmu.compiler.variables import continuous_states, variables  # noqa: E402
 from mbsfmu.simulation import Simulation  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -290,8 +290,8 @@ def test_modal_nominal_is_the_static_deflection_under_gravity():
     """The flapwise bending mode of flexible_pendulum's clamped beam (tip-normalized) gets the nominal of its
     static deflection under the beam's own weight: Euler-Bernoulli's tip deflection ρA g L⁴ / (8 EI) (the first
     mode carries 97% of it, the rest the higher modes); angles 1, a length the scene's characteristic length."""
-    from mbsfmu.equations.model import Model
-    from mbsfmu.fmu.variables import state_nominals
+    from mbsfmu.compiler.model import Model
+    from mbsfmu.compiler.variables import state_nominals
     model = Model(_scene("flexible_pendulum").spec)
     p = model.parameters
     pos, vel = state_nominals(model)

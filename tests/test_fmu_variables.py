@@ -1,4 +1,4 @@
-"""fmu/variables.py owns the FMU variables: listed from the normalized scene without the engine, they are what
+"""compiler/variables.py owns the FMU variables: listed from the normalized scene without the engine, they are what
 both kinds of built FMU declare (read back with fmpy), they address every engine slot once, and the fmu
 package's modules import each other without a cycle."""
 
@@ -14,7 +14,7 @@ import pytest
 from mbsfmu import load
 from mbsfmu.engine import layout as L
 from mbsfmu.fmu.build import build_fmu
-from mbsfmu.fmu.variables import variables
+from mbsfmu.compiler.variables import variables
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = sorted((ROOT / "models").glob("*.yaml"))
@@ -23,7 +23,7 @@ FMU_PACKAGE = ROOT / "src" / "mbsfmu" / "fmu"
 LIST_WITHOUT_ENGINE = r"""
 import json, sys
 import mbsfmu
-from mbsfmu.fmu.variables import variables
+from mbsfmu.compiler.variables import variables
 listed = {p: [v.name for v in variables(mbsfmu.load(p).spec)] for p in sys.argv[1:]}
 import mbsfmu.engine
 maps = open("/proc/self/maps").read()
@@ -39,7 +39,7 @@ def test_listing_every_shipped_model_loads_no_engine():
     seen = json.loads(out.stdout)
     assert all(seen["listed"][str(p)] for p in MODELS)
     assert not seen["library"] and not seen["mapped"]  # no engine library loaded or mapped
-    engine_side = {"mbsfmu.simulation", "mbsfmu.engine.api", "mbsfmu.engine.build", "mbsfmu.engine.compile",
+    engine_side = {"mbsfmu.simulation", "mbsfmu.engine.api", "mbsfmu.engine.build", "mbsfmu.compiler.scene_file",
                    "mbsfmu.fmu.native"}
     assert not engine_side & set(seen["modules"])
 
@@ -84,7 +84,7 @@ def test_listing_is_what_the_native_fmu_declares(tmp_path, monkeypatch):
 
 def _slots(spec):
     """{engine variable kind: number of its slots}, counted from the scene (mbs_layout.h MBS_V_*)."""
-    from mbsfmu.equations.model import Model
+    from mbsfmu.compiler.model import Model
     m = Model(spec)
     n_points = {o["name"]: len(o["quantities"]) for o in spec["outputs"]}
     return {L.MBS_V_PARAM: len(spec["parameters"]), L.MBS_V_QIN: m.nvel, L.MBS_V_Y: m.npos, L.MBS_V_YD: m.nvel,

@@ -283,7 +283,7 @@ def test_workspace_limit_of_compile_py_holds_at_load(name):
     H[h["D_NOMINAL"]] += 2 * extra
     for key in ("D_OUT", "D_INTEG", "ND"):
         H[h[key]] += 4 * extra
-    from mbsfmu.engine.compile import _pack
+    from mbsfmu.compiler.scene_file import _pack
     parts = [(sid, np.array(arrays[sid], dtype={0: np.int32, 1: float, 2: np.uint8}[kind]))
              for sid, (_, kind, _, _) in sorted(sec.items())]
     big = _pack(parts, blob[8:72].split(b"\0")[0].decode())

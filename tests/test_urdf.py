@@ -679,7 +679,7 @@ def test_mirrored_mesh_is_drawn_and_bad_visuals_never_refuse_the_robot(tmp_path)
     order turned, so the closed surface still winds outwards (signed volume > 0, |det S| × 1/6). A zero scale or a
     negative box leaves that visual out with a note at its URDF line, on a direct load and through an overlay."""
     from mbsfmu.animation.drawing import shapes
-    from mbsfmu.equations.model import Model
+    from mbsfmu.compiler.model import Model
     bad = '<visual><geometry>\n<mesh filename="package://arm_description/meshes/tetra.stl" scale="0 1 1"/></geometry></visual>' \
           '<visual><geometry><box size="1 -1 1"/></geometry></visual>'
     path = _ros_layout(tmp_path, "0.001 -0.001 0.001", bad)
@@ -741,7 +741,7 @@ def test_fmu_attributes_are_never_nan(tmp_path):
     every real attribute of its modelDescription parses now as a finite number, and the writer refuses NaN."""
     import xml.etree.ElementTree as ET
     from mbsfmu.fmu.common import _fmt, model_description
-    from mbsfmu.fmu.variables import variables
+    from mbsfmu.compiler.variables import variables
     scene = mbsfmu.loads("mbsfmu: 1\nname: point\nbodies:\n  b: {parent: world, joint: {type: revolute, axis: [1, 0, 0]}, mass: 0.526,\n"
                          "      center_of_mass: [0, 0, 0.03], inertia: {xx: -5.42101e-20, yy: -5.42101e-20, zz: 0}}\n")
     with warnings.catch_warnings():

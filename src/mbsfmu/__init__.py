@@ -5,8 +5,7 @@ has no Python, a pythonfmu FMU imports the engine's ctypes seam (standard librar
 """
 
 from .errors import IntegrationError, ModelError
-
-__version__ = "0.1.0"
+from .version import __version__
 __all__ = ["load", "loads", "compile", "simulate", "animate", "build_fmu", "sweep", "ModelError", "IntegrationError", "__version__"]
 
 
@@ -27,7 +26,8 @@ def loads(text, file="<string>", base=None, allow_outside=False, repair=False):
 
 
 def compile(scene):
-    """Scene (or path, or normalized spec dict) → scene-specific Evaluator of M, k, q."""
+    """Scene (or path, or normalized spec dict) → the compiled model (compiler/model.py) with its numpy reference
+    Evaluator of M, k, q (equations/): the readable twin of what the engine runs from the compiled scene."""
     from .equations import Evaluator
     if isinstance(scene, dict):
         return Evaluator(scene)

@@ -383,9 +383,9 @@ def _info(args):
 
 def _fmi_names(v):
     """(name, description, FMI 2.0 names of its elements or None) of an FMU variable as info shows it: an FMI
-    3.0 array with its size, its elements' FMI 2.0 names from its description (fmu/variables.py writes them
+    3.0 array with its size, its elements' FMI 2.0 names from its description (compiler/variables.py writes them
     there; an FMI 2.0 element's description names its FMI 3.0 element)."""
-    from .fmu.variables import fmi2_elements
+    from .compiler.variables import fmi2_elements
     dims = [str(d.start) for d in getattr(v, "dimensions", None) or ()]
     if not dims:
         return v.name, v.description, None

@@ -72,7 +72,7 @@ def check_fmu_inputs(path, names, md):
     """check_inputs against an FMU's modelDescription (fmpy's). An FMI 3.0 array input takes no column: one
     number per cell cannot fill it, and fmpy's input table cannot mix arrays and scalars; a column under an
     element's FMI 2.0 name (``T_motor.y``, which FMI 3.0 hosts do not know) is refused naming the element."""
-    from .fmu.variables import fmi2_elements
+    from .compiler.variables import fmi2_elements
     inputs = [v for v in md.modelVariables if v.causality == "input"]
     arrays = {v.name: fmi2_elements(v.description)[1] or [] for v in inputs if getattr(v, "dimensions", None)}
     element = {e: (a, k) for a, es in arrays.items() for k, e in enumerate(es, 1)}

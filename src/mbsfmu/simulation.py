@@ -1,8 +1,8 @@
-"""One simulated scene on the engine: the FMU's variables (fmu/variables.py), parameters and inputs held
+"""One simulated scene on the engine: the FMU's variables (compiler/variables.py), parameters and inputs held
 over a step.
 
 In-process runs, the pythonfmu FMU and the native FMU all run the same C engine (mbsfmu.engine), so all
-three give the same numbers. Python compiles the scene once (engine/compile.py); every step runs in C.
+three give the same numbers. Python compiles the scene once (compiler/scene_file.py); every step runs in C.
 """
 
 import hashlib
@@ -14,11 +14,11 @@ import numpy as np
 
 from .engine import Instance
 from .engine import layout as L
-from .engine.compile import compile_scene
-from .equations.model import Model
+from .compiler.scene_file import compile_scene
+from .compiler.model import Model
 from .errors import IntegrationError
 from .scene import domains
-from .fmu.variables import Variable, variables
+from .compiler.variables import Variable, variables
 
 
 def compiled(spec, guid=None, derivatives=False):

@@ -32,7 +32,7 @@ def animate(source, output="animation.html", stop=None, input_csv=None, result_c
     an FMU was built from (without it, the drawing description the FMU carries; shape files are read next to
     the scene, else next to the FMU)."""
     from .. import files
-    from ..equations.model import Model
+    from ..compiler.model import Model
     from ..scene.shapes import mesh_path
     from . import drawing, frames, page, trajectory
     spec, base, fmu, package_dirs = trajectory.load_source(source, scene)

@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from ..expr import parse
-from ..equations.model import initial_rotation
+from ..compiler.model import initial_rotation
 from ..kinematics.rotations import matrix_to_quat
 from ..scene.shapes import mesh_path
 from .mesh import read_mesh

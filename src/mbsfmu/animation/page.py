@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from ..version import __version__
 
 THREE_VERSION = "0.180.0"
 _HERE = Path(__file__).parent

@@ -13,7 +13,7 @@ from ..inputs import InputTable
 
 def from_scene(spec, stop=None, input_csv=None):
     """Run a scene in process; each row of the input CSV held until the next (mbsfmu.inputs)."""
-    from .. import simulate
+    from ..simulation import simulate
     return simulate(spec, stop=stop, inputs=input_csv)
 
 

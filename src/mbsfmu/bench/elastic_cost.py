@@ -116,7 +116,7 @@ def exudyn_model(spec):
     import scipy.sparse as sp
     import exudyn.itemInterface as eii
     from exudyn.FEM import FEMinterface, ObjectFFRFreducedOrderInterface
-    from mbsfmu.equations.model import Model
+    from mbsfmu.compiler.model import Model
     nodal = next(b for b in Model(spec).bodies if b.elastic).nodal
     p = nodal.points()
     R = np.vstack([p.R, nodal.R_RP[-1]])

@@ -1,6 +1,6 @@
 """Elastic bodies on the engine's two evaluation paths (issue 26): the dense equations (per-body Jacobian rows, M
 assembled and factored: cubic in the coordinates) against the articulated-body algorithm, where an elastic body is
-a node with its modal coordinates (linear in the bodies), and the path the compiler picks (compile.py: dense_path).
+a node with its modal coordinates (linear in the bodies), and the path the compiler picks (compiler/scene_file.py: dense_path).
 
     python -m mbsfmu.bench.elastic_paths --out reports          (about 2 minutes)
 
@@ -55,8 +55,8 @@ class _Compiled:
 
     def __init__(self, spec, dense, states=64, seed=0):
         from ..engine import Instance
-        from ..engine.compile import compile_scene
-        from ..fmu.variables import variables
+        from ..compiler.scene_file import compile_scene
+        from ..compiler.variables import variables
         blob = compile_scene(spec, variables(spec), dense=dense)
         self.sim = type("Compiled", (), {"blob": blob})
         inst = Instance(blob)
@@ -82,8 +82,8 @@ def cases(shipped=SHIPPED, arms=ARMS, rigid_then_beam_=RIGID_THEN_BEAM, long_arm
 
 
 def run(case_list, rounds=5, seconds=0.2, progress=True):
-    from ..engine.compile import carriers, dense_path
-    from ..equations.model import Model
+    from ..compiler.scene_file import carriers, dense_path
+    from ..compiler.model import Model
     rows = []
     for name, spec in output.progress(case_list, "elastic paths", lambda c: c[0], progress):
         model = Model(spec)

@@ -52,7 +52,7 @@ def build_trivial_fmu(outdir: Path, n: int = 1) -> Path:
     from ..fmu.common import mbsfmu_version, model_description
     from ..engine.build import linked_sources
     from ..fmu.native import FMI_LAYER, COSIMULATION, c_names, collect_sources, package
-    from ..fmu.variables import Variable
+    from ..compiler.variables import Variable
     # the FMI layer's calls that fmu_trivial.c does not answer (resource locations) reach the engine's files
     sources = collect_sources(linked_sources([FMI_LAYER, TRIVIAL_SOURCE], []))
     guid = "{" + str(uuid.uuid4()) + "}"

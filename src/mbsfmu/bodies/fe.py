@@ -14,7 +14,6 @@ requires that, since the floating-frame invariants (cms.py) are quadratic forms 
 """
 
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -22,24 +21,10 @@ import scipy.sparse as sp
 
 from ..errors import ModelError
 from ..scene import limits
+from .fe_model import FEModel
 
 DIRECTIONS = {"x": 0, "y": 1, "z": 2, "1": 0, "2": 1, "3": 2}
 SYMMETRY_TOL = 1e-9   # of the matrix's largest entry: symmetry and the x/y/z mass blocks
-
-
-@dataclass(frozen=True)
-class FEModel:
-    """A solid FE model in the body frame: nodes (N×3), consistent M and K (3N×3N, node-major x y z)."""
-    nodes: np.ndarray
-    M: sp.csr_matrix
-    K: sp.csr_matrix
-    node_sets: dict = field(default_factory=dict)   # name -> node indices (0-based)
-    source: str = ""                                # file name(s), for messages
-    stress: object = None   # a mesh's σ at nodes: (U 3N×n, nodes) → (nodes, 6, n) (fe_mesh.nodal_stress); else None
-
-    @property
-    def n_nodes(self):
-        return self.nodes.shape[0]
 
 
 # -- bounded files ---------------------------------------------------------------------------------
@@ -345,7 +330,7 @@ def read(files, source, node_sets=None):
     if source["format"] == "mesh":
         from dataclasses import replace
 
-        from .fe_mesh import assemble_solid
+        from .fe_mesh import assemble_solid  # scikit-fem is imported only by scenes that mesh a solid
         mat = source["material"]
         model = assemble_solid(files["mesh"], mat["E"], mat["nu"], mat["rho"], source.get("element"),
                                base=Path(files["mesh"]).parent)

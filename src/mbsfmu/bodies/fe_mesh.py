@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..scene import datafile, limits
-from .fe import FEModel
+from .fe_model import FEModel
 
 ELEMENTS = ("tet4", "tet10", "hex8")
 CELL_ELEMENT = {"tetra": "tet4", "tetra10": "tet10", "hexahedron": "hex8"}

@@ -1,6 +1,6 @@
 """The engine seam: one compiled scene and its running instances, through ctypes (mbs_engine.h).
 
-Python compiles (compile.py: scene → compiled scene bytes), C runs (everything per step). This module is
+Python compiles (compiler/scene_file.py: scene → compiled scene bytes), C runs (everything per step). This module is
 the only place where Python talks to the engine; it imports no numpy, so that an FMU's run time stays lean.
 """
 

@@ -1,5 +1,5 @@
 /* Elastic bodies in the tree (seed 004, floating frame of reference): the same equations as bodies/ffrf.py and
- * bodies/tree.py, on the mass invariants that engine/elastic_tables.py computed at compile time.
+ * bodies/tree.py, on the mass invariants that compiler/elastic_tables.py computed at compile time.
  *
  *   z_II = J_z ẏ,  J_z = [Sᵀ J_T; Sᵀ J_R; E_q]   (R components: v_R, ω_R, q̇)
  *   M += J_zᵀ M_zz(q) J_z,   k += J_zᵀ (M_zz z̄ + h(q, q̇, ω)),   q += J_zᵀ (f_g + f_e),   z̄ = [Sᵀ ā; Sᵀ ᾱ; 0]

@@ -1,4 +1,4 @@
-/* Parameter and time expressions of a scene as bytecode (compiled by engine/compile.py from the parsed
+/* Parameter and time expressions of a scene as bytecode (compiled by compiler/scene_file.py from the parsed
  * expression trees of expr.py; nothing is ever eval-ed).  A program is a sequence of (op, arg) pairs for a
  * stack machine; the code is validated once at load (stack depth, indices), so running it needs no checks.
  * Stage 0 programs run when parameters are bound and write the model numbers (D), stage 1 programs run at

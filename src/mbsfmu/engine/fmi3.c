@@ -9,7 +9,7 @@
  * (fmi_common.c) and the bodies of the calls (fmi_core.c: this file converts arguments and checks phases).
  *
  * Variables: FMI 3.0's (mbs_model_var3: runs of rows of the engine's variable table as arrays, every other row a
- * scalar; fmu/variables.py: fmi3_variables numbers them for the modelDescription), Float64 arrays and scalars and
+ * scalar; compiler/variables.py: fmi3_variables numbers them for the modelDescription), Float64 arrays and scalars and
  * String scalars, plus the independent variable `time` after the last one (value reference = their count).
  * Values of arrays are flat, row after row. Co-simulation without event mode or early return; with an
  * intermediateUpdate callback given at instantiation, fmi3DoStep calls it after every accepted internal step of the

@@ -1,7 +1,7 @@
 """The compiled scene's layout as C declares it: mbs_layout.h, read with a strict parser.
 
 mbs_layout.h is the one declaration of every section id, table field, type code and size (X-macro lists, as
-MuJoCo's mjxmacro.h); this module gives Python the same numbers, so compile.py, elastic_tables.py and build.py
+MuJoCo's mjxmacro.h); this module gives Python the same numbers, so compiler/scene_file.py, compiler/elastic_tables.py and build.py
 write no constant of their own. Every name of the header becomes a module attribute (`layout.IB_POS`), and
 each list a tuple of its entries' arguments (`LISTS["MBS_METHODS"]`). A line the parser does not know is an
 error, never skipped: a constant it missed would silently differ from C's.

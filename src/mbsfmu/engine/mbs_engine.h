@@ -1,7 +1,7 @@
 /* mbsfmu engine — public interface (Python compiles, C runs).
  *
  * One C library, independent of any particular scene: the scene is data (the compiled scene, written by
- * mbsfmu/engine/compile.py) that mbs_model_load reads.  Everything that runs per step lives behind this
+ * mbsfmu/compiler/scene_file.py) that mbs_model_load reads.  Everything that runs per step lives behind this
  * header: equations M(y,t)·ÿ + k(y,ẏ,t) = q, force elements, drives and expressions (bytecode), elastic
  * bodies, integrators, instance state.  The same library serves in-process runs (ctypes), the pythonfmu
  * FMU and the native FMU (fmi2.c).
@@ -47,7 +47,7 @@ MBS_API const char *mbs_model_guid(const MbsModel *m);   /* the FMU's GUID, writ
 MBS_API int mbs_model_nvars(const MbsModel *m);          /* rows of the variable table */
 MBS_API int mbs_model_var_kind(const MbsModel *m, int vr); /* MBS_V_*, -1 out of range */
 MBS_API const char *mbs_model_var_name(const MbsModel *m, int vr); /* the FMU variable's name, NULL out of range */
-/* FMI 3.0's variables: runs of rows as arrays (fmu/variables.py: fmi3_variables), every other row a scalar;
+/* FMI 3.0's variables: runs of rows as arrays (compiler/variables.py: fmi3_variables), every other row a scalar;
  * mbs_model_var3: the first row of FMI 3.0 variable vr3 and its number of rows, -1 out of range */
 MBS_API int mbs_model_nvars3(const MbsModel *m);
 MBS_API int mbs_model_var3(const MbsModel *m, unsigned vr3, int *rows);
@@ -97,7 +97,7 @@ MBS_API int mbs_set_step_observer(MbsInstance *s, mbs_step_observer fn, void *en
 MBS_API double mbs_time(const MbsInstance *s);
 MBS_API int mbs_initialized(const MbsInstance *s);  /* 1 after mbs_initialize (or a state loaded from then) */
 MBS_API const double *mbs_state(const MbsInstance *s);  /* [y; ẏ], npos + nvel */
-MBS_API const double *mbs_nominals(const MbsInstance *s);  /* nominal values of [y; ẏ] (fmu/variables.py) */
+MBS_API const double *mbs_nominals(const MbsInstance *s);  /* nominal values of [y; ẏ] (compiler/variables.py) */
 MBS_API const char *mbs_message(const MbsInstance *s);   /* last failure, "" if none */
 /* steps, rejected, rhs_evaluations, jac_evaluations, lu_decompositions, switched (0/1) */
 MBS_API void mbs_stats(const MbsInstance *s, long out[6], double *switched_at);

@@ -1,5 +1,5 @@
 /* The compiled scene's layout, declared once (issue 23): every section id, table field, type code and size
- * that Python writes (compile.py, elastic_tables.py) and C reads. The C side gets enums from the lists below;
+ * that Python writes (compiler/scene_file.py, compiler/elastic_tables.py) and C reads. The C side gets enums from the lists below;
  * Python reads this file with a strict parser (engine/layout.py, as MuJoCo's mjxmacro.h), so there is no
  * generation step and a native FMU's sources/ carry it as it is.
  *
@@ -39,17 +39,17 @@
     X(S_OUT_I, 0)       /* nout × 3: body, node (-1: point), quantities (1 position, 2 velocity) */ \
     X(S_PROG, 0)        /* nprog × 4: stage (0 bind, 1 time), target, code offset, code length */ \
     X(S_CODE, 0)        /* ncode: bytecode, (op, arg) pairs */ \
-    X(S_ELASTIC_I, 0)   /* EH header, NE × EI rows, NFIX parameter indices (elastic_tables.py) */ \
+    X(S_ELASTIC_I, 0)   /* EH header, NE × EI rows, NFIX parameter indices (compiler/elastic_tables.py) */ \
     X(S_D, 1)           /* all numbers: parameters, constants, then the regions at the H_D_* offsets */ \
-    X(S_ELASTIC_D, 1)   /* elastic bodies' invariants and node data (elastic_tables.py) */ \
+    X(S_ELASTIC_D, 1)   /* elastic bodies' invariants and node data (compiler/elastic_tables.py) */ \
     X(S_NAMES, 2)       /* npos coordinate, nb body, nvars variable names, each NUL-terminated (messages) */ \
     X(S_VDOM, 1)        /* 6 × 3: domain of each settable kind MBS_V_PARAM .. MBS_V_STEP: lo, hi, flags (VD_*) */ \
     X(S_RULES, 0)       /* nrules × 3: rule (R_*), D offset of its first number (R_CARRIES: body), path */ \
     X(S_RULE_NAMES, 2)  /* the rules' scene paths, NUL-terminated (S_RULES holds their offsets) */ \
     X(S_LIMITS, 1)      /* LIM_N: the limits the rules use (below) */ \
     X(S_STRESS_I, 0)    /* nstress × 2: elastic data index, offset in S_STRESS_D (only with stress outputs) */ \
-    X(S_STRESS_D, 1)    /* per stress node its 6 × n stress modes, Voigt xx yy zz xy yz zx (elastic_tables.py) */ \
-    X(S_ARRAYS, 0)      /* narrays × 2: first S_VARS row, rows: FMI 3.0's arrays (variables.py: fmi3_variables) */
+    X(S_STRESS_D, 1)    /* per stress node its 6 × n stress modes, Voigt xx yy zz xy yz zx (compiler/elastic_tables.py) */ \
+    X(S_ARRAYS, 0)      /* narrays × 2: first S_VARS row, rows: FMI 3.0's arrays (compiler/variables.py: fmi3_variables) */
 enum { MBS_SECTIONS(MBS_CODE) S_NSECTIONS };
 
 /* header scalars (S_HEADER); H_D_*: offsets into D */
@@ -89,7 +89,7 @@ enum { MBS_FORCES(MBS_CODE) FE_N };
     X(IB_IROT_MASK, 1)  /* Cardan: bit k set = angle k comes from the initial rotation */ \
     X(IB_ELASTIC, 1)    /* index of the body's elastic data, -1 rigid */ \
     X(IB_NODE, 1)       /* node of the elastic parent the joint sits at, -1 none */ \
-    X(IB_CARRIER, 1)    /* the body that carries it (compile.py: carriers): itself, its parent's carrier, -1 world */
+    X(IB_CARRIER, 1)    /* the body that carries it (compiler/scene_file.py: carriers): itself, its parent's carrier, -1 world */
 enum { MBS_BODY_I(MBS_FIELD) IB };
 
 /* double row per body: derived (used per step), then raw (written by bind programs) */

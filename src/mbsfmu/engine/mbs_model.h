@@ -1,6 +1,6 @@
 /* Engine internals shared by model.c, expr.c, tree.c, elastic.c and sim.c.
  *
- * The compiled scene (written by engine/compile.py) is two flat arrays: I (int32) and D (double), reached
+ * The compiled scene (written by compiler/scene_file.py) is two flat arrays: I (int32) and D (double), reached
  * through a table of sections. The model keeps them read-only; every instance copies D, because the
  * parameters of an instance re-bind the numbers in its copy (bind programs), and keeps its own workspace
  * (Pinocchio's Model/Data split: nothing is written into the model during evaluation).
@@ -59,7 +59,7 @@ typedef double real;
 #endif
 
 /* ---- the compiled scene: two flat arrays reached through a table of sections, laid out as mbs_layout.h
- * declares (compile.py writes it from the same declaration) ---- */
+ * declares (compiler/scene_file.py writes it from the same declaration) ---- */
 int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen);  /* sim.c: at load, every row in range */
 
 struct MbsModel {
@@ -187,7 +187,7 @@ typedef struct {
 #define AB_ATC 200        /* (mbs_welded), else the parent's: written at bind time (mbs_composites) */
 #define AB_SIZE 203
 
-/* The evaluation path, chosen by the compiler (compile.py: dense_path) and read from the header here: the dense
+/* The evaluation path, chosen by the compiler (compiler/scene_file.py: dense_path) and read from the header here: the dense
  * equations (tree.c, elastic.c: per-body Jacobian rows, M assembled and factored: cubic in the coordinates) for
  * the smallest scenes, where they are the faster; the articulated-body algorithm (dynamics.c: linear in the
  * bodies) for the others. Either evaluates every scene. */

@@ -44,7 +44,7 @@ static const int8_t joint_nvel[J_N] = {MBS_JOINTS(JOINT_NVEL)};
  * parameter counts size the number layout of D, whose length the D section must match (so D's bytes bound
  * them); positions follow from velocities and quaternions; the other counts size their own sections (checked as
  * they are found); vector slots belong to force elements and drives to driven coordinates (check_bodies). The
- * per-instance workspace has the same limit as compile.py's. */
+ * per-instance workspace has the same limit as compiler/scene_file.py's. */
 static int check_header(const int32_t *H, char *err, size_t errlen)
 {
     for (int k = 0; k < H_SIZE; k++)

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..expr import parse
 from ..kinematics.rotations import cross, matrix_to_quat, quat_rate_matrix
-from .model import Model, initial_rotation
+from ..compiler.model import Model, initial_rotation
 from .tree import applied_forces, kinematics, mass_matrix_and_bias, point
 
 

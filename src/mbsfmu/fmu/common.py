@@ -14,7 +14,7 @@ from xml.dom.minidom import parseString
 from xml.etree.ElementTree import Element, SubElement, tostring
 
 from ..engine import layout as L
-from .variables import continuous_states, fmi3_variables
+from ..compiler.variables import continuous_states, fmi3_variables
 
 DRAWING_FILE = "mbsfmu_drawing.json"  # in resources/: what `mbsfmu animate FMU` draws from (animation/trajectory.py)
 

@@ -7,7 +7,7 @@ An FMU holds
 
 * ``binaries/linux64/<id>.so`` (``cc``) and ``binaries/win64/<id>.dll`` when a MinGW-w64 cross compiler
   (``x86_64-w64-mingw32-gcc``) is installed (FMI 3.0: ``x86_64-linux``, ``x86_64-windows``),
-* ``resources/scene.bin``: the compiled scene (``engine.compile.compile_scene``) with the FMU's GUID,
+* ``resources/scene.bin``: the compiled scene (``compiler.scene_file.compile_scene``) with the FMU's GUID,
 * ``resources/mbsfmu_drawing.json``: the scene for ``mbsfmu animate`` (``common.drawing_resource``),
 * ``sources/``: exactly the C files compiled into the binaries (the engine parts the scene needs, the FMI layer,
   the headers they include), listed in ``<SourceFiles>`` (FMI 3.0: ``sources/buildDescription.xml``), plus a

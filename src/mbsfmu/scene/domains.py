@@ -147,7 +147,7 @@ def _minimize(f, a, b, iterations=60):
 
 
 # -- domains of the numbers a host may change -------------------------------------------------------------
-# One table, declared here: the loader checks a scene's nominal numbers with these rules; compile.py writes
+# One table, declared here: the loader checks a scene's nominal numbers with these rules; compiler/scene_file.py writes
 # the same rules into the compiled scene (variable domains, and the derived-quantity rules of every number
 # that depends on a parameter), and the engine applies them when a host sets a value (sim.c: check_rules and
 # in_domain mirror check() and Domain.contains, kind by kind; tests/test_domains.py holds the two equal).

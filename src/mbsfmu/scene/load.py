@@ -3,7 +3,6 @@
 Every check raises ModelError with the file, the line, the key path and what would be valid.
 """
 
-import difflib
 import gc
 import json
 import math
@@ -20,6 +19,7 @@ from ..expr import FUNCTIONS, ExprError, parse
 from ..kinematics.joints import PARAMETERIZATIONS, TYPES as JOINT_TYPES, joint_type  # the joint table
 from . import datafile, domains, limits, names, urdf
 from .shapes import check_shapes
+from .wording import brief, shown, suggest
 from .yaml_lines import FLOAT_LITERAL, Date, Map, Seq, read_yaml
 
 FORCE_TYPES = tuple(e[1] for e in LISTS["MBS_FORCES"])  # the engine's force elements (mbs_layout.h: MBS_FORCES)
@@ -146,34 +146,9 @@ def _literal(value):
     return value
 
 
-def _shown(value):
-    """A YAML value as the file gave it, for messages: what was written, never the reader's type names."""
-    if value is None:
-        return "nothing (an empty value or null)"
-    if isinstance(value, bool):  # YAML 1.1: yes/no, true/false, on/off
-        return f"{'true' if value else 'false'} (YAML reads yes/no, on/off and true/false so)"
-    if isinstance(value, Date):
-        return f"the date '{value}'"
-    if isinstance(value, list):
-        return f"a list ({_brief(json.dumps(value, default=str))})"
-    if isinstance(value, dict):
-        return f"a mapping ({_brief(json.dumps(value, default=str))})"
-    return f"'{_brief(str(value))}'" if isinstance(value, str) else _brief(repr(value))
-
-
-def _brief(text, n=60):
-    return text if len(text) <= n else text[:n - 5] + " … "
-
-
 def _known(name, names):
     """`name` is one of `names` (a dict or set); a list or mapping given as a name is not."""
     return isinstance(name, str) and name in names
-
-
-def _suggest(word, valid):
-    close = difflib.get_close_matches(str(word), list(valid), n=1)
-    hint = f"did you mean '{close[0]}'? " if close else ""
-    return hint + "valid: " + ", ".join(str(v) for v in valid)
 
 
 class _Checker:
@@ -225,7 +200,7 @@ class _Checker:
             raise ModelError("expected a mapping", file=self.file, line=line, key=path, hint="key: value pairs, one per line or {key: value, ...}")
         for k in node:
             if k not in allowed:
-                self.fail(node, k, f"{path}.{k}" if path else k, f"unknown key '{k}'", _suggest(k, allowed))
+                self.fail(node, k, f"{path}.{k}" if path else k, f"unknown key '{k}'", suggest(k, allowed))
         for k in required:
             if k not in node:
                 hint = "a scene starts with 'mbsfmu: 1' (the format version)" if not path and k == "mbsfmu" else "required: " + ", ".join(required)
@@ -258,7 +233,7 @@ class _Checker:
         if isinstance(value, Date):
             self.fail(parent, key, path, f"'{value}' reads as a date, not a number", "write the number; quote an expression that looks like a date")
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-            self.fail(parent, key, path, f"a number or an expression was expected, got {_shown(value)}", _NUMBER_HINT)
+            self.fail(parent, key, path, f"a number or an expression was expected, got {shown(value)}", _NUMBER_HINT)
         if isinstance(value, str) and len(value) > limits.EXPRESSION_CHARS:
             self.fail(parent, key, path, f"an expression of {len(value):,} characters (at most {limits.EXPRESSION_CHARS})")
         if isinstance(value, str) and not value.isascii():
@@ -269,7 +244,7 @@ class _Checker:
             self.fail(parent, key, path, str(err), _EXPR_HINT)
         for name in e.names:
             if name not in self.params and not (allow_t and name == "t"):
-                hint = "'t' is only allowed in drives and force values" if name == "t" else _suggest(name, sorted(self.params) or ["(no parameters defined)"])
+                hint = "'t' is only allowed in drives and force values" if name == "t" else suggest(name, sorted(self.params) or ["(no parameters defined)"])
                 self.fail(parent, key, path, f"unknown name '{name}'", hint)
         if "t" in e.names:
             return value, None
@@ -285,7 +260,7 @@ class _Checker:
     def vector(self, parent, key, path, n=3, nonzero=False, allow_t=False):
         v = parent[key]
         if not isinstance(v, list) or len(v) != n:
-            self.fail(parent, key, path, f"a list of {n} numbers or expressions was expected, got {_shown(v)}", _NUMBER_HINT)
+            self.fail(parent, key, path, f"a list of {n} numbers or expressions was expected, got {shown(v)}", _NUMBER_HINT)
         out = [self.number(v, i, f"{path}[{i}]", allow_t=allow_t, magnitude=not nonzero) for i in range(n)]
         if nonzero:  # a direction: normalized by the run time, so its length must square without under- or overflow
             problem = domains.check(domains.AXIS, [self.value(x) for x in out])
@@ -328,7 +303,7 @@ class _Checker:
     def name(self, parent, key, path, pattern=_NAME, what="a name"):
         v = parent[key]
         if not isinstance(v, str) or not pattern.fullmatch(v):
-            self.fail(parent, key, path, f"{_shown(v)} is not valid as {what}", "letters, digits, underscore; starts with a letter")
+            self.fail(parent, key, path, f"{shown(v)} is not valid as {what}", "letters, digits, underscore; starts with a letter")
         if len(v) > limits.NAME_CHARS:
             self.fail(parent, key, path, f"{what} of {len(v):,} characters (at most {limits.NAME_CHARS})", "use a shorter name")
         return v
@@ -336,7 +311,7 @@ class _Checker:
     def key_name(self, node, name, path, what, exclude=()):
         """A name given as a key of `node` (a parameter, a body): the rule `name` applies to values."""
         if not isinstance(name, str) or not _NAME.fullmatch(name) or len(name) > limits.NAME_CHARS or name in exclude:
-            self.fail(node, name, path, f"{_shown(name)} is not valid as {what}",
+            self.fail(node, name, path, f"{shown(name)} is not valid as {what}",
                       f"letters, digits, underscore; starts with a letter; at most {limits.NAME_CHARS} characters"
                       + "".join(f"; not '{x}'" for x in exclude))
 
@@ -356,7 +331,7 @@ class _Checker:
         self.root = root
         self.keys(root, "", TOP_KEYS, required=("mbsfmu", "name", "bodies"))
         if type(root["mbsfmu"]) is not int or root["mbsfmu"] != 1:  # `true` is not the version 1
-            self.fail(root, "mbsfmu", "mbsfmu", f"unsupported format version {_shown(root['mbsfmu'])}", "this mbsfmu reads version 1: write 'mbsfmu: 1'")
+            self.fail(root, "mbsfmu", "mbsfmu", f"unsupported format version {shown(root['mbsfmu'])}", "this mbsfmu reads version 1: write 'mbsfmu: 1'")
         spec = {"mbsfmu": 1, "name": self.name(root, "name", "name", what="a model name")}
         spec["description"] = self.text(root, "description", "description")
         spec["parameters"] = self.parameters(root)
@@ -391,11 +366,11 @@ class _Checker:
                 if "unit" in v:
                     unit = v["unit"]
                     if not isinstance(unit, str) or not re.fullmatch(r"[A-Za-z0-9_.*/^()+-]{1,32}", unit):
-                        self.fail(v, "unit", path + ".unit", f"a unit is a short name such as N/m, kg.m2 or rad/s, got {_shown(unit)}")
+                        self.fail(v, "unit", path + ".unit", f"a unit is a short name such as N/m, kg.m2 or rad/s, got {shown(unit)}")
                 desc, v = self.text(v, "description", path + ".description"), v["value"]
             v = _literal(v)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                self.fail(node, name, path, f"a parameter value must be a finite number, got {_shown(v)}",
+                self.fail(node, name, path, f"a parameter value must be a finite number, got {shown(v)}",
                           "a parameter is a plain number such as 1.5 or 2e-3; expressions belong in the fields that use it")
             self.params[name] = float(v)
             out.append({"name": name, "value": float(v), "description": desc, **({"unit": unit} if unit else {})})
@@ -433,8 +408,8 @@ class _Checker:
             while p not in grounded:
                 if p in on_chain:
                     cycle = chain[chain.index(p):] + [p]
-                    shown = cycle if len(cycle) <= 8 else cycle[:4] + ["…"] + cycle[-3:]
-                    self.fail(node[p], "parent", f"bodies.{p}.parent", "the parents form a cycle: " + " -> ".join(shown), "every body must hang from world through a chain of parents")
+                    listed = cycle if len(cycle) <= 8 else cycle[:4] + ["…"] + cycle[-3:]
+                    self.fail(node[p], "parent", f"bodies.{p}.parent", "the parents form a cycle: " + " -> ".join(listed), "every body must hang from world through a chain of parents")
                 chain.append(p)
                 on_chain.add(p)
                 p = parent[p]
@@ -467,9 +442,9 @@ class _Checker:
         self.keys(node, path, ("parent", "joint", "mass", "center_of_mass", "inertia", "elastic", "description", "shape"), required=("parent", "joint"))
         parent = node["parent"]
         if not isinstance(parent, str):
-            self.fail(node, "parent", path + ".parent", f"expected a body name, got {_shown(parent)}")
+            self.fail(node, "parent", path + ".parent", f"expected a body name, got {shown(parent)}")
         if parent != "world" and parent not in bodies:
-            self.fail(node, "parent", path + ".parent", f"unknown parent '{parent}'", _suggest(parent, ["world"] + list(bodies)))
+            self.fail(node, "parent", path + ".parent", f"unknown parent '{parent}'", suggest(parent, ["world"] + list(bodies)))
         if parent == name:
             self.fail(node, "parent", path + ".parent", "a body cannot be its own parent")
         b = {"name": name, "parent": parent, "description": self.text(node, "description", path + ".description")}
@@ -506,7 +481,7 @@ class _Checker:
             self.fail(node, "joint", path, "missing 'type'", "valid: " + ", ".join(JOINT_TYPES))
         kind = j["type"]
         if kind not in JOINT_TYPES:
-            self.fail(j, "type", path + ".type", f"unknown joint type '{kind}'", _suggest(kind, JOINT_TYPES))
+            self.fail(j, "type", path + ".type", f"unknown joint type '{kind}'", suggest(kind, JOINT_TYPES))
         fields = joint_type(kind, PARAMETERIZATIONS[kind][0] if PARAMETERIZATIONS[kind] else None).fields
         common = ("type", "at", "node", "rotation", "coordinates", "initial", "initial_velocity", "drive")
         self.keys(j, path, common + fields, required=tuple(f for f in fields if f != "parameterization"))
@@ -537,7 +512,7 @@ class _Checker:
         param = j.get("parameterization", PARAMETERIZATIONS[kind][0] if PARAMETERIZATIONS[kind] else None)
         if PARAMETERIZATIONS[kind]:
             if param not in PARAMETERIZATIONS[kind]:
-                self.fail(j, "parameterization", path + ".parameterization", f"unknown parameterization '{param}'", _suggest(param, PARAMETERIZATIONS[kind]))
+                self.fail(j, "parameterization", path + ".parameterization", f"unknown parameterization '{param}'", suggest(param, PARAMETERIZATIONS[kind]))
             out["parameterization"] = param
         row = joint_type(kind, param)
         pos, vel = [f"{name}.{s}" for s in row.positions], [f"{name}.{s}" for s in row.velocities]
@@ -547,7 +522,7 @@ class _Checker:
             if quat:
                 self.fail(j, "coordinates", path + ".coordinates", "quaternion joints use fixed coordinate names", "names are " + ", ".join(pos) + "; or use parameterization: cardan")
             if not isinstance(given, list) or len(given) != len(pos):
-                self.fail(j, "coordinates", path + ".coordinates", f"a {kind} joint has {len(pos)} coordinate(s), got {_shown(given)}", "e.g. " + str(pos))
+                self.fail(j, "coordinates", path + ".coordinates", f"a {kind} joint has {len(pos)} coordinate(s), got {shown(given)}", "e.g. " + str(pos))
             for i, c in enumerate(given):
                 self.name(given, i, f"{path}.coordinates[{i}]", pattern=_COORD, what="a coordinate name")
             if len(set(given)) != len(given):
@@ -567,7 +542,7 @@ class _Checker:
                     out["initial"][c] = read(ini, c, f"{path}.initial.{c}")
                 else:
                     valid = [p for p in pos if not (quat and p in pos[row.quaternion])] + (["rotation"] if row.orientation else [])
-                    self.fail(ini, c, f"{path}.initial.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
+                    self.fail(ini, c, f"{path}.initial.{c}", f"unknown coordinate '{c}'", suggest(c, valid or ["(none)"]))
         if "initial_velocity" in j:
             ini = j["initial_velocity"]
             if not isinstance(ini, Map):
@@ -583,7 +558,7 @@ class _Checker:
                     out["initial_velocity"][c] = self.number(ini, c, f"{path}.initial_velocity.{c}")
                 else:
                     valid = list(vel) + (["omega"] if row.orientation else []) + (["velocity"] if row.translation else [])
-                    self.fail(ini, c, f"{path}.initial_velocity.{c}", f"unknown coordinate '{c}'", _suggest(c, valid or ["(none)"]))
+                    self.fail(ini, c, f"{path}.initial_velocity.{c}", f"unknown coordinate '{c}'", suggest(c, valid or ["(none)"]))
         out["drive"] = {}
         if "drive" in j:
             d = j["drive"]
@@ -594,7 +569,7 @@ class _Checker:
                     drivable = [k for k in JOINT_TYPES if joint_type(k).npos and joint_type(k).quaternion is None]
                     self.fail(d, c, f"{path}.drive.{c}", "quaternion joints cannot be driven", f"drive {', '.join(drivable)} or cardan coordinates")
                 if c not in pos:
-                    self.fail(d, c, f"{path}.drive.{c}", f"unknown coordinate '{c}'", _suggest(c, pos or ["(none)"]))
+                    self.fail(d, c, f"{path}.drive.{c}", f"unknown coordinate '{c}'", suggest(c, pos or ["(none)"]))
                 out["drive"][c] = self.number(d, c, f"{path}.drive.{c}", allow_t=True)
                 try:
                     parse(out["drive"][c]).diff("t").diff("t")
@@ -618,7 +593,7 @@ class _Checker:
             out["damping"] = _plain(e["damping"])
         if "rayleigh" in e:   # D = α M_ee + β K
             if not isinstance(e["rayleigh"], list) or len(e["rayleigh"]) != 2:
-                self.fail(e, "rayleigh", path + ".rayleigh", f"[alpha, beta] was expected, got {_shown(e['rayleigh'])}", "D = alpha·M + beta·K (1/s and s)")
+                self.fail(e, "rayleigh", path + ".rayleigh", f"[alpha, beta] was expected, got {shown(e['rayleigh'])}", "D = alpha·M + beta·K (1/s and s)")
             out["rayleigh"] = [self.number(e["rayleigh"], i, f"{path}.rayleigh[{i}]", nonneg=True) for i in range(2)]
         if "beam" in e:
             b, bp = e["beam"], path + ".beam"
@@ -637,14 +612,14 @@ class _Checker:
             for k, default, most in (("elements", 10, limits.BEAM_ELEMENTS), ("modes", 4, None)):
                 v = b.get(k, default)
                 if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-                    self.fail(b, k, f"{bp}.{k}", f"must be a positive integer, got {_shown(v)}")
+                    self.fail(b, k, f"{bp}.{k}", f"must be a positive integer, got {shown(v)}")
                 if most and v > most:
                     self.fail(b, k, f"{bp}.{k}", f"at most {most} elements (the generator's FE matrices are dense)",
                               "a few dozen elements resolve the lowest modes; or give nodal data from an FE program")
                 beam[k] = v
             beam["clamped"] = b.get("clamped", "start")
             if beam["clamped"] not in ("start", "none"):
-                self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition {_shown(beam['clamped'])}", _suggest(beam["clamped"], ("start", "none")))
+                self.fail(b, "clamped", bp + ".clamped", f"unknown boundary condition {shown(beam['clamped'])}", suggest(beam["clamped"], ("start", "none")))
             if "axis" in b:
                 beam["axis"] = [float(x) for x in b["axis"]]
             out["beam"] = beam
@@ -669,7 +644,7 @@ class _Checker:
                 self.fail(e, key, f"{path}.{key}", "expected a mapping coordinate: value")
             for c in e.get(key) or {}:
                 if c not in coords:
-                    self.fail(e[key], c, f"{path}.{key}.{c}", f"unknown elastic coordinate '{c}'", _suggest(c, coords))
+                    self.fail(e[key], c, f"{path}.{key}.{c}", f"unknown elastic coordinate '{c}'", suggest(c, coords))
                 out[key][c] = self.number(e[key], c, f"{path}.{key}.{c}")
         return out
 
@@ -696,7 +671,7 @@ class _Checker:
         self.keys(node, path, _FE_KEYS)
         method = node.get("method", "craig-bampton")
         if method not in cms.METHODS:
-            self.fail(node, "method", path + ".method", f"unknown method {_shown(method)}", _suggest(method, cms.METHODS))
+            self.fail(node, "method", path + ".method", f"unknown method {shown(method)}", suggest(method, cms.METHODS))
         if "modes" in node and "cutoff_hz" in node:
             self.fail(node, "cutoff_hz", path + ".cutoff_hz", "give either 'modes' or 'cutoff_hz', not both")
         source, files = self.fe_mesh(node, path) if "mesh" in node else self.fe_matrices(node, path)
@@ -714,7 +689,7 @@ class _Checker:
         else:
             params["modes"] = node.get("modes", cms.DEFAULT_MODES)
             if not isinstance(params["modes"], int) or isinstance(params["modes"], bool) or not 1 <= params["modes"] <= limits.FE_MODES:
-                self.fail(node, "modes", path + ".modes", f"must be an integer in 1 … {limits.FE_MODES}, got {_shown(params['modes'])}")
+                self.fail(node, "modes", path + ".modes", f"must be an integer in 1 … {limits.FE_MODES}, got {shown(params['modes'])}")
         if "interface" in node:
             i, ip = node["interface"], path + ".interface"
             self.keys(i, ip, ("node_set", "nodes", "reference", "coupling", "weights"))
@@ -726,15 +701,15 @@ class _Checker:
                 params["interface"] = str(i["node_set"])
             if "reference" in i:
                 if not isinstance(i["reference"], list) or len(i["reference"]) != 3:
-                    self.fail(i, "reference", ip + ".reference", f"a point [x, y, z] was expected, got {_shown(i['reference'])}")
+                    self.fail(i, "reference", ip + ".reference", f"a point [x, y, z] was expected, got {shown(i['reference'])}")
                 params["reference"] = [self.plain_number(i["reference"], k, f"{ip}.reference[{k}]", magnitude=False) for k in range(3)]
             if "coupling" in i:
                 if i["coupling"] not in cms.COUPLINGS:
-                    self.fail(i, "coupling", ip + ".coupling", f"unknown coupling {_shown(i['coupling'])}", _suggest(i["coupling"], cms.COUPLINGS))
+                    self.fail(i, "coupling", ip + ".coupling", f"unknown coupling {shown(i['coupling'])}", suggest(i["coupling"], cms.COUPLINGS))
                 params["coupling"] = i["coupling"]
             if "weights" in i:
                 if not isinstance(i["weights"], list) or not 1 <= len(i["weights"]) <= limits.FE_DOFS // 3:
-                    self.fail(i, "weights", ip + ".weights", f"a list of positive numbers (one per interface node) was expected, got {_shown(i['weights'])}")
+                    self.fail(i, "weights", ip + ".weights", f"a list of positive numbers (one per interface node) was expected, got {shown(i['weights'])}")
                 params["weights"] = [self.plain_number(i["weights"], k, f"{ip}.weights[{k}]", positive=True) for k in range(len(i["weights"]))]
         # judges the reduction (mbsfmu check), does not change it: not an input of reduce_files
         tolerance = (self.plain_number(node, "check_tolerance", path + ".check_tolerance", positive=True)
@@ -788,7 +763,7 @@ class _Checker:
                 self.fail(node, k, f"{path}.{k}", f"'{k}' belongs to a solid mesh (mesh:), not to matrix files")
         fmt = node.get("format", "matrix-market")
         if fmt not in _FE_FORMATS:
-            self.fail(node, "format", path + ".format", f"unknown format {_shown(fmt)}", _suggest(fmt, _FE_FORMATS))
+            self.fail(node, "format", path + ".format", f"unknown format {shown(fmt)}", suggest(fmt, _FE_FORMATS))
         files = {k: self.fe_file(node, k, path) for k in ("mass", "stiffness", "nodes")}
         dof_map = node.get("dof_map", "node-major")
         if dof_map not in ("node-major", "direction-major"):   # (Abaqus: for FORMAT=COORDINATE files, fe.py)
@@ -809,7 +784,7 @@ class _Checker:
         from ..bodies.fe_mesh import ELEMENTS
         element = node.get("element")
         if element is not None and element not in ELEMENTS:
-            self.fail(node, "element", path + ".element", f"unknown element {_shown(element)}", _suggest(element, ELEMENTS))
+            self.fail(node, "element", path + ".element", f"unknown element {shown(element)}", suggest(element, ELEMENTS))
         return {"format": "mesh", "material": material, "element": element}, {"mesh": self.fe_file(node, "mesh", path)}
 
     def fe_file(self, node, key, path):
@@ -822,14 +797,14 @@ class _Checker:
         """`keep:` or `load_points:` FE node indices and node set names (a set is one point: its average motion)."""
         v = parent[key]
         if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, (int, str)) or (isinstance(x, int) and x < 0) for x in v):
-            self.fail(parent, key, path, f"a list of node indices (integers ≥ 0) and node set names was expected, got {_shown(v)}")
+            self.fail(parent, key, path, f"a list of node indices (integers ≥ 0) and node set names was expected, got {shown(v)}")
         return [x if isinstance(x, str) else int(x) for x in v]
 
     def fe_nodes(self, parent, key, path):
         """A list of node indices (0-based) of an FE model."""
         v = parent[key]
         if not isinstance(v, list) or not v or any(isinstance(x, bool) or not isinstance(x, int) or x < 0 for x in v):
-            self.fail(parent, key, path, f"a list of node indices (integers ≥ 0) was expected, got {_shown(v)}")
+            self.fail(parent, key, path, f"a list of node indices (integers ≥ 0) was expected, got {shown(v)}")
         return [int(x) for x in v]
 
     def plain_number(self, parent, key, path, **kw):
@@ -847,7 +822,7 @@ class _Checker:
             return True
         axis = b["axis"]
         if not (isinstance(axis, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in axis)):
-            self.fail(b, "axis", path + ".axis", f"three numbers were expected, got {_shown(axis)}", "e.g. [0, 0, 1]: the beam along body z")
+            self.fail(b, "axis", path + ".axis", f"three numbers were expected, got {shown(axis)}", "e.g. [0, 0, 1]: the beam along body z")
         try:
             return bool(np.allclose(axis_rotation(axis, path + ".axis"), np.eye(3)))
         except ModelError as err:
@@ -885,9 +860,9 @@ class _Checker:
             return names[node]
         if isinstance(node, str):
             self.fail(parent, key, path, f"'{body}' keeps no node set '{node}'",
-                      _suggest(node, sorted(names)) if names else "name node sets in the body's fe: keep list")
+                      suggest(node, sorted(names)) if names else "name node sets in the body's fe: keep list")
         if isinstance(node, bool) or not isinstance(node, int):
-            self.fail(parent, key, path, f"a node index (an integer) was expected, got {_shown(node)}", f"use 0 … {N - 1}, or -1 … {-N} from the end")
+            self.fail(parent, key, path, f"a node index (an integer) was expected, got {shown(node)}", f"use 0 … {N - 1}, or -1 … {-N} from the end")
         if not -N <= node < N:
             self.fail(parent, key, path, f"node {node} does not exist: '{body}' has {N} nodes", f"use 0 … {N - 1}, or -1 … {-N} from the end")
         return node
@@ -905,7 +880,7 @@ class _Checker:
                 self.fail(node, i, path, "expected a mapping with 'type'", "valid: " + ", ".join(FORCE_TYPES))
             kind = f["type"]
             if kind not in FORCE_TYPES:
-                self.fail(f, "type", path + ".type", f"unknown force type '{kind}'", _suggest(kind, FORCE_TYPES))
+                self.fail(f, "type", path + ".type", f"unknown force type '{kind}'", suggest(kind, FORCE_TYPES))
             g = {"type": kind}
             if kind == "spring_damper":
                 self.keys(f, path, ("type", "bodies", "at", "node", "stiffness", "damping", "length"), required=("bodies", "stiffness"))
@@ -914,7 +889,7 @@ class _Checker:
                     self.fail(f, "bodies", path + ".bodies", "expected two body names [A, B] (world allowed)")
                 for j, b in enumerate(bs):
                     if b != "world" and not _known(b, bodies):
-                        self.fail(bs, j, f"{path}.bodies[{j}]", f"unknown body '{b}'", _suggest(b, ["world"] + list(bodies)))
+                        self.fail(bs, j, f"{path}.bodies[{j}]", f"unknown body '{b}'", suggest(b, ["world"] + list(bodies)))
                 if bs[0] == bs[1]:
                     self.fail(f, "bodies", path + ".bodies", "a spring needs two different bodies")
                 g["bodies"] = list(bs)
@@ -932,7 +907,7 @@ class _Checker:
                 c = f["coordinate"]
                 b = self.coords.get(c) if _known(c, self.coords) else None
                 if b is None:
-                    self.fail(f, "coordinate", path + ".coordinate", f"unknown coordinate '{c}'", _suggest(c, sorted(self.coords)))
+                    self.fail(f, "coordinate", path + ".coordinate", f"unknown coordinate '{c}'", suggest(c, sorted(self.coords)))
                 j = b["joint"]
                 if c in j["drive"]:
                     self.fail(f, "coordinate", path + ".coordinate", f"coordinate '{c}' is driven, so a spring on it does nothing")
@@ -950,7 +925,7 @@ class _Checker:
                 self.keys(f, path, ("type", "body", "at", "node", "value", "input", "frame"), required=("body",))
                 b = f["body"]
                 if not _known(b, bodies):
-                    self.fail(f, "body", path + ".body", f"unknown body '{b}'", _suggest(b, list(bodies)))
+                    self.fail(f, "body", path + ".body", f"unknown body '{b}'", suggest(b, list(bodies)))
                 g["body"] = b
                 if kind == "torque" and ("at" in f or "node" in f) and not bodies[b]["elastic"]:
                     self.fail(f, "at", path, "a torque acts on the whole rigid body: drop 'at'")
@@ -968,7 +943,7 @@ class _Checker:
                     g["input"] = name
                 frame = f.get("frame", "world")
                 if frame not in ("world", "body"):
-                    self.fail(f, "frame", path + ".frame", f"unknown frame '{frame}'", _suggest(frame, ("world", "body")))
+                    self.fail(f, "frame", path + ".frame", f"unknown frame '{frame}'", suggest(frame, ("world", "body")))
                 g["frame"] = frame
             out.append(g)
         return out
@@ -993,7 +968,7 @@ class _Checker:
             path = f"outputs[{i}]"
             self.keys(o, path, ("body", "point", "node", "quantities", "name"), required=("body",))
             if not _known(o["body"], bodies):
-                self.fail(o, "body", path + ".body", f"unknown body '{o['body']}'", _suggest(o["body"], list(bodies)))
+                self.fail(o, "body", path + ".body", f"unknown body '{o['body']}'", suggest(o["body"], list(bodies)))
             g = {"body": o["body"], "point": self.vector(o, "point", path + ".point") if "point" in o else [0.0] * 3}
             g["node"] = self.nodes(o, path, [o["body"]])[0] if "node" in o else None
             qs = o.get("quantities", ["position", "velocity"])
@@ -1001,7 +976,7 @@ class _Checker:
                 self.fail(o, "quantities", path + ".quantities", "expected a list", "valid: position, velocity")
             for j, q in enumerate(qs):
                 if q not in ("position", "velocity"):
-                    self.fail(qs, j, f"{path}.quantities[{j}]", f"unknown quantity '{q}'", _suggest(q, ("position", "velocity")))
+                    self.fail(qs, j, f"{path}.quantities[{j}]", f"unknown quantity '{q}'", suggest(q, ("position", "velocity")))
             g["quantities"] = list(qs)
             g["name"] = self.name(o, "name", path + ".name", pattern=_COORD, what="an output name") if "name" in o else o["body"]
             if g["name"] in names:
@@ -1015,7 +990,7 @@ class _Checker:
         self.keys(node, "integrator", ("method", "rtol", "atol", "max_step", "step", "rho_inf"))
         method = node.get("method", "auto")
         if method not in METHODS:
-            self.fail(node, "method", "integrator.method", f"unknown method '{method}'", _suggest(method, METHODS))
+            self.fail(node, "method", "integrator.method", f"unknown method '{method}'", suggest(method, METHODS))
         out = {"method": method}
         for k, default in (("rtol", 1e-6), ("atol", 1e-8), ("max_step", 0.0), ("step", 0.0), ("rho_inf", 0.8)):
             out[k] = self.value(self.number(node, k, f"integrator.{k}", positive=k in ("rtol", "atol"), nonneg=True, magnitude=False)) if k in node else default

@@ -1,11 +1,11 @@
 """Which scene key gives each FMU variable, so that two scene names that would give one FMU variable are refused
-at load, naming both. The variables themselves (names, order, kinds) are fmu/variables.py's: this module only
+at load, naming both. The variables themselves (names, order, kinds) are compiler/variables.py's: this module only
 traces each one back to the key it comes from, through the engine's variable kind and index."""
 
 from ..engine import layout as L
-from ..engine.elastic_tables import stress_points
-from ..equations.model import Model
-from ..fmu.variables import variables
+from ..compiler.elastic_tables import stress_points
+from ..compiler.model import Model
+from ..compiler.variables import variables
 
 
 def fmu_variables(spec):

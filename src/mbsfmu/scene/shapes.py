@@ -13,6 +13,7 @@ from pathlib import Path
 
 from ..errors import ModelError
 from . import datafile, limits
+from .wording import shown, suggest
 from .yaml_lines import Map, Seq
 
 SHAPE_TYPES = ("box", "sphere", "cylinder", "capsule", "mesh")
@@ -46,8 +47,7 @@ def _shape(ck, parent, key, path):
         ck.fail(parent, key, path, "expected a mapping with 'type'", "types: " + ", ".join(SHAPE_TYPES))
     kind = s["type"]
     if kind not in SHAPE_TYPES:
-        from .load import _suggest
-        ck.fail(s, "type", path + ".type", f"unknown shape type '{kind}'", _suggest(kind, SHAPE_TYPES))
+        ck.fail(s, "type", path + ".type", f"unknown shape type '{kind}'", suggest(kind, SHAPE_TYPES))
     extra = ("scale",) if kind == "mesh" else ()
     ck.keys(s, path, _COMMON + _SIZE_KEYS[kind] + extra, required=_SIZE_KEYS[kind])
     out = {"type": kind}
@@ -145,6 +145,5 @@ def _color(ck, s, path):
         return COLORS[c.lower()]
     if isinstance(c, list) and len(c) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool) and 0 <= x <= 1 for x in c):
         return "#" + "".join(f"{round(255 * x):02x}" for x in c)
-    from .load import _shown
-    ck.fail(s, "color", path + ".color", f"not a colour: {_shown(c)}",
+    ck.fail(s, "color", path + ".color", f"not a colour: {shown(c)}",
             "give '#rrggbb', [r, g, b] in 0..1, or a name: " + ", ".join(sorted(COLORS)))

@@ -22,6 +22,7 @@ from defusedxml.expatreader import DefusedExpatParser
 from ..errors import ModelError
 from . import datafile, domains, limits
 from .shapes import MESH_SUFFIXES, PACKAGE, package_path
+from .wording import suggest
 from .yaml_lines import Map, Seq
 
 JOINT_KINDS = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
@@ -162,8 +163,7 @@ class _Robot:
                      "a URDF is a tree: closed loops are not supported")
             self.parent_joint[child] = j
             if self.attr(j, "type") not in JOINT_KINDS:
-                from .load import _suggest
-                fail(j.line, "joint", f"joint '{name}' has the unknown type '{j.attrs['type']}'", _suggest(j.attrs["type"], JOINT_KINDS))
+                fail(j.line, "joint", f"joint '{name}' has the unknown type '{j.attrs['type']}'", suggest(j.attrs["type"], JOINT_KINDS))
         roots = [n for n in self.links if n not in self.parent_joint]
         if len(roots) != 1:
             where = self.links[roots[1]] if len(roots) > 1 else root
@@ -628,7 +628,6 @@ def include(root, file, base, allow_outside=False, repair=False):
     The URDF gives bodies (and joint dampers); the YAML adds or overrides the rest. Its `bodies:` entries are
     merged key by key into the URDF's (joint initial values, drives, shapes) or add bodies; its `forces` and
     `outputs` follow the URDF's."""
-    from .load import _suggest
     spec = root["urdf"]
     line = root.lines.get("urdf", root.line)
     if isinstance(spec, str):
@@ -637,7 +636,7 @@ def include(root, file, base, allow_outside=False, repair=False):
         raise ModelError("expected {file: robot.urdf} (optionally package_dirs, base, repair)", file=file, line=line, key="urdf")
     for k in spec:
         if k not in INCLUDE_KEYS:
-            raise ModelError(f"unknown key '{k}'", file=file, line=spec.lines.get(k, line), key=f"urdf.{k}", hint=_suggest(k, INCLUDE_KEYS))
+            raise ModelError(f"unknown key '{k}'", file=file, line=spec.lines.get(k, line), key=f"urdf.{k}", hint=suggest(k, INCLUDE_KEYS))
     try:
         path = datafile.resolve(base, spec["file"], allow_outside)
     except ModelError as e:

@@ -101,7 +101,7 @@ def _model(model):
     if isinstance(model, (str, Path)) and str(model).lower().endswith(".fmu"):
         return _fmu(Path(model))
     if isinstance(model, (str, Path)):
-        from .. import load
+        from ..scene import load
         model = load(model)
     spec = model if isinstance(model, dict) else model.spec
     return _scene(spec)

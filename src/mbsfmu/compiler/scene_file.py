@@ -10,11 +10,11 @@ import struct
 
 import numpy as np
 
-from ..equations.model import Model
+from .model import Model
 from ..expr import CONSTANTS, parse
 from ..scene import domains, limits
-from . import layout as L
-from ..fmu.variables import fmi3_variables
+from ..engine import layout as L
+from .variables import fmi3_variables
 from .elastic_tables import elastic_sections, stress_sections
 
 # every section id, field, type code and size comes from mbs_layout.h (layout.py); these are views of it

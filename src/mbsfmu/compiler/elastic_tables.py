@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..expr import parse
-from . import layout as L
+from ..engine import layout as L
 
 
 def structural_parameters(spec):

@@ -23,8 +23,8 @@ in ``(FMI 2.0: F_a.x, F_a.y, F_a.z)`` (``fmi2_elements`` reads it back: ``mbsfmu
 import numpy as np
 
 from ..engine import layout as L
-from ..engine.elastic_tables import stress_points, structural_parameters
-from ..equations.model import Model
+from .elastic_tables import stress_points, structural_parameters
+from .model import Model
 
 INTEGRATOR_DESCRIPTIONS = {
     "integrator.rtol": ("1", "relative tolerance of the adaptive integrators"),
