@@ -592,7 +592,9 @@ def test_tiny_base_links_and_world_roots_float_as_pinocchio(file, base):
     with pytest.warns(UserWarning) as notes:
         scene = mbsfmu.load(ROBOTS / file, base=base)
     if "ur5" not in file:
-        assert any("-2.459e-22" in str(n.message) and "rigid group" in str(n.message) for n in notes)
+        # the tiny negative moment is roundoff of the eigen solver (-2.5e-22 or -2.0e-22, by machine): its size only
+        assert any(re.search(r"principal moments -[0-9.]+e-22, ", str(n.message)) and "rigid group" in str(n.message)
+                   for n in notes)
     assert not scene.repairs and scene.spec["bodies"][0]["joint"]["type"] == "free"
     _matches_pinocchio(mbsfmu.compile(scene), file, base)
 
