@@ -1,4 +1,4 @@
-"""FMI 3.0 native FMUs (`build_fmu(..., kind="native", fmi="3")`, engine/fmi3.c): co-simulation and model exchange.
+"""FMI 3.0 native FMUs (`build_fmu(..., kind="native", fmi="3")`, fmi/fmi3.c): co-simulation and model exchange.
 
 References: fmpy's validation (the FMI 3.0 schema and rules); the FMI 2.0 native FMU of the same scene (the same
 engine: co-simulation equal to 1e-12); the in-process engine (`mbsfmu.simulate`, dop853 at rtol 1e-13, atol 1e-16,

@@ -1,4 +1,4 @@
-"""FMI 3.0 co-simulation intermediate update (engine/fmi3.c over the engine's step observer, mbs_set_step_observer).
+"""FMI 3.0 co-simulation intermediate update (fmi/fmi3.c over the engine's step observer, mbs_set_step_observer).
 
 References: scipy's DOP853 at rtol 1e-12 over the in-process right-hand side (the values read in the callback are
 the integrator's internal points); the FMI 2.0 native FMU of the same scene, which never observes (outputs bit for

@@ -1,4 +1,4 @@
-"""Native FMUs (`kind="native"`): the C engine + engine/fmi2.c, no Python at run time.
+"""Native FMUs (`kind="native"`): the C engine + fmi/fmi2.c, no Python at run time.
 
 References: `mbsfmu.simulate` (in-process engine) and fmpy for the numbers; the FMI 2.0 standard for the
 state machine and the state functions; a C host (tests/c/fmu_host.c) in a mount namespace where no Python

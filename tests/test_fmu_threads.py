@@ -1,7 +1,7 @@
 """Native FMU instances on threads, one per thread (what FMI allows), under ThreadSanitizer: the FMI layer's
 registries of instances and FMU states are shared by every instance of the library, and what one thread's
 fmi2FreeInstance reads there (each state's owner, to free the instance's states with it) another thread's
-fmi2GetFMUstate must not write outside the registry's lock (fmi_common.c: mbs_fmu_state_sized).
+fmi2GetFMUstate must not write outside the registry's lock (fmi_services.c: mbs_fmu_state_sized).
 
 The FMI 2.0 layer and the engine are compiled from the package's C sources with -fsanitize=thread, the host
 (tests/c/fmu_threads.c) too; any report of ThreadSanitizer fails the test. Skipped where the compiler has no
@@ -47,11 +47,10 @@ def test_instances_on_threads_take_and_free_states_without_a_data_race(tmp_path)
     (tmp_path / "resources").mkdir()
     (tmp_path / "resources" / "scene.bin").write_bytes(blob)
     srcs, _, defs = build.sources(build.features(blob))
-    here = build.HERE
     flags = ["-O0", "-g", "-std=c99", "-fsanitize=thread"]
     lib, host = tmp_path / "fmu.so", tmp_path / "host"
-    for cmd in ([cc, *flags, "-shared", "-fPIC", *defs, f"-I{here}", f"-I{here / 'fmi2'}", "-o", str(lib),
-                 *map(str, srcs), str(here / "fmi2.c"), "-lm"],
+    for cmd in ([cc, *flags, "-shared", "-fPIC", *defs, *build.include_flags(), "-o", str(lib),
+                 *map(str, srcs), str(build.FMI / "fmi2.c"), "-lm"],
                 [cc, *flags, "-o", str(host), str(HOST), "-ldl", "-lpthread"]):
         r = subprocess.run(cmd, capture_output=True, text=True)
         assert r.returncode == 0, r.stderr[-3000:]

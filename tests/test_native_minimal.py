@@ -111,7 +111,7 @@ def test_every_switch_combination_links_from_its_derived_sources(feats, tmp_path
     files = build.linked_sources([native.FMI_LAYER], defs)
     names = {f.name for f in files}
     assert ("expr.c" in names) == ("expr" in feats) and ("elastic.c" in names) == ("elastic" in feats)
-    r = subprocess.run([native.compiler(), "-O0", "-std=c99", "-shared", "-fPIC", *defs, f"-I{build.HERE}",
-                        f"-I{build.HERE / 'fmi2'}", "-o", str(tmp_path / "x.so"), *map(str, files), "-lm",
+    r = subprocess.run([native.compiler(), "-O0", "-std=c99", "-shared", "-fPIC", *defs, *build.include_flags(),
+                        "-o", str(tmp_path / "x.so"), *map(str, files), "-lm",
                         "-Wl,-z,defs"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[-2000:]

@@ -40,7 +40,7 @@ def _cc():
 def build(out: Path, feats=("expr", "elastic")) -> Path | None:
     """The harness with the engine parts `feats`, sanitized; None if the compiler lacks the sanitizers."""
     sys.path.insert(0, str(REPO / "src"))
-    from mbsfmu.engine.build import sources
+    from mbsfmu.engine.build import include_flags, sources
 
     cc = _cc()
     if cc is None:
@@ -50,7 +50,7 @@ def build(out: Path, feats=("expr", "elastic")) -> Path | None:
     if subprocess.run([cc, *SAN, str(probe), "-o", str(out.parent / "probe")], capture_output=True).returncode:
         return None
     srcs, _, defs = sources(feats)
-    cmd = [cc, "-O0", "-g", "-std=c99", *SAN, *defs, f"-I{ENGINE}", "-o", str(out),
+    cmd = [cc, "-O0", "-g", "-std=c99", *SAN, *defs, *include_flags(), "-o", str(out),
            str(REPO / "tests" / "c" / "scene_fuzz.c"), *map(str, srcs), "-lm"]
     res = subprocess.run(cmd, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-3000:]

@@ -12,7 +12,7 @@
     Each scene reads one output, its states (y.*, yd.*) and, if it has output points, all outputs.
 
 Peers: the native FMU of the scene, its pythonfmu FMU (start-up only) and trivial native FMUs built here:
-engine/fmi2.c over bench/fmu_trivial.c (k states x_i' = -a x_i + u, rk4 at 1 ms), the same FMI layer over the
+fmi/fmi2.c over bench/fmu_trivial.c (k states x_i' = -a x_i + u, rk4 at 1 ms), the same FMI layer over the
 smallest engine, with as many outputs as the case beside it reads.
 Targets (issue 10): native start-up <= 20 ms, pythonfmu <= 60 ms; native per-point overhead <= 1.5x the trivial
 FMU's (output points aside: they are model work).
@@ -220,7 +220,7 @@ def report(scenes, outdir: Path, runs: int, n: int) -> Path:
     lines = ["# FMU start-up and per-communication-point cost", "",
              "Timed in the plain C host `tests/c/fmu_host.c` (`python -m mbsfmu.bench.fmu_speed "
              f"{' '.join(map(str, scenes))} --out {outdir} --runs {runs} --points {n}`). The trivial FMUs are "
-             "engine/fmi2.c over bench/fmu_trivial.c: k independent states x_i' = -a x_i + u, rk4 at 1 ms, "
+             "fmi/fmi2.c over bench/fmu_trivial.c: k independent states x_i' = -a x_i + u, rk4 at 1 ms, "
              "the same FMI layer as the scenes' FMUs over the smallest engine.", "",
              f"## Start-up: fmi2Instantiate → end of the first fmi2DoStep (h = 1 ms), a fresh process per run, "
              f"{runs} runs, FMUs alternating", "",

@@ -1,7 +1,7 @@
 /* The trivial engine of bench/fmu_speed.py: the smallest implementation of mbs_engine.h that fmi2.c needs,
  * for n independent states x_i' = -a x_i + u integrated with classical RK4 at a fixed internal step of 1 ms.
  *
- * Compiled with engine/fmi2.c it gives a native FMU of the same FMI layer shape as an mbsfmu native FMU,
+ * Compiled with fmi/fmi2.c it gives a native FMU of the same FMI layer shape as an mbsfmu native FMU,
  * so that the benchmark separates the cost of the FMI layer and the instance from that of the multibody
  * engine; n is chosen so that the host reads as many outputs from it as from the scene's FMU.
  * Variables: vr 0 parameter a, vr 1 input u, vr 2 .. 2+n-1 outputs x_i.  scene.bin: the GUID, a newline, n.

@@ -20,9 +20,16 @@ from pathlib import Path
 from ..errors import EngineUnavailable
 
 HERE = Path(__file__).parent
-CORE = ("model.c", "tree.c", "dynamics.c", "deriv.c", "sim.c", "linalg.c", "fmu_files.c", "fmi2_guard.c", "fmi_common.c", "fmi_core.c") + tuple(sorted(p.name for p in HERE.glob("integ_*.c")))
-HEADERS = ("mbs_engine.h", "fmu_files.h", "fmi2_guard.h", "fmi_common.h", "fmi_core.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
-           "integ_internal.h", "linalg.h")
+FMI = HERE.parent / "fmi"  # the FMI layers (fmi2.c, fmi3.c) and what they share; the engine reads scene files with fmu_files.c
+INCLUDE_DIRS = (HERE, FMI, FMI / "fmi2", FMI / "fmi3")  # where the engine's and FMI layers' #include "..." are found
+# (folder, file): the engine's own files, then the FMI parts the in-process library carries too (scene files, the
+# state header check, and the layers' shared code, which ctypes hosts in the tests call)
+CORE = tuple((HERE, n) for n in ("model.c", "tree.c", "dynamics.c", "deriv.c", "sim.c", "linalg.c")) \
+    + tuple((FMI, n) for n in ("fmu_files.c", "call_guard.c", "fmi_services.c", "fmi_calls.c")) \
+    + tuple((HERE, p.name) for p in sorted(HERE.glob("integ_*.c")))
+HEADERS = tuple((HERE, n) for n in ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
+                                    "integ_internal.h", "linalg.h")) \
+    + tuple((FMI, n) for n in ("fmu_files.h", "call_guard.h", "fmi_services.h", "fmi_calls.h"))
 # optional parts: their files (elastic bodies: the equations and their complex twin for directional derivatives) and
 # the switch that turns them on
 OPTIONAL = {"expr": (("expr.c",), "-DMBS_WITH_EXPR"), "elastic": (("elastic.c", "deriv_elastic.c"), "-DMBS_WITH_ELASTIC")}
@@ -49,8 +56,13 @@ def features(blob):
 def sources(feats=("expr", "elastic")):
     """(C sources, headers, -D flags) of an engine with the given optional parts."""
     feats = [f for f in OPTIONAL if f in feats and (HERE / OPTIONAL[f][0][0]).exists()]
-    srcs = [HERE / s for s in CORE if (HERE / s).exists()] + [HERE / c for f in feats for c in OPTIONAL[f][0]]
-    return srcs, [HERE / h for h in HEADERS if (HERE / h).exists()], [OPTIONAL[f][1] for f in feats]
+    srcs = [d / s for d, s in CORE if (d / s).exists()] + [HERE / c for f in feats for c in OPTIONAL[f][0]]
+    return srcs, [d / h for d, h in HEADERS if (d / h).exists()], [OPTIONAL[f][1] for f in feats]
+
+
+def include_flags():
+    """-I flags for compiling engine and FMI sources from the package's folders."""
+    return [f"-I{d}" for d in INCLUDE_DIRS]
 
 
 _LINKED: dict = {}
@@ -65,10 +77,10 @@ def linked_sources(roots, defs, cc=None):
     import shutil
     import subprocess
     import tempfile
-    cands = [HERE / s for s in CORE + tuple(c for files, _ in OPTIONAL.values() for c in files)]
+    cands = [d / s for d, s in CORE] + [HERE / c for files, _ in OPTIONAL.values() for c in files]
     files = [*roots, *(c for c in cands if c not in roots)]
     key = hashlib.sha256(" ".join(defs).encode())
-    for p in sorted(files) + sorted(HERE.glob("*.h")):
+    for p in sorted(files) + sorted(p for d in INCLUDE_DIRS for p in d.glob("*.h")):
         key.update(p.name.encode() + p.read_bytes())
     key = key.hexdigest()
     if key in _LINKED:
@@ -81,7 +93,7 @@ def linked_sources(roots, defs, cc=None):
     with tempfile.TemporaryDirectory(prefix="mbsfmu_nm_") as tmp:
         for k, f in enumerate(files):
             obj = Path(tmp) / f"{k}.o"
-            r = subprocess.run([cc, "-c", "-O0", "-std=c99", *defs, f"-I{HERE}", f"-I{HERE / 'fmi2'}", f"-I{HERE / 'fmi3'}", "-o", str(obj),
+            r = subprocess.run([cc, "-c", "-O0", "-std=c99", *defs, *include_flags(), "-o", str(obj),
                                 str(f)], capture_output=True, text=True)
             if r.returncode:
                 raise EngineUnavailable(f"compiling {f.name} failed: {r.stderr.strip()[:2000]}")
@@ -121,7 +133,7 @@ def run_cc(cmd):
 def compile_shared(out, feats=("expr", "elastic"), extra=(), cc=None):
     """Compile the engine (and extra sources, e.g. the FMI layer) into the shared library `out`."""
     srcs, _, defs = sources(feats)
-    cmd = [cc or compiler(), *CFLAGS, "-shared", *defs, f"-I{HERE}", "-o", str(out), *map(str, srcs), *map(str, extra), "-lm"]
+    cmd = [cc or compiler(), *CFLAGS, "-shared", *defs, *include_flags(), "-o", str(out), *map(str, srcs), *map(str, extra), "-lm"]
     res = run_cc(cmd)
     if res.returncode:
         raise EngineUnavailable(f"compiling the engine failed: {res.stderr.strip()[:2000]}")

@@ -9,7 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi2_guard.h"
+#include "call_guard.h"
 #include "mbs_integrator.h"
 #include "mbs_model.h"
 
@@ -1133,7 +1133,7 @@ int mbs_adjoint_derivative(MbsInstance *s, const unsigned *unknown, size_t nunkn
 }
 
 /* ------------------------------------------------------------------------------------------ state bytes
- * header (fmi2_guard.h, which both FMU kinds check too): "MBSS", uint32 version, char guid[64], uint64 payload
+ * header (call_guard.h, which both FMU kinds check too): "MBSS", uint32 version, char guid[64], uint64 payload
  * length, uint64 FNV-1a checksum of the payload;
  * payload: Head, parameters (nparam), u, u_applied, x (n), then the integrator snapshot (initialized only). */
 #define HEADER_SIZE MBS_STATE_HEADER

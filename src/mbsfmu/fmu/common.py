@@ -284,7 +284,7 @@ FMI3_MODEL_EXCHANGE = {"needsCompletedIntegratorStep": "false", "canGetAndSetFMU
 def model_description3(spec: dict, name: str, variables, version: str, token: str) -> bytes:
     """The complete FMI 3.0 modelDescription.xml for the same variables (variables.py), grouped as FMI 3.0 sees
     them (``fmi3_variables``: arrays where they help, value reference = index), plus the independent variable
-    ``time`` after them (engine/fmi3.c answers it). ``<ModelExchange>`` when the list carries the derivative
+    ``time`` after them (fmi/fmi3.c answers it). ``<ModelExchange>`` when the list carries the derivative
     variables (``variables(spec, derivatives=True)``). An array's attributes are its elements' (a nominal: the
     smallest of theirs; the host asks fmi3GetNominalsOfContinuousStates for each state's own)."""
     states = continuous_states(variables)
@@ -316,7 +316,7 @@ def model_description3(spec: dict, name: str, variables, version: str, token: st
             attr["unit"] = v.unit
         if v.causality in ("parameter", "input"):
             attr["start"] = " ".join(_fmt(0.0 if e.start is None else e.start) for e in vs)
-        if v.causality == "output":  # readable in the intermediateUpdate callback (engine/fmi3.c: intermediate)
+        if v.causality == "output":  # readable in the intermediateUpdate callback (fmi/fmi3.c: intermediate)
             attr["intermediateUpdate"] = "true"
         if v.nominal is not None:
             attr["nominal"] = _fmt(min(e.nominal for e in vs))

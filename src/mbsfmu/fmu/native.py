@@ -1,5 +1,5 @@
-"""Native FMUs (``kind="native"``): the engine's C sources and an FMI layer (``engine/fmi2.c`` for FMI 2.0, the
-default, ``engine/fmi3.c`` for FMI 3.0: co-simulation and model exchange each) compiled into
+"""Native FMUs (``kind="native"``): the engine's C sources and an FMI layer (``fmi/fmi2.c`` for FMI 2.0, the
+default, ``fmi/fmi3.c`` for FMI 3.0: co-simulation and model exchange each) compiled into
 ``binaries/<platform>/<modelIdentifier>``; the scene is data (``resources/scene.bin``). No Python at run time:
 the binary needs only the C library and libm.
 
@@ -32,8 +32,9 @@ from .. import files
 from .common import drawing_resource, mbsfmu_version, model_description, model_description3, write_zip
 
 ENGINE = Path(__file__).resolve().parent.parent / "engine"
-FMI_LAYER = ENGINE / "fmi2.c"
-FMI_LAYERS = {"2": FMI_LAYER, "3": ENGINE / "fmi3.c"}  # FMI version → its layer
+FMI = ENGINE.parent / "fmi"  # the FMI layers and what they share
+FMI_LAYER = FMI / "fmi2.c"
+FMI_LAYERS = {"2": FMI_LAYER, "3": FMI / "fmi3.c"}  # FMI version → its layer
 PLATFORMS = {"2": ("linux64", "win64"), "3": ("x86_64-linux", "x86_64-windows")}  # binaries/ folders per version
 SHARED = ("-shared", "-fvisibility=hidden")  # with the engine's CFLAGS: the numbers of the in-process library
 MINGW = "x86_64-w64-mingw32-gcc"
@@ -63,7 +64,7 @@ def source_files(blob: bytes, fmi: str = "2") -> dict[str, bytes]:
 
 def collect_sources(c_files) -> dict[str, bytes]:
     """{flat file name: content} of the C files and every header they include, followed transitively
-    (looked up next to the including file, then in engine/, engine/fmi2/ and engine/fmi3/)."""
+    (looked up next to the including file, then in engine/, fmi/, fmi/fmi2/ and fmi/fmi3/)."""
     out: dict[str, bytes] = {}
     todo = list(c_files)
     while todo:
@@ -74,10 +75,10 @@ def collect_sources(c_files) -> dict[str, bytes]:
         out[path.name] = data
         for inc in _INCLUDE.findall(data):
             name = inc.decode()
-            found = next((d / name for d in (path.parent, ENGINE, ENGINE / "fmi2", ENGINE / "fmi3")
+            found = next((d / name for d in (path.parent, ENGINE, FMI, FMI / "fmi2", FMI / "fmi3")
                           if (d / name).is_file()), None)
             if found is None:
-                raise FileNotFoundError(f"{path.name} includes \"{name}\", which is not in {ENGINE}")
+                raise FileNotFoundError(f"{path.name} includes \"{name}\", which is not in {ENGINE} or {FMI}")
             todo.append(found)
     return out
 

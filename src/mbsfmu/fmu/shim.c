@@ -27,7 +27,7 @@
  *     hidden String variable, value reference MBSFMU_NVARS (not in modelDescription.xml), which the shim
  *     reads after those calls (and after fmi2Instantiate and fmi2Reset: a slave that cannot load its scene);
  *   - after one fmi2Fatal from pythonfmu the instance is never passed to pythonfmu again;
- *   - the resource location (engine/fmu_files.c, the native FMU's parser) and the files the FMU reads: regular
+ *   - the resource location (fmi/fmu_files.c, the native FMU's parser) and the files the FMU reads: regular
  *     files of bounded size only, checked before pythonfmu or Python opens them;
  *   - memory: freed instances' pythonfmu components are reused (see "pythonfmu components, reused").
  */
@@ -46,7 +46,7 @@
 #include <unistd.h>
 #include <wchar.h>
 
-#include "fmi2_guard.h"
+#include "call_guard.h"
 #include "fmu_files.h"
 #ifndef MBSFMU_RESOURCE_FILES
 #define MBSFMU_RESOURCE_FILES ""
@@ -269,7 +269,7 @@ static int load_real(void) {
 }
 
 /* ------------------------------------------------------------------------- instances and messages */
-/* the phases of the co-simulation state machine (fmi2_guard.h, shared with the native FMU) */
+/* the phases of the co-simulation state machine (call_guard.h, shared with the native FMU) */
 enum Phase { INSTANTIATED = P_INSTANTIATED, INIT_MODE = P_INIT, STEP = P_STEP, TERMINATED = P_TERMINATED,
              FAILED = P_ERROR, BROKEN = P_FATAL };
 #define P(phase) (phase)
@@ -293,7 +293,7 @@ typedef struct {
     size_t nstates, capacity;
 } Inst;
 
-static MbsRegistry live;       /* the instances handed out and not yet freed (fmi2_guard.h) */
+static MbsRegistry live;       /* the instances handed out and not yet freed (call_guard.h) */
 
 static Inst* find(fmi2Component c) { return mbs_reg_find(&live, c) ? (Inst*)c : NULL; }
 
@@ -410,7 +410,7 @@ static int special_file(const char* dir, int depth, int* budget, char* err, size
     return bad;
 }
 
-/* The resources folder of fmuResourceLocation `uri` (engine/fmu_files.c: the parser of the native FMU too) as the
+/* The resources folder of fmuResourceLocation `uri` (fmi/fmu_files.c: the parser of the native FMU too) as the
    plain path pythonfmu 0.7.0 is given, into dir; NULL, else why not. Every file the FMU reads at run time
    (MBSFMU_RESOURCE_FILES, from the FMU's resources/) must be a regular file of bounded size first: pythonfmu and
    Python read them with blocking opens (a FIFO hangs the host), and pythonfmu calls a NULL class object when its
@@ -644,7 +644,7 @@ EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolea
     Inst* in;
     fmi2Status st = enter(c, __func__, P(STEP), &in);
     if (st) return st;
-    if (!isfinite(t) || !isfinite(h) || h <= 0 || t + h == t)   /* as the native FMU (engine/fmi2.c); FMI 2.0: h > 0 */
+    if (!isfinite(t) || !isfinite(h) || h <= 0 || t + h == t)   /* as the native FMU (fmi/fmi2.c); FMI 2.0: h > 0 */
         return say(in, fmi2Error, "%s: bad step t=%g, h=%g (need finite t and h > 0 that advances t)", __func__, t, h),
                fmi2Error;
     /* fmi2Discard (the integration failed; the state stays at t) keeps step mode: the master may roll back,
@@ -995,7 +995,7 @@ EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byt
     return done(owner, __func__, R.serialize(owner->real, s, bytes, need));  /* pythonfmu copies n bytes */
 }
 
-/* The engine's state bytes (sim.c, mbs_state_save): the header of fmi2_guard.h, then the payload, which starts
+/* The engine's state bytes (sim.c, mbs_state_save): the header of call_guard.h, then the payload, which starts
    with its Head {double time, rtol, atol, max_step, step; int32 initialized, method, q_in_active, params_dirty}. */
 #define STATE_HEAD (5 * 8 + 4 * 4)
 

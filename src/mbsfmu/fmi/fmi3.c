@@ -5,8 +5,8 @@
  * instance name, the interface (co-simulation or model exchange), the phase of its FMI 3.0 state machine and
  * the logging switches. The compiled scene is read from <resourcePath>scene.bin at instantiation. What does not
  * depend on the FMI version is shared with fmi2.c: the phases, the "allowed in" check and the registries of live
- * instances and FMU states (fmi2_guard.c), the logging switches, loading the scene and FMU state bytes
- * (fmi_common.c) and the bodies of the calls (fmi_core.c: this file converts arguments and checks phases).
+ * instances and FMU states (call_guard.c), the logging switches, loading the scene and FMU state bytes
+ * (fmi_services.c) and the bodies of the calls (fmi_calls.c: this file converts arguments and checks phases).
  *
  * Variables: FMI 3.0's (mbs_model_var3: runs of rows of the engine's variable table as arrays, every other row a
  * scalar; compiler/variables.py: fmi3_variables numbers them for the modelDescription), Float64 arrays and scalars and
@@ -30,15 +30,15 @@
 #include <string.h>
 
 #include "fmi3Functions.h"
-#include "fmi_core.h"
+#include "fmi_calls.h"
 #include "fmu_files.h"
 #include "mbs_engine.h"
 
-/* phases and "allowed in" masks (fmi2_guard.h: the FMI state machines' phases are the same in 3.0) */
+/* phases and "allowed in" masks (call_guard.h: the FMI state machines' phases are the same in 3.0) */
 #define P_SET (P_INSTANTIATED | P_INIT | P_RUNNING)                /* inputs and parameters may be set */
 #define P_STATES (I_ME | P_EVENT | P_CONT | P_TERMINATED | P_ERROR) /* model exchange: the host's states exist */
 
-/* the version-independent part first (fmi_core.h: the core functions take it) */
+/* the version-independent part first (fmi_calls.h: the core functions take it) */
 typedef struct {
     MbsFmiHead h;
     fmi3InstanceEnvironment env;
@@ -49,7 +49,7 @@ typedef struct {
 } Fmu;
 MBS_FMI_SAME_STATUS(fmi3_status_is_core_status, fmi3OK, fmi3Warning, fmi3Discard, fmi3Error, fmi3Fatal);
 
-/* the live instances and FMU states (MbsFmuState, fmi_common.h) this library handed out (fmi2_guard.h) */
+/* the live instances and FMU states (MbsFmuState, fmi_services.h) this library handed out (call_guard.h) */
 static MbsRegistry instances, states;
 
 /* ---- logging ---- */
@@ -547,7 +547,7 @@ fmi3Status fmi3GetOutputDerivatives(fmi3Instance instance, const fmi3ValueRefere
     NOT_PROVIDED(fmi3GetOutputDerivatives, "maxOutputDerivativeOrder=0");
 }
 
-/* ---- FMU state: the engine's byte layout, in memory and serialized (fmi_common.c) ---- */
+/* ---- FMU state: the engine's byte layout, in memory and serialized (fmi_services.c) ---- */
 fmi3Status fmi3GetFMUState(fmi3Instance instance, fmi3FMUState *FMUState) {
     CHECK(P_ANY, "fmi3GetFMUState");
     CORE(mbs_fmi_get_state(f, FMUState, "fmi3GetFMUState"));

@@ -1,14 +1,15 @@
-/* The version-independent core of the FMI layers of native FMUs (fmi2.c, fmi3.c), as Reference-FMUs keeps one
+/* The bodies of the FMI calls (above fmi_services.h's services, below fmi2.c/fmi3.c's wrappers).
+ * The version-independent core of the FMI layers of native FMUs (fmi2.c, fmi3.c), as Reference-FMUs keeps one
  * core under thin per-version wrappers: both versions' instance structs start with an MbsFmiHead, the core
  * functions take it and the calling function's name (for messages) and return a status of the numbers
  * fmi2Status and fmi3Status share (each layer checks them at compile time). The wrappers convert arguments,
  * check the phase (mbs_fmi_allowed) and keep what only their version has. */
-#ifndef MBS_FMI_CORE_H
-#define MBS_FMI_CORE_H
+#ifndef MBS_FMI_CALLS_H
+#define MBS_FMI_CALLS_H
 
 #include <stddef.h>
 
-#include "fmi_common.h"
+#include "fmi_services.h"
 
 enum { MBS_FMI_OK = 0, MBS_FMI_WARNING = 1, MBS_FMI_DISCARD = 2, MBS_FMI_ERROR = 3, MBS_FMI_FATAL = 4 };
 /* c99: a negative array size where a version's status numbers differ from the core's */
@@ -22,7 +23,7 @@ struct MbsFmiHead {
     MbsModel *model;
     MbsInstance *sim;
     char *name;
-    int iface;                 /* I_CS or I_ME (fmi2_guard.h) */
+    int iface;                 /* I_CS or I_ME (call_guard.h) */
     int phase;
     MbsLogSwitches log_switches;
     int logged;                /* the engine logged during the current call */
@@ -79,7 +80,7 @@ int mbs_fmi_set_strings(MbsFmiHead *h, const unsigned vr[], size_t nvr, const ch
  * type<more>". */
 int mbs_fmi_no_such_type(MbsFmiHead *h, size_t nvr, const char *more, const char *fn);
 
-/* ---- FMU states (MbsFmuState, fmi_common.h) ---- */
+/* ---- FMU states (MbsFmuState, fmi_services.h) ---- */
 int mbs_fmi_get_state(MbsFmiHead *h, void **state, const char *fn);
 int mbs_fmi_set_state(MbsFmiHead *h, void *state, const char *fn);
 int mbs_fmi_free_state(MbsFmiHead *h, void **state, const char *fn);

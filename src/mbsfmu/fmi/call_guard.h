@@ -1,13 +1,14 @@
-/* One FMI 2.0 guard for both FMU kinds: engine/fmi2.c (native FMUs) and fmu/shim.c (the pythonfmu kind's loader
- * shim) compile fmi2_guard.c alike; the FMI 3.0 layer engine/fmi3.c too (its phases are the same). It holds
+/* The FMI call-order and state guard (the FMI 2.0 phases, which FMI 3.0 shares), one for both FMU kinds.
+ * fmi/fmi2.c (native FMUs) and fmu/shim.c (the pythonfmu kind's loader
+ * shim) compile call_guard.c alike; the FMI 3.0 layer fmi/fmi3.c too (its phases are the same). It holds
  *   - the phases of the FMI 2.0 state machines as bit masks, their names and the "allowed in" check with its
  *     message,
  *   - the registries of the instances and FMU states a library handed out (a host's pointer is compared with
  *     them, never followed unless found),
  *   - the check of an FMU state's header (the byte layout of sim.c's mbs_state_save, whose loader runs it too).
  */
-#ifndef MBS_FMI2_GUARD_H
-#define MBS_FMI2_GUARD_H
+#ifndef MBS_CALL_GUARD_H
+#define MBS_CALL_GUARD_H
 
 #include <stddef.h>
 #include <stdint.h>

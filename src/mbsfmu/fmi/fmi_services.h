@@ -1,13 +1,14 @@
-/* What the FMI layers of native FMUs (fmi2.c, fmi3.c) share beyond fmi2_guard.h (phases, registries, state
+/* Services below the calls (fmi_calls.c calls them; they know no FMI call).
+ * What the FMI layers of native FMUs (fmi2.c, fmi3.c) share beyond call_guard.h (phases, registries, state
  * header), whatever the FMI version: the host's logging switches, loading the compiled scene a host names, and
  * FMU states in the engine's byte layout (mbs_state_save) taken, checked, copied and freed in a layer's
  * registry of handed-out states. */
-#ifndef MBS_FMI_COMMON_H
-#define MBS_FMI_COMMON_H
+#ifndef MBS_FMI_SERVICES_H
+#define MBS_FMI_SERVICES_H
 
 #include <stddef.h>
 
-#include "fmi2_guard.h"
+#include "call_guard.h"
 #include "mbs_engine.h"
 
 /* Log categories, indexed by status (OK, Warning, Discard, Error, Fatal: fmi2Status and fmi3Status alike); the

@@ -1,4 +1,4 @@
-/* The version-independent core of the FMI layers (fmi_core.h): every body fmi2.c and fmi3.c would otherwise
+/* The bodies of the FMI calls, version-independent (fmi_calls.h; the services they use: fmi_services.c): every body fmi2.c and fmi3.c would otherwise
  * write twice. Messages name the calling FMI function (fn); statuses are fmi2Status/fmi3Status numbers. */
 #include <math.h>
 #include <stdarg.h>
@@ -6,7 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi_core.h"
+#include "fmi_calls.h"
 
 /* ---- logging and checks ---- */
 void mbs_fmi_logf(MbsFmiHead *h, int status, const char *fmt, ...) {
@@ -226,7 +226,7 @@ static int null_arg(MbsFmiHead *h, const void *p, const char *what, const char *
     return 1;
 }
 
-/* ---- FMU states: the engine's byte layout, in memory and serialized (fmi_common.c) ---- */
+/* ---- FMU states: the engine's byte layout, in memory and serialized (fmi_services.c) ---- */
 /* A state handed out by any live instance of this FMU (same model: it restores into any of them). */
 static MbsFmuState *state_of(MbsFmiHead *h, void *s, const char *fn) {
     if (mbs_reg_find(h->states, s))

@@ -8,7 +8,7 @@
  * read from <fmuResourceLocation>/scene.bin at instantiation; the only globals are the registries of the live
  * instances and FMU states (pointers from the host are looked up there, never followed blindly), so any number
  * of instances (of one or several FMUs) can live in one process.
- * The bodies of the calls are the version-independent core (fmi_core.c, shared with fmi3.c): this file converts
+ * The bodies of the calls are the version-independent core (fmi_calls.c, shared with fmi3.c): this file converts
  * arguments, checks phases and keeps what FMI 2.0 alone has (the callbacks, fmi2Terminated after a discard).
  *
  * Status mapping: the engine's codes are ordered like fmi2Status (OK, Warning, Discard, Error).  Calls in
@@ -28,16 +28,16 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
-#include "fmi2_guard.h"
-#include "fmi_core.h"
+#include "call_guard.h"
+#include "fmi_calls.h"
 #include "fmu_files.h"
 #include "mbs_engine.h"
 
-/* phases and "allowed in" masks: fmi2_guard.h */
+/* phases and "allowed in" masks: call_guard.h */
 #define P_STATUS (I_CS | P_STEP | P_TERMINATED | P_ERROR)  /* FMI 2.0 co-simulation: after initialization */
 #define P_STATES (I_ME | P_EVENT | P_CONT | P_TERMINATED | P_ERROR)  /* model exchange: states and derivatives */
 
-/* the version-independent part first (fmi_core.h: the core functions take it) */
+/* the version-independent part first (fmi_calls.h: the core functions take it) */
 typedef struct {
     MbsFmiHead h;
     fmi2CallbackFunctions cb;  /* a copy: the host need not keep its struct */
@@ -46,7 +46,7 @@ typedef struct {
 } Fmu;
 MBS_FMI_SAME_STATUS(fmi2_status_is_core_status, fmi2OK, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal);
 
-/* the live instances and FMU states (MbsFmuState, fmi_common.h) this library handed out (fmi2_guard.h) */
+/* the live instances and FMU states (MbsFmuState, fmi_services.h) this library handed out (call_guard.h) */
 static MbsRegistry instances, states;
 
 /* ---- logging ---- */
@@ -234,7 +234,7 @@ fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t
     return no_such_type(c, nvr, "fmi2SetBoolean");
 }
 
-/* ---- FMU state: the engine's byte layout, in memory and serialized (fmi_common.c) ---- */
+/* ---- FMU state: the engine's byte layout, in memory and serialized (fmi_services.c) ---- */
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     CHECK(P_ANY, "fmi2GetFMUstate");
     CORE(mbs_fmi_get_state(f, FMUstate, "fmi2GetFMUstate"));

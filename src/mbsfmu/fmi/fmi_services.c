@@ -1,9 +1,9 @@
-/* What the FMI layers share (fmi_common.h). */
+/* Services below the FMI calls, no call of their own: logging switches, scene loading, FMU-state bytes (fmi_services.h). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi_common.h"
+#include "fmi_services.h"
 
 /* ---- logging switches ---- */
 const char *const mbs_fmi_category[MBS_NCAT] = {"logAll", "logStatusWarning", "logStatusDiscard", "logStatusError",

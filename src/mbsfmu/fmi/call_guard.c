@@ -1,5 +1,5 @@
-/* The FMI 2.0 guard both FMU kinds compile (fmi2_guard.h). */
-#include "fmi2_guard.h"
+/* The FMI call-order and state guard both FMU kinds and both FMI versions compile (call_guard.h). */
+#include "call_guard.h"
 
 #include <stdio.h>
 #include <stdlib.h>
