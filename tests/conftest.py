@@ -5,6 +5,12 @@ idle a second thread saves little at these sizes. The variables reach every chil
 Dask workers, mbsfmu's own subprocesses); threadpoolctl limits the libraries this process may have loaded
 before this file (a plugin importing numpy)."""
 import os
+import sys
+from pathlib import Path
+
+# the developer benchmarks (benchmarks/, not in the package) that some tests hold to the engine, and the oracles
+# beside the tests (pinocchio_twin.py), importable in every worker whatever the current folder
+sys.path[:0] = [str(Path(__file__).resolve().parents[1]), str(Path(__file__).resolve().parent)]
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import mbsfmu
-from mbsfmu.bench import work_precision as wp
+from mbsfmu.reports import work_precision as wp
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "models" / "pendulum.yaml"

@@ -1,11 +1,11 @@
-"""bench/me_vs_cs (fmpy's model exchange against co-simulation of one native FMU): the quick run's files, and its
+"""benchmarks/me_vs_cs (fmpy's model exchange against co-simulation of one native FMU): the quick run's files, and its
 errors against the reference behave as each solver's order says (seconds: the double pendulum over 0.2 s)."""
 import csv
 
 import pytest
 
 pytest.importorskip("fmpy")
-from mbsfmu.bench import me_vs_cs  # noqa: E402
+from benchmarks import me_vs_cs  # noqa: E402
 from mbsfmu.fmu import native  # noqa: E402
 
 pytestmark = pytest.mark.skipif(native.compiler() is None, reason="no C compiler (cc, gcc, clang or $CC)")

@@ -1,4 +1,4 @@
-"""The tree benchmark (bench/tree_speed.py) on tiny sizes: its tables, CSV files and figure, the same model on
+"""The tree benchmark (benchmarks/tree_speed.py) on tiny sizes: its tables, CSV files and figure, the same model on
 every side (the deviations it reports), the C loop, and the growth exponents it states."""
 
 import csv
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("pinocchio")
-from mbsfmu.bench import tree_speed  # noqa: E402
+from benchmarks import tree_speed  # noqa: E402
 
 
 def test_tiny_run_writes_the_report(tmp_path):
@@ -45,7 +45,7 @@ def test_timed_calls_cycle_through_distinct_states():
     """Each timed call is at the next state of the cycle, the same for both peers, so the engine's kinematics (kept
     while the state's bits stay the same) run on every call: after mbsfmu's call k its ÿ is the one at state k, and
     pin.aba's answer of call k, mapped back, is that same ÿ (Pinocchio against the engine, state by state)."""
-    from mbsfmu.bench.pinocchio_twin import from_pin_acceleration, to_pin
+    from pinocchio_twin import from_pin_acceleration, to_pin
     pair = tree_speed.Pair(tree_speed.chain_scene(5), states=3)
     pair.add_pinocchio()
     npos = pair.sim.npos

@@ -150,8 +150,8 @@ def test_wrong_references_and_seeds_are_refused_with_a_message():
 
 
 def test_the_cost_benchmark_writes_its_report(tmp_path):
-    """bench/directional_cost.py (reports/directional.md): both calls timed in the C loop, the report written."""
-    from mbsfmu.bench import directional_cost
+    """benchmarks/directional_cost.py (reports/directional.md): both calls timed in the C loop, the report written."""
+    from benchmarks import directional_cost
     from mbsfmu.fmu.native import compiler
     if compiler() is None:
         pytest.skip("no C compiler")

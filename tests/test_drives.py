@@ -11,7 +11,7 @@ from mbsfmu.simulation import Simulation
 from mbsfmu.simulation import simulate
 
 pin = pytest.importorskip("pinocchio")
-from mbsfmu.bench.pinocchio_twin import pinocchio_model, to_pin  # noqa: E402
+from pinocchio_twin import pinocchio_model, to_pin  # noqa: E402
 
 W = 2 * math.pi
 DRIVES = {  # coordinate → (expression, exact position, velocity, acceleration as functions of t)

@@ -294,8 +294,8 @@ def test_truncated_elastic_data_and_bad_node_refused():
 
 
 def test_the_paths_benchmark_writes_its_report(tmp_path):
-    """bench/elastic_paths.py (reports/elastic_paths.md): each case on both paths in the C loop, the report written."""
-    from mbsfmu.bench import elastic_paths
+    """benchmarks/elastic_paths.py (reports/elastic_paths.md): each case on both paths in the C loop, the report written."""
+    from benchmarks import elastic_paths
     from mbsfmu.fmu.native import compiler
     if compiler() is None:
         pytest.skip("no C compiler")

@@ -191,11 +191,9 @@ WRITES = re.compile(r"(?<!files)\.(?:write_text|write_bytes|savefig|savetxt|to_c
                     r"\bopen\((\w*)[^)]*[\"'][wax]b?\+?[\"']|ZipFile\((\w*)[^)]*[\"']w[\"']")
 # Writes that need no mbsfmu.files: into private temporary folders (fmu/build.py: the staged slave resources,
 # the shim's C source; fmu/native.py: the sources it compiles; sweep/runner.py: a worker's copy of an FMU;
-# bodies/fe_mesh.py: the copy of a mesh file its parser process reads; bench/tree_speed.py: the compiled scene its
-# measuring child reads, and /proc/self/clear_refs, the kernel's switch that resets the peak memory) and into the temporary file of
+# bodies/fe_mesh.py: the copy of a mesh file its parser process reads) and into the temporary file of
 # files.replacing (fmu/common.py: write_zip; fmu/build.py: _rewrite_zip when the shim goes in).
-PRIVATE = {"fmu/build.py": 3, "fmu/common.py": 1, "fmu/native.py": 1, "sweep/runner.py": 1, "bodies/fe_mesh.py": 1,
-           "bench/tree_speed.py": 2}
+PRIVATE = {"fmu/build.py": 3, "fmu/common.py": 1, "fmu/native.py": 1, "sweep/runner.py": 1, "bodies/fe_mesh.py": 1}
 
 
 def test_every_output_goes_through_mbsfmu_files():

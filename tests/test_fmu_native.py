@@ -654,7 +654,7 @@ def test_command_line_builds_native(tmp_path):
 def test_an_elastic_scene_on_the_recursive_path_equals_in_process_run(tmp_path):
     """An arm of three beams of 8 modes (27 coordinates: the compiler picks the articulated-body algorithm, elastic
     bodies as its nodes) as a native FMU under fmpy: the in-process run's y, ẏ to 1e-12."""
-    from mbsfmu.bench.elastic_paths import arm
+    from benchmarks.elastic_paths import arm
     from mbsfmu.compiler.scene_file import carriers, dense_path
     from mbsfmu.compiler.model import Model
     from mbsfmu.scene.load import Scene

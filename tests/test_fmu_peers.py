@@ -1,4 +1,4 @@
-"""bench/fmu_peers: every peer integrates the scene's physics (correctness only, never timings).
+"""benchmarks/fmu_peers: every peer integrates the scene's physics (correctness only, never timings).
 
 Short intervals (top 0.2 s, double pendulum 1 s, 100 points each): each peer at a setting that should reach
 the error it is listed with, checked against the tight reference (mbsfmu dop853 at rtol 1e-13, itself checked
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from mbsfmu.bench import fmu_peers as fp
+from benchmarks import fmu_peers as fp
 
 STOP = {"spinning_top": 0.2, "double_pendulum": 1.0}
 # (family, method, setting, claimed error): explicit RK methods at the 1e-6 target; generalized-α is second

@@ -19,7 +19,7 @@ LAYERS = [
     ("run", ["mbsfmu.engine", "mbsfmu.equations"]),  # the C engine and its seam; the numpy reference
     ("simulate", ["mbsfmu.csvfile", "mbsfmu.inputs", "mbsfmu.simulation"]),
     ("deliver", ["mbsfmu.fmu", "mbsfmu.animation", "mbsfmu.plot", "mbsfmu.sweep"]),
-    ("commands", ["mbsfmu.bench", "mbsfmu.reports", "mbsfmu.cli", "mbsfmu.__main__", "mbsfmu"]),
+    ("commands", ["mbsfmu.reports", "mbsfmu.cli", "mbsfmu.__main__", "mbsfmu"]),
 ]
 
 UP = {  # (importer, imported): why it may run up

@@ -294,7 +294,7 @@ def test_puma560_matches_dh_forward_kinematics():
 def test_puma560_matches_pinocchio():
     pytest.importorskip("pinocchio")
     import pinocchio as pin
-    from mbsfmu.bench.pinocchio_twin import pinocchio_model, to_pin
+    from pinocchio_twin import pinocchio_model, to_pin
     scene = _model("robot_arm_6dof.yaml")
     ev = mbsfmu.compile(scene)
     ev.set_parameters({"m_load": 2.5})  # the payload (a fixed child body) takes part

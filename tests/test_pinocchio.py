@@ -9,7 +9,7 @@ from mbsfmu.kinematics.rotations import axis_angle
 from mbsfmu.simulation import Simulation
 
 pin = pytest.importorskip("pinocchio")
-from mbsfmu.bench.pinocchio_twin import pinocchio_model, to_pin  # noqa: E402
+from pinocchio_twin import pinocchio_model, to_pin  # noqa: E402
 
 JOINTS = ["revolute", "prismatic", "cylindrical", "spherical", "universal"]
 

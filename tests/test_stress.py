@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mbsfmu.bench import stress
-from mbsfmu.bench.work_precision import comm_points
+from mbsfmu.reports import stress
+from mbsfmu.reports.work_precision import comm_points
 
 
 def _case(name):

@@ -367,9 +367,9 @@ int mbs_do_step(MbsInstance *s, double t, double h) {
 
 @pytest.fixture(scope="module")
 def crashing_fmu(tmp_path_factory):
-    """A native FMU (bench/fmu_trivial.c: x' = -a x, x(0) = 1, RK4 at 1 ms) whose step segfaults for a < 0:
+    """A native FMU (benchmarks/fmu_trivial.c: x' = -a x, x(0) = 1, RK4 at 1 ms) whose step segfaults for a < 0:
     a model that kills the process running it in some cases. Built here only, from a patched copy."""
-    from mbsfmu.bench import fmu_speed
+    from benchmarks import fmu_speed
     out = tmp_path_factory.mktemp("crash")
     src = fmu_speed.TRIVIAL_SOURCE.read_text()
     head = "int mbs_do_step(MbsInstance *s, double t, double h) {"

@@ -204,8 +204,8 @@ def test_random_rigid_tree_matches_the_reference(seed):
 
 # ---- against Pinocchio -----------------------------------------------------------------------------------
 pin = pytest.importorskip("pinocchio")
-from mbsfmu.bench import tree_speed  # noqa: E402
-from mbsfmu.bench.pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin  # noqa: E402
+from benchmarks import tree_speed  # noqa: E402
+from pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin  # noqa: E402
 
 
 def engine_ydd(sim, y, yd, t=0.0):
@@ -288,7 +288,7 @@ STEPS, H = 10, 1e-3
 _CHILD = """
 import json, sys
 import numpy as np
-from mbsfmu.bench.tree_speed import chain_scene, peak_rss_mb, reset_peak_rss, rss_mb
+from benchmarks.tree_speed import chain_scene, peak_rss_mb, reset_peak_rss, rss_mb
 from mbsfmu.simulation import Simulation
 n, steps, h = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
 spec = chain_scene(n).spec

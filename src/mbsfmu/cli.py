@@ -415,7 +415,7 @@ def _bench(name, rest):
     scene = rest[0] if name == "bench" and rest and not rest[0].startswith("-") else None  # as documented: first
     if scene is not None:
         _need_scene(scene)
-    mod = importlib.import_module(f".bench.{'work_precision' if name == 'bench' else 'stress'}", __package__)
+    mod = importlib.import_module(f".reports.{'work_precision' if name == 'bench' else 'stress'}", __package__)
     return getattr(mod, f"{name}_main")(rest)
 
 

@@ -14,7 +14,7 @@
  * -C  instantiate/free loop (optimizers, Monte Carlo): `cycles` times fmi2Instantiate, initialization, n steps,
  *     fmi2FreeInstance; "RSS k kB" (resident set, /proc/self/statm) after cycle k = cycles/10 and k = cycles
  * Exit codes: 0 ok, 2 usage/dlopen, 3 instantiate, 4 a call failed (its status is printed).
- * Needs only libc (and libdl on old glibc); built by tests/test_fmu_native.py and bench/fmu_speed.py.
+ * Needs only libc (and libdl on old glibc); built by tests/test_fmu_native.py and benchmarks/fmu_speed.py.
  * Also builds for Windows with MinGW-w64 (LoadLibrary for dlopen), to run a win64 DLL under wine.
  */
 #define _POSIX_C_SOURCE 200112L

@@ -1,14 +1,14 @@
 """What a directional derivative costs beside the right-hand side it differentiates (issue 27's target: a column
 within 3× of a right-hand side).
 
-    python -m mbsfmu.bench.directional_cost --out reports
+    python -m benchmarks.directional_cost --out reports
 
 A column is what a host's fmi2GetDirectionalDerivative / fmi3GetDirectionalDerivative costs the engine: set the
 state, then J·seed of every der(·) along a seed over all states (mbs_set_state + mbs_directional_derivative: the
 complex step through the evaluation, engine/deriv.c). A right-hand side is mbs_rhs at a state. Both in one C loop
-over the engine library (bench/rhs_loop.c) on the same 64 states in turn (distinct states: the engine keeps its
+over the engine library (benchmarks/rhs_loop.c) on the same 64 states in turn (distinct states: the engine keeps its
 kinematics while the state's bits stay the same), batches of the two alternating, the best batch of each. Cases:
-every shipped model and random revolute chains (bench/tree_speed.py: chain_scene) of growing length, which take
+every shipped model and random revolute chains (benchmarks/tree_speed.py: chain_scene) of growing length, which take
 the recursive path: the column follows the right-hand side's linear cost.
 """
 
@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import output
+from mbsfmu.reports import output
 from .tree_speed import c_loop, chain_scene
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = Path(__file__).resolve().parents[1]
 CHAINS = (10, 30, 100, 300)
 COLUMNS = ["case", "n", "rhs_us", "column_us", "ratio"]
 
@@ -31,8 +31,8 @@ class _Case:
     """What c_loop reads: the compiled scene (with the derivative variables) and the states."""
 
     def __init__(self, spec, states=64, seed=0):
-        from ..engine import Instance
-        from ..simulation import compiled
+        from mbsfmu.engine import Instance
+        from mbsfmu.simulation import compiled
         blob, _, _ = compiled(spec, derivatives=True)
         self.sim = type("Compiled", (), {"blob": blob})
         inst = Instance(blob)
@@ -80,7 +80,7 @@ def markdown(rows, command):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m mbsfmu.bench.directional_cost", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.directional_cost", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="reports", help="folder for directional.md, .csv and .png")
     ap.add_argument("--models", nargs="*", default=[p.stem for p in sorted((REPO / "models").glob("*.yaml"))])
     ap.add_argument("--chains", nargs="*", type=int, default=list(CHAINS))
@@ -91,8 +91,8 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     output.write_csv(rows, out / "directional.csv", COLUMNS, 4)
     plot(rows, out / "directional.png")
-    from .. import files
-    files.write_text(out / "directional.md", markdown(rows, "python -m mbsfmu.bench.directional_cost " + " ".join(argv or sys.argv[1:])))
+    from mbsfmu import files
+    files.write_text(out / "directional.md", markdown(rows, "python -m benchmarks.directional_cost " + " ".join(argv or sys.argv[1:])))
     print(markdown(rows, ""))
 
 

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from .. import files
+from mbsfmu import files
 
 
 def _time_per_call(fn, args_list, min_time=0.5):
@@ -55,7 +55,7 @@ def benchmark_equations(scene_path, out_dir=None, n_states=20, fmu=True, stop=No
     try:
         import pinocchio as pin
 
-        from .pinocchio_twin import pinocchio_model, to_pin
+        from pinocchio_twin import pinocchio_model, to_pin
         model = pinocchio_model(ev)
         data = model.createData()
         pstates = [to_pin(ev, y, yd)[:2] for y, yd, _ in states]

@@ -3,7 +3,7 @@
 (a) Every robot of example-robot-data that is a tree: each URDF loaded as a scene (a floating base for the ones
     that stand, walk or fly, `FLOATING`; `repair` where the plain load refuses an unphysical or massless link,
     as `--repair` would); the ones the scene format refuses by design (`<mimic>`: a closed constraint) are
-    listed with their reason. Pinocchio gets the same tree (bench/pinocchio_twin.py, its own free flyer for a
+    listed with their reason. Pinocchio gets the same tree (tests/pinocchio_twin.py, its own free flyer for a
     floating base) and its ÿ is checked against ours at the timed states.
 (b) Random revolute chains of N = 10 … 10,000 bodies (random axes, offsets, masses, inertias; gravity), each
     size in a fresh process, so that its peak resident set (RSS) is the size's: the engine's while compiling the
@@ -18,13 +18,13 @@ batches; best and median batch, µs per call; the ratio of the bests. Every call
 random states, the same for every peer (Pair): the engine keeps its kinematics while the state's bits stay the
 same, so one state would time that cache against Pinocchio's full aba. The empty ctypes call (`mbs_time`) is
 listed: the part of a small robot's time that is the call from Python. (c) The same right-hand side in a C
-loop (bench/rhs_loop.c over the engine library): the engine without Python.
+loop (benchmarks/rhs_loop.c over the engine library): the engine without Python.
 
 Targets (issue 26): ratio ≤ 1.0 on every robot; chains N = 100 ≤ 1.5, N = 1000 ≤ 2; time at most linear in N
 from 100 to 10,000.
 
-    python -m mbsfmu.bench.tree_speed --out reports                 (about 20 minutes: N = 3000 takes most)
-    python -m mbsfmu.bench.tree_speed --out /tmp/x --sizes 10,30 --robots ur5_robot,solo12 --seconds 0.05
+    python -m benchmarks.tree_speed --out reports                 (about 20 minutes: N = 3000 takes most)
+    python -m benchmarks.tree_speed --out /tmp/x --sizes 10,30 --robots ur5_robot,solo12 --seconds 0.05
 """
 
 import argparse
@@ -42,8 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import files
-from . import output
+from mbsfmu import files
+from mbsfmu.reports import output
 
 SIZES = (10, 30, 100, 300, 1000, 3000, 10000)
 ROBOTS = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
@@ -78,7 +78,7 @@ def load_robot(file):
     """(scene, repaired) of a URDF of example-robot-data; repaired (as --repair) only when the plain load refuses.
     ModelError when the scene format refuses it even so (a <mimic> joint: by design)."""
     import mbsfmu
-    from ..errors import ModelError
+    from mbsfmu.errors import ModelError
 
     def load(repair):
         text = f"mbsfmu: 1\nurdf: {{file: {file}, base: {base_of(file)}, repair: {str(repair).lower()}}}\n"
@@ -141,7 +141,7 @@ class Pair:
         resident set."""
         import pinocchio as pin
 
-        from .pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin
+        from pinocchio_twin import from_pin_acceleration, pinocchio_model, to_pin
         ev, before = self.ev, rss_mb()
         reset_peak_rss()
         model = pinocchio_model(ev, free_flyer=True)
@@ -194,7 +194,7 @@ def mujoco_model(ev):
     """MuJoCo's model of a tree of hinges without joint rotations, drives or force elements (the chains),
     built through MjSpec, not MJCF text: MuJoCo's XML reader refuses bodies nested deeper than about 500. The
     same masses, centres of mass, inertias and gravity; contacts, constraints and the rest off, as the MJCF of
-    bench/fmu_peers.py has them."""
+    benchmarks/fmu_peers.py has them."""
     import mujoco
     if ev.model.spec["forces"]:
         raise NotImplementedError("force elements")
@@ -217,7 +217,7 @@ def mujoco_model(ev):
 def engine_of(scene):
     """The scene's engine instance, initialized with an explicit integrator (the right-hand side does not
     depend on it; auto's radau5 workspace is refused for thousands of states)."""
-    from ..simulation import Simulation
+    from mbsfmu.simulation import Simulation
     sim = Simulation(scene.spec)
     sim.set("integrator.method", "dopri5")
     sim.initialize(0.0)
@@ -283,7 +283,7 @@ def time_pair(pair, rounds, seconds):
 # ------------------------------------------------------------------------------------------------ (a) robots
 def robots(names=None, rounds=7, seconds=0.5, progress=True):
     """(rows of the timed robots, rows of the refused ones)."""
-    from ..errors import ModelError
+    from mbsfmu.errors import ModelError
     todo = [f for f in robot_files() if names is None or Path(f).stem in names]
     rows, refused = [], []
     for file in output.progress(todo, "robots", lambda f: Path(f).stem, progress):
@@ -350,8 +350,9 @@ def _status_mb(key):
 def chains(sizes, rounds=7, seconds=0.5, progress=True):
     rows = []
     for n in output.progress(list(sizes), "chains", lambda n: f"N = {n}", progress):
-        r = subprocess.run([sys.executable, "-m", "mbsfmu.bench.tree_speed", "--chain", str(n), "--rounds", str(rounds),
-                            "--seconds", str(seconds)], capture_output=True, text=True, timeout=3600)
+        r = subprocess.run([sys.executable, "-m", "benchmarks.tree_speed", "--chain", str(n), "--rounds", str(rounds),
+                            "--seconds", str(seconds)], capture_output=True, text=True, timeout=3600,
+                           cwd=Path(__file__).resolve().parents[1])  # benchmarks/ is the repository's, not installed
         if r.returncode != 0:  # reported in its row: the other sizes still count
             last = (r.stderr.strip().splitlines() or [f"exit {r.returncode}"])[-1]
             rows.append({"n": n, "failed": last})
@@ -367,9 +368,9 @@ _C_LOOP = {}
 def c_loop(pair, python_us, seconds=0.3, batch=2e-3, column=False):
     """µs per mbs_rhs of the pair's scene called in a C loop (rhs_loop.c) on its states in turn: the best of batches
     of about `batch` seconds (at least one call) over `seconds`; None without a C compiler. column: (µs per rhs,
-    µs per directional derivative column), batches alternating (bench/directional_cost.py)."""
-    from ..engine.build import library_path
-    from ..fmu.native import compiler
+    µs per directional derivative column), batches alternating (benchmarks/directional_cost.py)."""
+    from mbsfmu.engine.build import library_path
+    from mbsfmu.fmu.native import compiler
     if "exe" not in _C_LOOP:
         cc = compiler()
         if cc is None:
@@ -469,9 +470,9 @@ def markdown(robot_rows, refused, chain_rows, cmd):
              f"the peer's best. The states vary per call: each call is at the next of {STATES} distinct random "
              f"states, the same for every peer (MuJoCo: the first {MUJOCO_STATES}, one `MjData` each), so the "
              "engine's kinematics, kept while the state's bits stay the same, run on every call. C loop: the same "
-             "`mbs_rhs` on the same states called from C (bench/rhs_loop.c), best of batches of about 2 ms. Empty "
+             "`mbs_rhs` on the same states called from C (benchmarks/rhs_loop.c), best of batches of about 2 ms. Empty "
              "ctypes call: `mbs_time`, the floor of a call from Python. Deviation: max |ÿ − ÿ_peer| / max(1, |ÿ_peer|) "
-             "over the timed states (the same tree: bench/pinocchio_twin.py, `mujoco_model`). Timed on a "
+             "over the timed states (the same tree: tests/pinocchio_twin.py, `mujoco_model`). Timed on a "
              "shared 2-core machine: the best batch is the cost, the medians show the load.", "",
              "![time against size](tree_speed.png)", ""]
     if chain_rows:
@@ -536,7 +537,7 @@ def _version(module):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="mbsfmu.bench.tree_speed", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="benchmarks.tree_speed", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="reports", help="folder for tree_speed.md, tree_speed_*.csv and tree_speed.png")
     ap.add_argument("--sizes", default=",".join(map(str, SIZES)), help="chain sizes (comma list; empty: none)")
     ap.add_argument("--robots", default=None, help="URDF stems to time (comma list; default: all; 'none': none)")
@@ -554,7 +555,7 @@ def main(argv=None):
     chain_rows = chains(sizes, a.rounds, a.seconds, not a.quiet)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    cmd = "python -m mbsfmu.bench.tree_speed " + " ".join(argv if argv is not None else sys.argv[1:])
+    cmd = "python -m benchmarks.tree_speed " + " ".join(argv if argv is not None else sys.argv[1:])
     for rows, name in ((robot_rows, "robots"), ([r for r in chain_rows if "mbsfmu_us" in r], "chains")):
         if rows:
             columns = list(dict.fromkeys(k for r in rows for k in r))  # peers missing at some sizes: empty cells

@@ -23,7 +23,7 @@ system, the MJCF compile), FMU build and extraction excluded. Each method's swee
 settings and stops after two runs at error ≤ 1e-6 or at a run over the CPU budget. The cheapest run of each
 method at the target is then re-timed in alternation (≥ 10 rounds, the order rotating); medians are reported.
 
-    python -m mbsfmu.bench.fmu_peers --out reports
+    python -m benchmarks.fmu_peers --out reports
 """
 from __future__ import annotations
 
@@ -36,12 +36,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import layout as L
-from . import output
-from .work_precision import REPEATS, TARGET_ERROR, _best_of, build_exudyn, comm_points, exudyn_supported, reference, \
+from mbsfmu.engine import layout as L
+from mbsfmu.reports import output
+from mbsfmu.reports.work_precision import REPEATS, TARGET_ERROR, _best_of, build_exudyn, comm_points, exudyn_supported, reference, \
     run_exudyn, run_mbsfmu, run_scipy
 
-MODELS = Path(__file__).resolve().parents[3] / "models"
+MODELS = Path(__file__).resolve().parents[1] / "models"
 CASES = {"spinning_top": ("spinning_top.yaml", 2.0, {"spin": 150.0}),
          "double_pendulum": ("double_pendulum.yaml", 10.0, {})}
 ENGINE_ADAPTIVE, ENGINE_FIXED = L.ADAPTIVE, L.FIXED_STEP  # the engine's integrators (mbs_layout.h: MBS_METHODS)
@@ -499,7 +499,7 @@ def markdown(results, command):
                              f"{h['construct_ms']:.2f} ms (Python binding the FMI functions), fmi2Instantiate … "
                              f"fmi2ExitInitializationMode {h['initialize_ms']:.3f} ms, and {h['get_real_us']:.2f} µs per "
                              "point for the fmi2GetReal call and the copy alone: the host's Python, not the FMU "
-                             "(bench/fmu_speed measures the FMU's own per-point cost in a C host).")
+                             "(benchmarks/fmu_speed measures the FMU's own per-point cost in a C host).")
         if res["notes"]:
             lines += ["", "Notes:", ""] + [f"- {n}" for n in res["notes"]]
         lines += ["", f"![work-precision {res['name']}](fmu_peers.{res['name']}.png)", ""]
@@ -507,14 +507,14 @@ def markdown(results, command):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m mbsfmu.bench.fmu_peers", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.fmu_peers", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="reports", help="folder for fmu_peers.md, .csv and the plots")
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--rounds", type=int, default=10, help="alternating head-to-head rounds (>= 10 for the report)")
     ap.add_argument("--budget", type=float, default=1.0, help="CPU seconds of one run after which a sweep stops")
     ap.add_argument("--quick", action="store_true", help="coarse sweeps (a smoke run, not for the report)")
     a = ap.parse_args(argv)
-    output.case_reports("fmu_peers", "mbsfmu.bench.fmu_peers", argv, a.out, a.cases,
+    output.case_reports("fmu_peers", "benchmarks.fmu_peers", argv, a.out, a.cases,
                         lambda name, tmp: run_case(name, tmp, quick=a.quick, budget=a.budget, rounds=a.rounds),
                         plot, csv_rows, COLUMNS, markdown)
 

@@ -27,9 +27,9 @@ models exactly the same equations. Exudyn receives the beam's Gauss mass points 
     swinging for 1 s, every family over its sweep as in (b); Exudyn builds its ObjectFFRFreducedOrder from the
     same full M, K and nodes (its own Craig–Bampton modes, computed once), consistent nodal gravity.
 
-    python -m mbsfmu.bench.elastic_cost --out reports          (about 2 minutes)
-    python -m mbsfmu.bench.elastic_cost --out reports --only fe-beam     (only (c): its section of the report)
-    python -m mbsfmu.bench.elastic_cost --out reports --only fe-exudyn   (only (d))
+    python -m benchmarks.elastic_cost --out reports          (about 2 minutes)
+    python -m benchmarks.elastic_cost --out reports --only fe-beam     (only (c): its section of the report)
+    python -m benchmarks.elastic_cost --out reports --only fe-exudyn   (only (d))
 """
 
 import argparse
@@ -40,12 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import files
-from ..engine import layout as L
-from . import output
+from mbsfmu import files
+from mbsfmu.engine import layout as L
+from mbsfmu.reports import output
 
 MODES = (2, 5, 10, 20, 40)
-MODELS = Path(__file__).resolve().parents[3] / "models"
+MODELS = Path(__file__).resolve().parents[1] / "models"
 FE_SECTION = "## FE body against a beam body"
 FE_EXUDYN_SECTION = "## FE body against Exudyn at equal error"
 FE_PENDULUM = """
@@ -400,7 +400,7 @@ def tip_path(sim, ts, Y):
 def speed_runs(spec, ts, quick=False, twin=None):
     """Every family over its sweep: rows {family, method, setting, cpu, error}; plus the reference floor."""
     from mbsfmu.simulation import Simulation
-    from .work_precision import run_exudyn, run_mbsfmu, run_scipy
+    from mbsfmu.reports.work_precision import run_exudyn, run_mbsfmu, run_scipy
     sim = Simulation(spec)
     sim.initialize(ts[0])   # binds the numbers tip_path's output points use
     Yref, _, _ = run_mbsfmu(spec, "dop853", ts, rtol=1e-13, atol=1e-15)
@@ -544,7 +544,7 @@ def main(argv=None):
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     md = out / "elastic_cost.md"
-    cmd = "python -m mbsfmu.bench.elastic_cost" + (" --quick" if a.quick else "") + (f" --only {a.only}" if a.only else "")
+    cmd = "python -m benchmarks.elastic_cost" + (" --quick" if a.quick else "") + (f" --only {a.only}" if a.only else "")
     if a.only == "fe-exudyn":
         rows, floor, h2h = fe_exudyn(a.quick)
         for fam, (r, cpu) in h2h.items():

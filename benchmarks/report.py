@@ -1,6 +1,6 @@
 """Regenerate reports/: work-precision for the shipped models (rigid and elastic), stress suite, equation timings.
 
-    python -m mbsfmu.bench.report [--out reports] [--stop 2] [--skip-stress]
+    python -m benchmarks.report [--out reports] [--stop 2] [--skip-stress]
 """
 
 import argparse
@@ -12,7 +12,9 @@ MODELS = ("pendulum", "double_pendulum", "cart_pole", "robot_arm_6dof", "spinnin
 
 
 def main(argv=None):
-    from . import equations, stress, work_precision
+    from mbsfmu.reports import stress, work_precision
+
+    from . import equations
     p = argparse.ArgumentParser()
     p.add_argument("--out", default="reports")
     p.add_argument("--stop", type=float, default=2.0)

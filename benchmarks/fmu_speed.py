@@ -12,12 +12,12 @@
     Each scene reads one output, its states (y.*, yd.*) and, if it has output points, all outputs.
 
 Peers: the native FMU of the scene, its pythonfmu FMU (start-up only) and trivial native FMUs built here:
-fmi/fmi2.c over bench/fmu_trivial.c (k states x_i' = -a x_i + u, rk4 at 1 ms), the same FMI layer over the
+fmi/fmi2.c over benchmarks/fmu_trivial.c (k states x_i' = -a x_i + u, rk4 at 1 ms), the same FMI layer over the
 smallest engine, with as many outputs as the case beside it reads.
 Targets (issue 10): native start-up <= 20 ms, pythonfmu <= 60 ms; native per-point overhead <= 1.5x the trivial
 FMU's (output points aside: they are model work).
 
-    python -m mbsfmu.bench.fmu_speed models/pendulum.yaml models/double_pendulum.yaml --out reports
+    python -m benchmarks.fmu_speed models/pendulum.yaml models/double_pendulum.yaml --out reports
 """
 from __future__ import annotations
 
@@ -29,16 +29,16 @@ import uuid
 from typing import NamedTuple
 from pathlib import Path
 
-from .. import files
+from mbsfmu import files
 
 HERE = Path(__file__).resolve().parent
-HOST_SOURCE = HERE.parents[2] / "tests" / "c" / "fmu_host.c"  # benchmarks run from a source checkout
+HOST_SOURCE = HERE.parent / "tests" / "c" / "fmu_host.c"  # benchmarks run from a source checkout
 TRIVIAL_SOURCE = HERE / "fmu_trivial.c"
 H = 1e-3
 
 
 def compile_host(dest: Path) -> Path:
-    from ..fmu.native import compiler
+    from mbsfmu.fmu.native import compiler
     if not HOST_SOURCE.is_file():
         raise FileNotFoundError(f"{HOST_SOURCE} not found: run the benchmark from an mbsfmu source checkout")
     exe = Path(dest) / "fmu_host"
@@ -49,10 +49,10 @@ def compile_host(dest: Path) -> Path:
 
 def build_trivial_fmu(outdir: Path, n: int = 1) -> Path:
     """A native FMU of n states x_i' = -a x_i + u: fmi2.c over fmu_trivial.c, packaged like a scene's native FMU."""
-    from ..fmu.common import mbsfmu_version, model_description
-    from ..engine.build import linked_sources
-    from ..fmu.native import FMI_LAYER, COSIMULATION, c_names, collect_sources, package
-    from ..compiler.variables import Variable
+    from mbsfmu.fmu.common import mbsfmu_version, model_description
+    from mbsfmu.engine.build import linked_sources
+    from mbsfmu.fmu.native import FMI_LAYER, COSIMULATION, c_names, collect_sources, package
+    from mbsfmu.compiler.variables import Variable
     # the FMI layer's calls that fmu_trivial.c does not answer (resource locations) reach the engine's files
     sources = collect_sources(linked_sources([FMI_LAYER, TRIVIAL_SOURCE], []))
     guid = "{" + str(uuid.uuid4()) + "}"
@@ -182,8 +182,8 @@ def cases_of(native: dict, settings: tuple, build_trivial) -> list:
 def report(scenes, outdir: Path, runs: int, n: int) -> Path:
     """Both measurements for the native and pythonfmu FMUs of each scene and trivial FMUs; writes
     fmu_speed.md and two CSV files into outdir."""
-    from .. import build_fmu
-    from .output import write_csv
+    from mbsfmu import build_fmu
+    from mbsfmu.reports.output import write_csv
     outdir.mkdir(parents=True, exist_ok=True)
     rk4 = (("integrator.method", "rk4"), ("integrator.step", H))
     with tempfile.TemporaryDirectory(prefix="mbsfmu_fmu_speed_") as tmp:
@@ -218,9 +218,9 @@ def report(scenes, outdir: Path, runs: int, n: int) -> Path:
     slowest = max(r["first_step_ms_median"] for r in start_rows if r["kind"].startswith("native"))
     slowest_py = max(r["first_step_ms_median"] for r in start_rows if r["kind"].startswith("pythonfmu"))
     lines = ["# FMU start-up and per-communication-point cost", "",
-             "Timed in the plain C host `tests/c/fmu_host.c` (`python -m mbsfmu.bench.fmu_speed "
+             "Timed in the plain C host `tests/c/fmu_host.c` (`python -m benchmarks.fmu_speed "
              f"{' '.join(map(str, scenes))} --out {outdir} --runs {runs} --points {n}`). The trivial FMUs are "
-             "fmi/fmi2.c over bench/fmu_trivial.c: k independent states x_i' = -a x_i + u, rk4 at 1 ms, "
+             "fmi/fmi2.c over benchmarks/fmu_trivial.c: k independent states x_i' = -a x_i + u, rk4 at 1 ms, "
              "the same FMI layer as the scenes' FMUs over the smallest engine.", "",
              f"## Start-up: fmi2Instantiate → end of the first fmi2DoStep (h = 1 ms), a fresh process per run, "
              f"{runs} runs, FMUs alternating", "",
@@ -269,7 +269,7 @@ def report(scenes, outdir: Path, runs: int, n: int) -> Path:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="mbsfmu.bench.fmu_speed", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="benchmarks.fmu_speed", description=__doc__.split("\n\n")[0])
     ap.add_argument("scenes", nargs="*", default=["models/pendulum.yaml", "models/double_pendulum.yaml"])
     ap.add_argument("--out", default="reports", help="folder for fmu_speed.md and the CSV files")
     ap.add_argument("--runs", type=int, default=15)

@@ -11,7 +11,7 @@ Measures, in alternation so that every configuration sees the same machine load:
 Every configuration's results equal the plain loop's bit for bit (checked before timing).
 Writes <out>/sweep.md, sweep.csv and sweep.png.
 
-    python -m mbsfmu.bench.sweep [--cases 200,2000] [--stop 2] [--repeats 5] [--max-workers N] [--out reports]
+    python -m benchmarks.sweep [--cases 200,2000] [--stop 2] [--repeats 5] [--max-workers N] [--out reports]
 """
 
 import argparse
@@ -21,10 +21,10 @@ import statistics
 import time
 from pathlib import Path
 
-from .. import files
-from . import output
+from mbsfmu import files
+from mbsfmu.reports import output
 
-MODEL = Path(__file__).resolve().parents[3] / "models" / "double_pendulum.yaml"
+MODEL = Path(__file__).resolve().parents[1] / "models" / "double_pendulum.yaml"
 VARY = {"L": "0.5:1.5", "m": "0.5:2.0"}
 
 
@@ -48,7 +48,7 @@ class _Echo:
 
 def plain_loop(spec, cases, ts, outputs):
     """What a user writes by hand: one Simulation, one run per case, outputs at the stop time."""
-    from ..simulation import Simulation
+    from mbsfmu.simulation import Simulation
     sim = Simulation(spec)
     finals = []
     for values in cases:
@@ -71,8 +71,8 @@ def measure(case_counts=(200,), stop=2.0, repeats=5, max_workers=None):
     import numpy as np
     from dask.distributed import Client
     import mbsfmu
-    from ..sweep.cases import make_cases
-    from ..sweep.dispatch import local_cluster
+    from mbsfmu.sweep.cases import make_cases
+    from mbsfmu.sweep.dispatch import local_cluster
     scene = mbsfmu.load(MODEL)
     e = scene.spec["experiment"]
     ts = np.linspace(e["start"], stop, int(round((stop - e["start"]) / e["step"])) + 1)
@@ -258,7 +258,7 @@ def _plot(walls, counts, path):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m mbsfmu.bench.sweep", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m benchmarks.sweep", description=__doc__.split("\n\n")[0])
     p.add_argument("--cases", default="200,2000", help="comma list of sweep sizes (default 200,2000)")
     p.add_argument("--stop", type=float, default=2.0)
     p.add_argument("--repeats", type=int, default=5)
@@ -268,7 +268,7 @@ def main(argv=None):
     load_before = os.getloadavg()
     case_counts = [int(c) for c in a.cases.split(",")]
     walls, cold, counts, first, noop = measure(case_counts, a.stop, a.repeats, a.max_workers)
-    command = "python -m mbsfmu.bench.sweep" + (f" --cases {a.cases}" if a.cases != "200,2000" else "") + \
+    command = "python -m benchmarks.sweep" + (f" --cases {a.cases}" if a.cases != "200,2000" else "") + \
         (f" --stop {a.stop:g}" if a.stop != 2.0 else "") + (f" --repeats {a.repeats}" if a.repeats != 5 else "")
     write_report(walls, cold, counts, a.stop, Path(a.out), load_before, os.getloadavg(), command, first, noop)
     print((Path(a.out) / "sweep.md").read_text())

@@ -2,12 +2,12 @@
 assembled and factored: cubic in the coordinates) against the articulated-body algorithm, where an elastic body is
 a node with its modal coordinates (linear in the bodies), and the path the compiler picks (compiler/scene_file.py: dense_path).
 
-    python -m mbsfmu.bench.elastic_paths --out reports          (about 2 minutes)
+    python -m benchmarks.elastic_paths --out reports          (about 2 minutes)
 
 Cases: the shipped elastic models; arms of L beams (n modes each, every beam on a revolute joint at the tip node
 of the one before); rigid chains ending in a beam; and arms of growing length (2 modes a link), where the dense
 path's cubic cost shows. Every case compiled for each path, µs per right-hand side (`mbs_rhs`) in a C loop over the
-engine library (bench/rhs_loop.c) on the same 64 distinct states in turn (the engine keeps its kinematics while the
+engine library (benchmarks/rhs_loop.c) on the same 64 distinct states in turn (the engine keeps its kinematics while the
 state's bits stay the same), batches of the two paths alternating (rounds), the best batch of each. Target: the
 chosen path is the faster within the noise (its time ≤ 1.1 × the other's), the shipped elastic models no slower than
 on the dense path they had.
@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import output
+from mbsfmu.reports import output
 from .tree_speed import c_loop
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = Path(__file__).resolve().parents[1]
 SHIPPED = ("flexible_pendulum", "spinup_beam", "robot_arm_elastic", "fe_link", "fe_plate", "fe_stress")
 ARMS = ((1, 8), (1, 20), (2, 4), (3, 2), (3, 4), (2, 8), (4, 4), (3, 8), (6, 6))
 RIGID_THEN_BEAM = ((6, 12), (12, 4))
@@ -54,9 +54,9 @@ class _Compiled:
     """What c_loop reads (the compiled scene, the states) for one path; `dense`: the compiler's own choice."""
 
     def __init__(self, spec, dense, states=64, seed=0):
-        from ..engine import Instance
-        from ..compiler.scene_file import compile_scene
-        from ..compiler.variables import variables
+        from mbsfmu.engine import Instance
+        from mbsfmu.compiler.scene_file import compile_scene
+        from mbsfmu.compiler.variables import variables
         blob = compile_scene(spec, variables(spec), dense=dense)
         self.sim = type("Compiled", (), {"blob": blob})
         inst = Instance(blob)
@@ -82,8 +82,8 @@ def cases(shipped=SHIPPED, arms=ARMS, rigid_then_beam_=RIGID_THEN_BEAM, long_arm
 
 
 def run(case_list, rounds=5, seconds=0.2, progress=True):
-    from ..compiler.scene_file import carriers, dense_path
-    from ..compiler.model import Model
+    from mbsfmu.compiler.scene_file import carriers, dense_path
+    from mbsfmu.compiler.model import Model
     rows = []
     for name, spec in output.progress(case_list, "elastic paths", lambda c: c[0], progress):
         model = Model(spec)
@@ -123,7 +123,7 @@ def markdown(rows, command):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m mbsfmu.bench.elastic_paths", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.elastic_paths", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="reports", help="folder for elastic_paths.md, .csv and .png")
     ap.add_argument("--rounds", type=int, default=5, help="alternating batches per path")
     ap.add_argument("--seconds", type=float, default=0.2, help="timed seconds per case and path")
@@ -135,8 +135,8 @@ def main(argv=None):
     out.mkdir(parents=True, exist_ok=True)
     output.write_csv(rows, out / "elastic_paths.csv", COLUMNS, 4)
     plot(rows, out / "elastic_paths.png")
-    from .. import files
-    command = "python -m mbsfmu.bench.elastic_paths " + " ".join(argv if argv is not None else sys.argv[1:])
+    from mbsfmu import files
+    command = "python -m benchmarks.elastic_paths " + " ".join(argv if argv is not None else sys.argv[1:])
     files.write_text(out / "elastic_paths.md", markdown(rows, command.strip()))
     print(markdown(rows, ""))
 

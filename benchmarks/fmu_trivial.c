@@ -1,4 +1,4 @@
-/* The trivial engine of bench/fmu_speed.py: the smallest implementation of mbs_engine.h that fmi2.c needs,
+/* The trivial engine of benchmarks/fmu_speed.py: the smallest implementation of mbs_engine.h that fmi2.c needs,
  * for n independent states x_i' = -a x_i + u integrated with classical RK4 at a fixed internal step of 1 ms.
  *
  * Compiled with fmi/fmi2.c it gives a native FMU of the same FMI layer shape as an mbsfmu native FMU,

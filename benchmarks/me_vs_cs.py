@@ -1,6 +1,6 @@
 """fmpy's model exchange against co-simulation at equal error: one native FMU, the host's solver or the engine's.
 
-Cases (bench/fmu_peers.CASES): the heavy top (`models/spinning_top.yaml`, spin 150 rad/s, 2 s, 1000 points) and
+Cases (benchmarks/fmu_peers.CASES): the heavy top (`models/spinning_top.yaml`, spin 150 rad/s, 2 s, 1000 points) and
 the double pendulum (`models/double_pendulum.yaml`, 10 s, 1000 points). One native FMI 2.0 FMU per case, offering
 both interfaces, run through `fmpy.simulate_fmu` from its extracted folder (no validation, the modelDescription
 read once), with the same outputs (the position coordinates) at the same communication points:
@@ -21,7 +21,7 @@ budget; the runs kept (but that one over the budget) are then timed again in rou
 order rotating (alternating runs); medians are reported. Equal error: for each error level, the cheapest median among a family's runs at or
 below it.
 
-    python -m mbsfmu.bench.me_vs_cs --out reports
+    python -m benchmarks.me_vs_cs --out reports
 """
 from __future__ import annotations
 
@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import layout as L
-from . import output
+from mbsfmu.engine import layout as L
+from mbsfmu.reports import output
 from .fmu_peers import CASES, MODELS, case, error
-from .work_precision import reference
+from mbsfmu.reports.work_precision import reference
 
 RTOLS = tuple(10.0 ** -k for k in range(4, 13))
 EULER_DIVISORS = tuple(4 ** k for k in range(7))  # 1 … 4096
@@ -202,7 +202,7 @@ def markdown(results, command):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m mbsfmu.bench.me_vs_cs", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.me_vs_cs", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="reports", help="folder for me_vs_cs.md, .csv and the plots")
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--rounds", type=int, default=5, help="alternating rounds (>= 5 for the report)")
@@ -210,7 +210,7 @@ def main(argv=None):
     ap.add_argument("--stop", type=float, default=None, help="shorter experiments (the cases' own by default)")
     ap.add_argument("--quick", action="store_true", help="coarse sweeps, one round (a smoke run, not for the report)")
     a = ap.parse_args(argv)
-    return output.case_reports("me_vs_cs", "mbsfmu.bench.me_vs_cs", argv, a.out, a.cases,
+    return output.case_reports("me_vs_cs", "benchmarks.me_vs_cs", argv, a.out, a.cases,
                                lambda name, tmp: run_case(name, tmp, quick=a.quick, budget=a.budget, stop=a.stop,
                                                           rounds=1 if a.quick else a.rounds),
                                plot, csv_rows, COLUMNS, markdown)

@@ -13,8 +13,8 @@ Sizes grow until one run passes 60 s or limits.FE_DOFS. Writes fe_reduce.csv and
 Cholesky from cvxopt, BLAS held to one thread in the eigensolver by threadpoolctl), without threadpoolctl, and
 without cvxopt (SuperLU's LU); a worker runs without a module by making its import fail.
 
-    python -m mbsfmu.bench.fe_reduce --out reports                  (a few minutes)
-    python -m mbsfmu.bench.fe_reduce --out reports --compare 7      (47,925 DOFs, 3 runs of each: ~4 minutes)
+    python -m benchmarks.fe_reduce --out reports                  (a few minutes)
+    python -m benchmarks.fe_reduce --out reports --compare 7      (47,925 DOFs, 3 runs of each: ~4 minutes)
 """
 
 import argparse
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import output
+from mbsfmu.reports import output
 
 MODES, BUDGET_S = 20, 60.0
 COLUMNS = ["n", "dofs", "assemble_s", "reduce_s", "f1_hz", "peak_mib", "parser_peak_mib", "load"]
@@ -52,7 +52,7 @@ def box_mesh(n):
 def reduce_clamped(model):
     """(seconds, first frequency in Hz) of cms.reduce: Craig–Bampton, MODES modes, the x = 0 face tied to its
     centre, the tip node kept."""
-    from ..bodies import cms
+    from mbsfmu.bodies import cms
     root = np.flatnonzero(model.nodes[:, 0] < 1e-12)
     t0 = time.perf_counter()
     r = cms.reduce(model, "craig-bampton", interface=root, reference=[0, 0.05, 0.05],
@@ -62,7 +62,7 @@ def reduce_clamped(model):
 
 def one(n):
     """One size, in this process: the row of the table."""
-    from ..bodies.fe_mesh import assemble_solid
+    from mbsfmu.bodies.fe_mesh import assemble_solid
     with tempfile.TemporaryDirectory() as tmp:
         box_mesh(n).write(Path(tmp) / "bar.msh", file_format="gmsh")
         t0 = time.perf_counter()
@@ -77,8 +77,8 @@ def one(n):
 
 def worker(n, *flags):
     """one(n) in a fresh process (its peak resident set its own): the row, or None and why it stopped."""
-    r = subprocess.run([sys.executable, "-m", "mbsfmu.bench.fe_reduce", "--one", str(n), *flags],
-                       capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "benchmarks.fe_reduce", "--one", str(n), *flags],
+                       capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])  # the repository's
     if r.returncode:
         return None, r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode
     row = json.loads(r.stdout.strip().splitlines()[-1])

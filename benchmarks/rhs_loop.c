@@ -1,8 +1,8 @@
-/* The engine's right-hand side in a C loop (bench/tree_speed.py): the cost of mbs_rhs without Python.
+/* The engine's right-hand side in a C loop (benchmarks/tree_speed.py): the cost of mbs_rhs without Python.
  *
  *   rhs_loop ENGINE.so SCENE.bin X.bin CALLS BATCHES [column]   → prints "RHS <µs per call of the best batch>"
  *
- * With `column` (bench/directional_cost.py), batches of mbs_rhs and of one directional derivative column (the host's
+ * With `column` (benchmarks/directional_cost.py), batches of mbs_rhs and of one directional derivative column (the host's
  * calls: set the state, then J·seed of every der(·) along a seed over all states) alternate, and it prints
  * "RHS <µs> COLUMN <µs>".
  *
