@@ -395,3 +395,25 @@ def test_python_blocks_import_what_they_use(page):
         missing |= used - modules - bound - imported - here
         assert not missing, f"{page.name}: a python block uses {sorted(missing)} without importing or defining it:\n{code}"
         bound |= imported | here
+
+
+def test_the_readme_layout_table_is_the_tree():
+    """Every path the README's layout table names exists; every folder of the package and every module at its
+    top is named there (a row may name several: `errors.py`, `files.py`, ... after a folder's path)."""
+    text = (REPO / "README.md").read_text()
+    table = text.split("## Layout", 1)[1].split("\n\n", 2)[2].split("\n\n", 1)[0]
+    rows = [r.split("|")[1].strip() for r in table.splitlines() if r.startswith("| `")]
+    named = set()
+    for cell in rows:
+        parts = re.findall(r"`([^`]+)`", cell)
+        folder = parts[0].rsplit("/", 1)[0] if "/" in parts[0].rstrip("/") and not parts[0].endswith("/") else ""
+        for k, p in enumerate(parts):
+            path = p if k == 0 or "/" in p else f"{folder}/{p}"
+            assert (REPO / path).exists(), f"README's layout names {path}, which does not exist"
+            named.add(path.rstrip("/"))
+    pkg = REPO / "src" / "mbsfmu"
+    wanted = {f"src/mbsfmu/{p.name}" for p in pkg.iterdir()
+              if (p.is_dir() and (p / "__init__.py").exists()) or (p.is_dir() and any(p.glob("*.c")))
+              or (p.suffix == ".py" and p.name not in ("__init__.py", "__main__.py"))}
+    missing = sorted(wanted - named)
+    assert not missing, f"not in README's layout table: {missing}"
