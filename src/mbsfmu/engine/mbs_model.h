@@ -60,7 +60,6 @@ typedef double real;
 
 /* ---- the compiled scene: two flat arrays reached through a table of sections, laid out as mbs_layout.h
  * declares (compiler/scene_file.py writes it from the same declaration) ---- */
-int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen);  /* sim.c: at load, every row in range */
 
 struct MbsModel {
     char guid[64];

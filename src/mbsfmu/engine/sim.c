@@ -260,31 +260,6 @@ static int check_times(MbsInstance *s)
     return MBS_OK;
 }
 
-int mbs_rules_validate(const MbsModel *m, char *err, size_t errlen)
-{
-    const int nd = m->hdr[H_ND], ntd = 3 * (m->hdr[H_NDRV] + m->hdr[H_NVEC]);
-    const double *lim = m->limits;
-    if (!(isfinite(lim[LIM_START]) && isfinite(lim[LIM_STOP]) && lim[LIM_START] <= lim[LIM_STOP] &&
-          lim[LIM_SAMPLES] >= 1 && lim[LIM_SAMPLES] <= 100000 && lim[LIM_SAMPLES] == (int)lim[LIM_SAMPLES] &&
-          lim[LIM_MAGNITUDE_LO] > 0 && lim[LIM_MAGNITUDE_LO] <= lim[LIM_MAGNITUDE_HI] && isfinite(lim[LIM_MAGNITUDE_HI]) &&
-          lim[LIM_AXIS_LO] > 0 && lim[LIM_AXIS_LO] <= lim[LIM_AXIS_HI] && isfinite(lim[LIM_AXIS_HI])))
-        return snprintf(err, errlen, "corrupt limits"), 1;
-    for (int k = 0; k <= MBS_V_STEP; k++) {
-        const double *d = m->vdom + 3 * k;
-        if (!(d[2] >= 0 && d[2] < 8 && d[2] == (int)d[2]) || !(d[0] <= d[1]))
-            return snprintf(err, errlen, "corrupt variable domain (row %d)", k), 1;
-    }
-    for (int r = 0; r < m->nrules; r++) {
-        const int32_t *row = m->rules + 3 * r;
-        const int size = row[0] >= 0 && row[0] < R_N ? rule_size[row[0]] : -1;
-        const int ok = row[0] == R_TIMED ? row[1] >= 0 && row[1] < ntd : size == 0 ? row[1] >= 0 && row[1] < NB(m) :
-                       size > 0 && row[1] >= 0 && row[1] <= nd - size;
-        if (!ok || row[2] < 0 || row[2] >= m->n_rule_names || !memchr(m->rule_names + row[2], 0, (size_t)(m->n_rule_names - row[2])))
-            return snprintf(err, errlen, "corrupt rule table (row %d)", r), 1;
-    }
-    return 0;
-}
-
 /* Gimbal lock of Cardan joints: |cos b| < 1e-3 at x, or b crossed ±90° since x_before (evaluator.py:
  * singularity_message). Writes the message into buf; 1 if locked. */
 static int gimbal(const MbsInstance *s, const double *x, const double *x_before, char *buf, size_t len)
