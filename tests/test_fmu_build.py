@@ -109,7 +109,7 @@ def test_runtime_copy(osc_fmu):
     assert rt, names
     pkg = rt[0].split("/")[1]
     # the engine's seam, its library and sources: no multibody Python, no numpy-based reference
-    for part in ("errors.py", "engine/__init__.py", "engine/api.py", "engine/build.py", "engine/tree.c", "engine/sim.c"):
+    for part in ("errors.py", "engine/__init__.py", "engine/api.py", "engine/build.py", "engine/tree.c", "engine/instance.c", "engine/ode.c"):
         assert f"resources/{pkg}/{part}" in names
     assert [n for n in names if re.fullmatch(rf"resources/{pkg}/engine/libmbsfmu_engine_\w+\.so\.1", n)]
     assert not [n for n in names if re.search(r"/(bodies|scene|equations|integrators)/|cli\.py|simulation\.py", n)]

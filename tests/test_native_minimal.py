@@ -69,7 +69,7 @@ def test_minimal_scene_builds_runs_in_c_host_and_from_its_sources(name, host, tm
     fmu = mbsfmu.build_fmu(scene_file, tmp_path / "out", kind="native")
     c_files = {n[len("sources/"):] for n in zipfile.ZipFile(fmu).namelist()
                if n.startswith("sources/") and n.endswith(".c")}
-    assert not c_files & left_out and carried <= c_files and {"fmi2.c", "model.c", "sim.c", "tree.c"} <= c_files
+    assert not c_files & left_out and carried <= c_files and {"fmi2.c", "model.c", "instance.c", "ode.c", "run.c", "tree.c"} <= c_files
 
     d, md, outs = _unpack(fmu, tmp_path / "x")
     args = [(d / "resources").as_uri(), md.guid, "-o", ",".join(map(str, outs)), "-n", str(STEPS), "-h", str(H), "-p"]

@@ -128,7 +128,7 @@ enum { MBS_METHODS(MBS_CODE) MBS_NMETHODS };
     X(MBS_V_DER, "") X(MBS_V_VM, "")
 enum { MBS_VAR_KINDS(MBS_CODE) MBS_V_N };
 
-/* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, sim.c to a host's):
+/* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, rules.c to a host's):
  * a variable's domain is lo..hi, 0 besides with VD_ZERO, always finite; a rule holds for the numbers a
  * parameter derives, each rule with how many consecutive numbers of D it reads (0: a body or a td slot). */
 #define MBS_VDOM_FLAGS(X) X(VD_LO_OPEN, 1) X(VD_HI_OPEN, 2) X(VD_ZERO, 4)

@@ -1,4 +1,4 @@
-/* Engine internals shared by model.c, expr.c, tree.c, elastic.c and sim.c.
+/* Engine internals shared by model.c, expr.c, tree.c, elastic.c and the instance's files (instance.h).
  *
  * The compiled scene (written by compiler/scene_file.py) is two flat arrays: I (int32) and D (double), reached
  * through a table of sections. The model keeps them read-only; every instance copies D, because the

@@ -206,7 +206,7 @@ static int check_tables(const MbsModel *m, char *err, size_t errlen)
 
 /* FMI 3.0's variables (S_ARRAYS: (first row, rows) of each array, in row order; absent: none): first3[k] is
  * the first row of FMI 3.0 variable k, first3[nvars3] = nvars. Arrays hold Float64 rows only. */
-/* The domain rules' table (S_RULES, S_LIMITS, S_VDOM) in range at load: what sim.c's checks of the values then read. */
+/* The domain rules' table (S_RULES, S_LIMITS, S_VDOM) in range at load: what rules.c's checks of the values then read. */
 #define RULE_SIZE(code, size) size,
 static const int rule_size[R_N] = {MBS_RULES(RULE_SIZE)};  /* numbers of D each rule reads (mbs_layout.h) */
 

@@ -5,7 +5,7 @@
  *     message,
  *   - the registries of the instances and FMU states a library handed out (a host's pointer is compared with
  *     them, never followed unless found),
- *   - the check of an FMU state's header (the byte layout of sim.c's mbs_state_save, whose loader runs it too).
+ *   - the check of an FMU state's header (the byte layout of state_bytes.c's mbs_state_save, whose loader runs it too).
  */
 #ifndef MBS_CALL_GUARD_H
 #define MBS_CALL_GUARD_H
@@ -38,7 +38,7 @@ void *mbs_reg_first(MbsRegistry *r, int (*match)(void *item, void *ctx), void *c
 void mbs_reg_drop_all(MbsRegistry *r, int (*match)(void *item, void *ctx), void *ctx, void (*release)(void *item));
 
 /* FMU state bytes: "MBSS", uint32 format version, char guid[64], uint64 payload length, uint64 FNV-1a-64 of the
- * payload, then the payload (sim.c) */
+ * payload, then the payload (state_bytes.c) */
 #define MBS_STATE_VERSION 1u
 #define MBS_STATE_HEADER (4 + 4 + 64 + 8 + 8)
 uint64_t mbs_state_checksum(const unsigned char *payload, size_t n);

@@ -20,7 +20,7 @@
  *   - the FMI 2.0 co-simulation calling sequence (instantiated -> initialization mode -> step mode ->
  *     terminated; error state; fmi2Reset back to instantiated);
  *   - FMU states: only handles handed out here to a live instance are accepted (one of another instance of
- *     this FMU restores through its bytes); serialized bytes must carry the engine's header (sim.c) with this
+ *     this FMU restores through its bytes); serialized bytes must carry the engine's header (state_bytes.c) with this
  *     model's GUID, a matching length and checksum;
  *   - refusals the slave cannot report (pythonfmu has no fmi2Error): the slave keeps the reason of a failed
  *     initialization, state restore, string set, outright step refusal or discarded step ("discard: ...") in a
@@ -995,7 +995,7 @@ EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byt
     return done(owner, __func__, R.serialize(owner->real, s, bytes, need));  /* pythonfmu copies n bytes */
 }
 
-/* The engine's state bytes (sim.c, mbs_state_save): the header of call_guard.h, then the payload, which starts
+/* The engine's state bytes (state_bytes.c, mbs_state_save): the header of call_guard.h, then the payload, which starts
    with its Head {double time, rtol, atol, max_step, step; int32 initialized, method, q_in_active, params_dirty}. */
 #define STATE_HEAD (5 * 8 + 4 * 4)
 

@@ -149,7 +149,7 @@ def _minimize(f, a, b, iterations=60):
 # -- domains of the numbers a host may change -------------------------------------------------------------
 # One table, declared here: the loader checks a scene's nominal numbers with these rules; compiler/scene_file.py writes
 # the same rules into the compiled scene (variable domains, and the derived-quantity rules of every number
-# that depends on a parameter), and the engine applies them when a host sets a value (sim.c: check_rules and
+# that depends on a parameter), and the engine applies them when a host sets a value (rules.c: mbs_check_rules and
 # in_domain mirror check() and Domain.contains, kind by kind; tests/test_domains.py holds the two equal).
 
 NONNEG, MAGNITUDE, INERTIA, AXIS, ROTATION, CARRIES, TIMED, PERPENDICULAR, NOT_PARALLEL = (  # codes: mbs_layout.h
