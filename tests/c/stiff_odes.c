@@ -17,7 +17,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "integ_internal.h"
+#include "integ_base.h"
 
 enum { P_ROBERTSON, P_VDP, P_OSC, P_TOP, P_NAN_AFTER, P_FAIL_AFTER };
 

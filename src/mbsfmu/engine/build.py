@@ -25,11 +25,11 @@ INCLUDE_DIRS = (HERE, FMI, FMI / "fmi2", FMI / "fmi3")  # where the engine's and
 # (folder, file): the engine's own files, then the FMI parts the in-process library carries too (scene files, the
 # state header check, and the layers' shared code, which ctypes hosts in the tests call)
 INSTANCE = ("instance.c", "rules.c", "ode.c", "run.c", "variables.c", "exchange.c", "state_bytes.c")  # instance.h
-CORE = tuple((HERE, n) for n in ("model.c", "tree.c", "dynamics.c", "deriv.c", *INSTANCE, "linalg.c")) \
+CORE = tuple((HERE, n) for n in ("model.c", "tree.c", "forces.c", "dynamics.c", "cholesky.c", "forward.c", "deriv.c", *INSTANCE, "linalg.c")) \
     + tuple((FMI, n) for n in ("fmu_files.c", "call_guard.c", "fmi_services.c", "fmi_calls.c")) \
     + tuple((HERE, p.name) for p in sorted(HERE.glob("integ_*.c")))
 HEADERS = tuple((HERE, n) for n in ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
-                                    "integ_internal.h", "linalg.h", "instance.h")) \
+                                    "integ_base.h", "linalg.h", "instance.h", "rules.h")) \
     + tuple((FMI, n) for n in ("fmu_files.h", "call_guard.h", "fmi_services.h", "fmi_calls.h"))
 # optional parts: their files (elastic bodies: the equations and their complex twin for directional derivatives) and
 # the switch that turns them on

@@ -8,7 +8,10 @@
  */
 #define MBS_CX 1
 #include "tree.c"
+#include "forces.c"
 #include "dynamics.c"
+#include "cholesky.c"
+#include "forward.c"
 /* elastic.c's twin: deriv_elastic.c (a rigid scene's FMU carries no elastic code) */
 
 #include <stdint.h>

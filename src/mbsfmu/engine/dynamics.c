@@ -203,20 +203,6 @@ static void bias_forces(const MbsEval *e)
     }
 }
 
-void mbs_body_force(const MbsEval *e, int i, const real *x, const real *F, double sign)
-{
-    i = mbs_body_i(e->m, i)->carrier;  /* a welded body's force acts on its carrier; the world's takes none */
-    if (i < 0) return;
-    real *wk = mbs_body_work(e, i), *f = wk + AB_F, n[3], r_[3];
-    if (!x) {
-        for (int r = 0; r < 3; r++) f[r] += sign * F[r];
-        return;
-    }
-    for (int r = 0; r < 3; r++) r_[r] = x[r] - wk[W_O + r];
-    cross(r_, F, n);
-    for (int r = 0; r < 3; r++) { f[r] += sign * n[r]; f[3 + r] += sign * F[r]; }
-}
-
 /* d = o_i − o_parent */
 static void offset(const MbsEval *e, const real *wk, int parent, real *d)
 {

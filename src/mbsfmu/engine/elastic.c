@@ -719,21 +719,16 @@ real mbs_elastic_von_mises(const MbsModel *m, int k, const real *x)
 }
 
 #ifndef MBS_CX
-/* Structural parameters (they fed the beam generator): the bound value must be the one the data were
- * computed with. */
-int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen)
+/* Structural parameters (they fed the finite-element data): the bound value must be the one the data were
+ * computed with. The index of the first that is not (its compiled value in *compiled), else -1. */
+int mbs_elastic_changed_structure(const MbsModel *m, const double *D, double *compiled)
 {
     const int32_t *I = m->elastic_i;
     const int nfix = I[EH_NFIX];
     const int32_t *fix = I + EH + EI * I[EH_NE];
     const double *val = m->elastic_d + m->n_elastic_d - nfix;
-    for (int k = 0; k < nfix; k++) {
-        if (D[fix[k]] == val[k]) continue;
-        const char *name = mbs_var_name_of(m, MBS_V_PARAM, fix[k]);
-        FAIL("parameter %s is structural: it feeds the finite-element data of an elastic body, which the engine "
-             "cannot recompute (compiled with %s = %.17g, set to %.17g); compile the scene again with the new value",
-             name, name, val[k], D[fix[k]]);
-    }
-    return 0;
+    for (int k = 0; k < nfix; k++)
+        if (D[fix[k]] != val[k]) return *compiled = val[k], fix[k];
+    return -1;
 }
 #endif

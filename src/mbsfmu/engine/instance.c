@@ -109,6 +109,76 @@ int mbs_reset(MbsInstance *s)
 }
 
 /* ------------------------------------------------------------------------------------------ binding */
+/* Which bodies carry mass, inertia or an elastic body (the loader's `massless` check, over the bound numbers):
+ * parents come before their children, so one sweep from the last body up marks every ancestor. */
+static void mark_carried(MbsInstance *s)
+{
+    const MbsModel *m = s->m;
+    for (int i = 0; i < NB(m); i++) {
+        const MbsBodyD *bd = mbs_body_row(m, s->D, i);
+        s->carries[i] = mbs_body_i(m, i)->elastic >= 0 || bd->m > 0 || bd->I[0] > 0 || bd->I[4] > 0 || bd->I[8] > 0;
+    }
+    for (int i = NB(m) - 1; i > 0; i--) {
+        const int p = mbs_body_i(m, i)->parent;
+        if (p >= 0 && s->carries[i]) s->carries[p] = 1;
+    }
+}
+
+/* The derived-quantity rules of the bound numbers (S_RULES); MBS_ERROR with the first that fails (quiet). */
+static int check_rules(MbsInstance *s)
+{
+    const MbsModel *m = s->m;
+    char why[400];
+    int marked = 0;
+    s->rule_broken = 1;
+    for (int r = 0; r < m->nrules; r++) {
+        const int32_t *row = m->rules + 3 * r;
+        const char *path = m->rule_names + row[2];
+        if (row[0] == R_TIMED) continue;  /* check_times */
+        if (row[0] == R_CARRIES) {
+            if (!marked++) mark_carried(s);
+            if (!s->carries[row[1]])
+                return mbs_say(s, "%s: body '%s' and the bodies it carries have no mass or inertia, so its joint's motion is "
+                           "undetermined (singular mass matrix)", path, m->body_name[row[1]]);
+            continue;
+        }
+        const double *v = s->D + row[1];
+        if (mbs_rule_problem(m, row[0], v, why, sizeof why))
+            return mbs_rule_size[row[0]] == 1 ? mbs_say(s, "%s = %g: %s", path, v[0], why) : mbs_say(s, "%s: %s", path, why);
+    }
+    s->rule_broken = 0;
+    return MBS_OK;
+}
+
+/* The R_TIMED values at the loader's sample times over the scene's experiment (quiet, as check_rules). */
+static int check_times(MbsInstance *s)
+{
+#ifdef MBS_WITH_EXPR
+    const MbsModel *m = s->m;
+    int timed = 0;
+    for (int r = 0; r < m->nrules; r++) timed |= m->rules[3 * r] == R_TIMED;
+    if (!timed) return MBS_OK;
+    const double *lim = m->limits;
+    const int n = (int)lim[LIM_SAMPLES];
+    s->rule_broken = 1;
+    for (int k = 0; k < n; k++) {
+        const double step = (lim[LIM_STOP] - lim[LIM_START]) / (n > 1 ? n - 1 : 1);  /* numpy.linspace's times */
+        const double t = k == n - 1 ? lim[LIM_STOP] : lim[LIM_START] + k * step;
+        mbs_run_programs(m, 1, s->D, s->td, t);
+        for (int r = 0; r < m->nrules; r++) {
+            const int32_t *row = m->rules + 3 * r;
+            if (row[0] == R_TIMED && !isfinite(s->td[row[1]]))
+                return mbs_say(s, "%s = %g at t = %g: must stay finite over the experiment [%g, %g] s",
+                           m->rule_names + row[2], s->td[row[1]], t, lim[LIM_START], lim[LIM_STOP]);
+        }
+    }
+    s->rule_broken = 0;
+#else
+    (void)s;
+#endif
+    return MBS_OK;
+}
+
 /* Parameters → numbers (bind programs, derived axes and rotations), checked against the scene's rules;
  * MBS_ERROR with the message in s->msg (not logged: the caller reports it). */
 int mbs_bind(MbsInstance *s)
@@ -124,10 +194,16 @@ int mbs_bind(MbsInstance *s)
 #endif
     mbs_derive(m, s->D);
     if (!m->dense) mbs_composites(m, s->D, s->work);
-    if (mbs_check_rules(s) || mbs_check_times(s)) return MBS_ERROR;
+    if (check_rules(s) || check_times(s)) return MBS_ERROR;
 #ifdef MBS_WITH_ELASTIC
-    if ((m->hdr[H_FEATURES] & F_ELASTIC) && mbs_elastic_bind(m, s->D, s->msg, sizeof s->msg))
-        return MBS_ERROR;
+    double compiled;
+    const int p = (m->hdr[H_FEATURES] & F_ELASTIC) ? mbs_elastic_changed_structure(m, s->D, &compiled) : -1;
+    if (p >= 0) {
+        const char *name = mbs_var_name_of(m, MBS_V_PARAM, p);
+        return mbs_say(s, "parameter %s is structural: it feeds the finite-element data of an elastic body, which the "
+                       "engine cannot recompute (compiled with %s = %.17g, set to %.17g); compile the scene again with "
+                       "the new value", name, name, compiled, s->D[p]);
+    }
 #endif
     for (int k = m->hdr[H_D_BODY]; k < m->hdr[H_ND]; k++)
         if (!isfinite(s->D[k]))

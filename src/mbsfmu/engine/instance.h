@@ -1,7 +1,7 @@
 /* An instance: the bound numbers, inputs, state and integrator of one running scene, and the variables the
  * FMU exposes (mbs_engine.h is its API). Its jobs, a file each:
  *   instance.c     lifetime, messages, binding parameters to numbers, inputs held over a step
- *   rules.c        the scene's domains and rules applied to a host's values; gimbal lock
+ *   rules.c        the scene's domains and rules, the values a host sets checked against them; gimbal lock
  *   ode.c          the ODE the integrators see (ẋ at t, x), its integrator, mbs_equations and mbs_rhs
  *   run.c          initialization and stepping (co-simulation, mbs_run)
  *   variables.c    get and set by value reference, output points, start values
@@ -22,6 +22,7 @@
 #include "call_guard.h"
 #include "mbs_integrator.h"
 #include "mbs_model.h"
+#include "rules.h"
 
 struct MbsInstance {
     const MbsModel *m;
@@ -73,13 +74,6 @@ int mbs_bind(MbsInstance *s);
 int mbs_start_state(MbsInstance *s);
 int mbs_apply_inputs(MbsInstance *s, int status, const char *refused);
 int mbs_pending(MbsInstance *s, int status, const char *refused);
-/* rules.c */
-int mbs_in_domain(const double *d, double v);
-void mbs_domain_text(const double *d, char *buf, size_t len);
-const char *mbs_rule_problem(const MbsModel *m, int rule, const double *v, char *buf, size_t len);
-int mbs_check_rules(MbsInstance *s);
-int mbs_check_times(MbsInstance *s);
-int mbs_gimbal(const MbsInstance *s, const double *x, const double *x_before, char *buf, size_t len);
 /* ode.c */
 MbsEval mbs_evaluation(MbsInstance *s, const double *x, double *xdot);
 void mbs_time_numbers(MbsInstance *s, double t);

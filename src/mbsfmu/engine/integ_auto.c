@@ -4,7 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "integ_internal.h"
+#include "integ_base.h"
 
 #define AUTO_HEADER 32 /* "MBSA", method, n, dense, phase, 0 (int32 each), switched_at (8 bytes) */
 

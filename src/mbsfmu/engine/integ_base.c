@@ -1,6 +1,6 @@
 /* The common integrator driver: options, reset, advance to exact communication points with the step size
  * carried over, dense output (ahead point + segment), advance_many, stats, snapshots, messages.
- * Methods plug in through MbsMethodClass (integ_internal.h); each public call goes to the class's MbsIntegOps:
+ * Methods plug in through MbsMethodClass (integ_base.h); each public call goes to the class's MbsIntegOps:
  * mbs_single_ops (below) for a method of hooks, a composite's own (auto, integ_auto.c). */
 #include <float.h>
 #include <math.h>
@@ -8,7 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "integ_internal.h"
+#include "integ_base.h"
 
 #define METHOD_NAME(code, name, ...) name,
 const char *const mbs_method_names[MBS_NMETHODS] = {MBS_METHODS(METHOD_NAME)};

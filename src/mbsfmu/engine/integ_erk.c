@@ -3,7 +3,7 @@
 #include <math.h>
 #include <string.h>
 
-#include "integ_internal.h"
+#include "integ_base.h"
 
 /* ------------------------------------------------------------------------------------------- tableaus */
 

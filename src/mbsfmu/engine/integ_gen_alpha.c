@@ -10,12 +10,12 @@
  * Fixed step when opt->h is given; otherwise adaptive by step doubling (Richardson estimate of the local
  * error, order 2 ⇒ local error h³).  The LU of S is cached for at most two step sizes (h and h/2).
  *
- * History (see integ_internal.h): GenAlphaState and the arrays v̇, a, K, D, the two cached LU with pivots.
+ * History (see integ_base.h): GenAlphaState and the arrays v̇, a, K, D, the two cached LU with pivots.
  */
 #include <math.h>
 #include <string.h>
 
-#include "integ_internal.h"
+#include "integ_base.h"
 #include "linalg.h"
 
 #define NEWTON_MAXITER 8

@@ -6,13 +6,13 @@
  * reused while h stays within a factor [1, 1.2] of its old value. Step size: Gustafsson's predictive
  * controller. Dense output is the collocation polynomial of the accepted step (Hairer's CONTR5).
  *
- * History (see integ_internal.h): Radau5State (flags and scalars) and the arrays f0, J, the LU pair with
+ * History (see integ_base.h): Radau5State (flags and scalars) and the arrays f0, J, the LU pair with
  * its pivots, the collocation polynomial Q and the previous point x_prev.
  */
 #include <math.h>
 #include <string.h>
 
-#include "integ_internal.h"
+#include "integ_base.h"
 #include "linalg.h"
 
 #define S6 2.449489742783178098197284 /* √6 */

@@ -110,7 +110,7 @@ enum { MBS_FORCE_D(MBS_FIELD) DF };
 enum { MBS_INTEG_D(MBS_CODE) DI };
 
 /* the integrators (H_METHOD, the integrator.method variable): name, the class that implements it
- * (mbs_<class>_class, integ_internal.h), and what sets its accuracy: "tolerance" (rtol, atol: adaptive) or "step"
+ * (mbs_<class>_class, integ_base.h), and what sets its accuracy: "tolerance" (rtol, atol: adaptive) or "step"
  * (integrator.step: fixed steps) */
 #define MBS_METHODS(X) \
     X(MBS_RK4, "rk4", rk4, "step") X(MBS_DOPRI5, "dopri5", dopri5, "tolerance") \

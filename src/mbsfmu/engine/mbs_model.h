@@ -1,4 +1,5 @@
-/* Engine internals shared by model.c, expr.c, tree.c, elastic.c and the instance's files (instance.h).
+/* Engine internals shared by model.c, expr.c, the evaluation's stages (tree.c, forces.c, dynamics.c, cholesky.c,
+ * forward.c, elastic.c) and the instance's files (instance.h).
  *
  * The compiled scene (written by compiler/scene_file.py) is two flat arrays: I (int32) and D (double), reached
  * through a table of sections. The model keeps them read-only; every instance copies D, because the
@@ -223,30 +224,33 @@ size_t mbs_tangent_work_size(const MbsModel *m);
 int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work);
 
 /* model.c */
-const MbsBodyD *mbs_body_d(const MbsEval *e, int i);
 const char *mbs_var_name_of(const MbsModel *m, int kind, int index); /* name of variable (MBS_V_*, index), "?" none */
 /* expr.c: run the programs of one stage (0 bind: targets in D; 1 time: targets in td). NaN/Inf results
  * are left in place: callers check. */
 int mbs_validate_code(const MbsModel *m, char *err, size_t errlen);
 void mbs_run_programs(const MbsModel *m, int stage, double *D, double *td, double t);
-/* tree.c */
+/* tree.c: kinematics, the dense path's M and k, numbers derived at bind time */
+const MbsBodyD *mbs_body_d(const MbsEval *e, int i);
 void mbs_kinematics(const MbsEval *e);
 void mbs_position_rates(const MbsEval *e);            /* ẏ_pos = Z(y) ẏ into e->xdot */
+void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real *J);
+void mbs_add_JtF(const MbsEval *e, int i, const real *J, const real *F, double sign, real *q);
+void mbs_mass_matrix_and_bias(const MbsEval *e);
+void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations from the raw numbers */
+void mbs_initial_state(const MbsModel *m, const double *D, double *x0);
+/* forces.c */
+void mbs_applied_forces(const MbsEval *e);
+void mbs_body_force(const MbsEval *e, int i, const real *x, const real *F, double sign); /* F at x (x NULL: a torque) */
+/* cholesky.c */
 int mbs_cholesky(int n, real *M);                   /* M = L Lᵀ in place (lower); 0, or 1 if not positive definite */
 void mbs_cholesky_apply(int n, const real *L, real *r); /* r ← (L Lᵀ)⁻¹ r */
-void mbs_mass_matrix_and_bias(const MbsEval *e);
-void mbs_applied_forces(const MbsEval *e);
-int mbs_eval_rhs(const MbsEval *e);                   /* 0, or MBS_F_SINGULAR */
 int mbs_cholesky_solve(int n, real *M, real *r);
+/* forward.c */
+int mbs_eval_rhs(const MbsEval *e);                   /* ẋ: 0, or MBS_F_SINGULAR */
 /* dynamics.c: the recursive path (!m->dense) */
 void mbs_composites(const MbsModel *m, const real *D, real *work);  /* at bind: the carriers' inertias */
 int mbs_aba(const MbsEval *e);                        /* ÿ into e->xdot: 0, or MBS_F_SINGULAR */
 void mbs_crba_rnea(const MbsEval *e);                 /* M, k, q (inspection: mbs_equations) */
-void mbs_body_force(const MbsEval *e, int i, const real *x, const real *F, double sign); /* F at x (x NULL: a torque) */
-void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real *J);
-void mbs_add_JtF(const MbsEval *e, int i, const real *J, const real *F, double sign, real *q);
-void mbs_derive(const MbsModel *m, double *D);        /* axes, rotations from the raw numbers */
-void mbs_initial_state(const MbsModel *m, const double *D, double *x0);
 /* elastic.c (only for scenes with elastic bodies; F_ELASTIC) */
 #ifdef MBS_WITH_ELASTIC
 size_t mbs_elastic_work_size(const MbsModel *m);
@@ -268,7 +272,7 @@ void mbs_elastic_inverse(const MbsEval *e, int body, const real *acc, const real
 void mbs_elastic_modal_force(const MbsEval *e, int body, real *out);
 int mbs_elastic_validate(const MbsModel *m, char *err, size_t errlen);
 /* at bind: structural parameters (they fed the beam generator) must keep their compiled values */
-int mbs_elastic_bind(const MbsModel *m, const double *D, char *err, size_t errlen);
+int mbs_elastic_changed_structure(const MbsModel *m, const double *D, double *compiled);  /* a structural parameter, -1 */
 /* von Mises stress of stress node k (S_STRESS_I) at state x */
 real mbs_elastic_von_mises(const MbsModel *m, int k, const real *x);
 #endif

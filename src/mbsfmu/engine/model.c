@@ -8,6 +8,7 @@
 #include "fmu_files.h"
 #include "mbs_integrator.h"
 #include "mbs_model.h"
+#include "rules.h"
 
 #define FAIL(...) do { snprintf(err, errlen, __VA_ARGS__); goto fail; } while (0)
 
@@ -207,8 +208,6 @@ static int check_tables(const MbsModel *m, char *err, size_t errlen)
 /* FMI 3.0's variables (S_ARRAYS: (first row, rows) of each array, in row order; absent: none): first3[k] is
  * the first row of FMI 3.0 variable k, first3[nvars3] = nvars. Arrays hold Float64 rows only. */
 /* The domain rules' table (S_RULES, S_LIMITS, S_VDOM) in range at load: what rules.c's checks of the values then read. */
-#define RULE_SIZE(code, size) size,
-static const int rule_size[R_N] = {MBS_RULES(RULE_SIZE)};  /* numbers of D each rule reads (mbs_layout.h) */
 
 static int check_rules_table(const MbsModel *m, char *err, size_t errlen)
 {
@@ -226,7 +225,7 @@ static int check_rules_table(const MbsModel *m, char *err, size_t errlen)
     }
     for (int r = 0; r < m->nrules; r++) {
         const int32_t *row = m->rules + 3 * r;
-        const int size = row[0] >= 0 && row[0] < R_N ? rule_size[row[0]] : -1;
+        const int size = row[0] >= 0 && row[0] < R_N ? mbs_rule_size[row[0]] : -1;
         const int ok = row[0] == R_TIMED ? row[1] >= 0 && row[1] < ntd : size == 0 ? row[1] >= 0 && row[1] < NB(m) :
                        size > 0 && row[1] >= 0 && row[1] <= nd - size;
         if (!ok || row[2] < 0 || row[2] >= m->n_rule_names || !memchr(m->rule_names + row[2], 0, (size_t)(m->n_rule_names - row[2])))

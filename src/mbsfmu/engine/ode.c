@@ -36,7 +36,7 @@ void mbs_cached_kinematics(MbsInstance *s, const MbsEval *e, double t)
 int mbs_ode_f(void *ctx, double t, const double *x, double *xdot)
 {
     MbsInstance *s = ctx;
-    if (s->m->hdr[H_NCARDAN] && mbs_gimbal(s, x, NULL, s->msg, sizeof s->msg)) return MBS_F_GIMBAL;
+    if (s->m->hdr[H_NCARDAN] && mbs_gimbal(s->m, x, NULL, s->msg, sizeof s->msg)) return MBS_F_GIMBAL;
     mbs_time_numbers(s, t);
     MbsEval e = mbs_evaluation(s, x, xdot);
     mbs_cached_kinematics(s, &e, t);

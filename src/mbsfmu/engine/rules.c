@@ -1,5 +1,9 @@
 /* The scene's domains and rules, applied to the values a host sets, and gimbal lock of Cardan joints. */
-#include "instance.h"
+#include <math.h>
+#include <stdio.h>
+
+#include "mbs_model.h"
+#include "rules.h"
 
 /* ------------------------------------------------------------------------------------------ domains
  * scene/domains.py declares them: Domain.contains and check() there, in_domain and rule_problem here, the
@@ -53,13 +57,13 @@ static void eigenvalues3(const double *A, double lam[3])
 }
 
 #define RULE_SIZE(code, size) size,
-static const int rule_size[R_N] = {MBS_RULES(RULE_SIZE)};  /* numbers of D each rule reads (mbs_layout.h) */
+const int mbs_rule_size[R_N] = {MBS_RULES(RULE_SIZE)};
 
-/* NULL if the rule holds for v (rule_size[rule] numbers), else what is wrong (written into buf). */
+/* NULL if the rule holds for v (mbs_rule_size[rule] numbers), else what is wrong (written into buf). */
 const char *mbs_rule_problem(const MbsModel *m, int rule, const double *v, char *buf, size_t len)
 {
     const double *lim = m->limits;
-    for (int k = 0; k < rule_size[rule]; k++)
+    for (int k = 0; k < mbs_rule_size[rule]; k++)
         if (!isfinite(v[k])) return snprintf(buf, len, "is not finite (%g)", v[k]), buf;
     if (rule == R_NONNEG)
         return v[0] >= 0 ? NULL : (snprintf(buf, len, "must not be negative, got %g", v[0]), buf);
@@ -108,81 +112,10 @@ const char *mbs_rule_problem(const MbsModel *m, int rule, const double *v, char 
     return NULL;
 }
 
-/* Which bodies carry mass, inertia or an elastic body (the loader's `massless` check, over the bound numbers):
- * parents come before their children, so one sweep from the last body up marks every ancestor. */
-static void mark_carried(MbsInstance *s)
-{
-    const MbsModel *m = s->m;
-    for (int i = 0; i < NB(m); i++) {
-        const MbsBodyD *bd = mbs_body_row(m, s->D, i);
-        s->carries[i] = mbs_body_i(m, i)->elastic >= 0 || bd->m > 0 || bd->I[0] > 0 || bd->I[4] > 0 || bd->I[8] > 0;
-    }
-    for (int i = NB(m) - 1; i > 0; i--) {
-        const int p = mbs_body_i(m, i)->parent;
-        if (p >= 0 && s->carries[i]) s->carries[p] = 1;
-    }
-}
-
-/* The derived-quantity rules of the bound numbers (S_RULES); MBS_ERROR with the first that fails (quiet). */
-int mbs_check_rules(MbsInstance *s)
-{
-    const MbsModel *m = s->m;
-    char why[400];
-    int marked = 0;
-    s->rule_broken = 1;
-    for (int r = 0; r < m->nrules; r++) {
-        const int32_t *row = m->rules + 3 * r;
-        const char *path = m->rule_names + row[2];
-        if (row[0] == R_TIMED) continue;  /* check_times */
-        if (row[0] == R_CARRIES) {
-            if (!marked++) mark_carried(s);
-            if (!s->carries[row[1]])
-                return mbs_say(s, "%s: body '%s' and the bodies it carries have no mass or inertia, so its joint's motion is "
-                           "undetermined (singular mass matrix)", path, m->body_name[row[1]]);
-            continue;
-        }
-        const double *v = s->D + row[1];
-        if (mbs_rule_problem(m, row[0], v, why, sizeof why))
-            return rule_size[row[0]] == 1 ? mbs_say(s, "%s = %g: %s", path, v[0], why) : mbs_say(s, "%s: %s", path, why);
-    }
-    s->rule_broken = 0;
-    return MBS_OK;
-}
-
-/* The R_TIMED values at the loader's sample times over the scene's experiment (quiet, as check_rules). */
-int mbs_check_times(MbsInstance *s)
-{
-#ifdef MBS_WITH_EXPR
-    const MbsModel *m = s->m;
-    int timed = 0;
-    for (int r = 0; r < m->nrules; r++) timed |= m->rules[3 * r] == R_TIMED;
-    if (!timed) return MBS_OK;
-    const double *lim = m->limits;
-    const int n = (int)lim[LIM_SAMPLES];
-    s->rule_broken = 1;
-    for (int k = 0; k < n; k++) {
-        const double step = (lim[LIM_STOP] - lim[LIM_START]) / (n > 1 ? n - 1 : 1);  /* numpy.linspace's times */
-        const double t = k == n - 1 ? lim[LIM_STOP] : lim[LIM_START] + k * step;
-        mbs_run_programs(m, 1, s->D, s->td, t);
-        for (int r = 0; r < m->nrules; r++) {
-            const int32_t *row = m->rules + 3 * r;
-            if (row[0] == R_TIMED && !isfinite(s->td[row[1]]))
-                return mbs_say(s, "%s = %g at t = %g: must stay finite over the experiment [%g, %g] s",
-                           m->rule_names + row[2], s->td[row[1]], t, lim[LIM_START], lim[LIM_STOP]);
-        }
-    }
-    s->rule_broken = 0;
-#else
-    (void)s;
-#endif
-    return MBS_OK;
-}
-
 /* Gimbal lock of Cardan joints: |cos b| < 1e-3 at x, or b crossed ±90° since x_before (evaluator.py:
  * singularity_message). Writes the message into buf; 1 if locked. */
-int mbs_gimbal(const MbsInstance *s, const double *x, const double *x_before, char *buf, size_t len)
+int mbs_gimbal(const MbsModel *m, const double *x, const double *x_before, char *buf, size_t len)
 {
-    const MbsModel *m = s->m;
     if (!m->hdr[H_NCARDAN]) return 0;
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);

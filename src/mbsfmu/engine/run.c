@@ -62,7 +62,7 @@ static int failed(MbsInstance *s)
     const char *why = mbs_integ_message(s->integ);
     s->time = mbs_integ_t(s->integ);
     memcpy(s->x, mbs_integ_x(s->integ), (size_t)s->n * sizeof(double));
-    if (mbs_gimbal(s, s->x, NULL, extra, sizeof extra) && strstr(why, "gimbal")) extra[0] = 0;
+    if (mbs_gimbal(s->m, s->x, NULL, extra, sizeof extra) && strstr(why, "gimbal")) extra[0] = 0;
     return mbs_report(s, MBS_DISCARD, "t = %.9g: %s%s%s", s->time, why, extra[0] ? "; " : "", extra);
 }
 
@@ -79,7 +79,7 @@ int mbs_do_step(MbsInstance *s, double t, double h)
     s->time = mbs_integ_t(s->integ);
     memcpy(s->x, mbs_integ_x(s->integ), (size_t)s->n * sizeof(double));
     /* a coarse step may jump across b = ±90° without landing near it */
-    if (cardan && mbs_gimbal(s, s->x, s->x_before, s->msg, sizeof s->msg))
+    if (cardan && mbs_gimbal(s->m, s->x, s->x_before, s->msg, sizeof s->msg))
         return mbs_report(s, MBS_DISCARD, "t = %.9g: %s", s->time, s->msg);
     if (s->observe) mbs_observe_point(s, s->time, s->x);  /* the step's end: its last internal point, or interpolated */
     return MBS_OK;

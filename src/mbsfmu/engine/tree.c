@@ -1,8 +1,8 @@
 /* Rigid-tree equations (seed 000), the engine's per-step core: the same recursion as equations/tree.py.
  *
  *   kinematics:  S_i, o_i, ω_i, v_i, ā_i, ᾱ_i, J_Ri, J_Ti of every body origin, parents first
- *   M = Σ m J_Tcᵀ J_Tc + J_Rᵀ I_w J_R,   k = Σ m J_Tcᵀ ā_c + J_Rᵀ (I_w ᾱ + ω × I_w ω),   q = Σ J_Tᵀ f + J_Rᵀ l
- *   ÿ = M⁻¹ (q − k) by Cholesky, ẏ_pos = Z(y)·ẏ (quaternions: ṗ = G(p) ω)
+ *   M = Σ m J_Tcᵀ J_Tc + J_Rᵀ I_w J_R,   k = Σ m J_Tcᵀ ā_c + J_Rᵀ (I_w ᾱ + ω × I_w ω),   q: forces.c
+ *   ẏ_pos = Z(y)·ẏ (quaternions: ṗ = G(p) ω); ÿ: forward.c
  *
  * Reads the model's tables and the instance's bound numbers (MbsEval), writes only the workspace.
  */
@@ -297,17 +297,6 @@ void mbs_kinematics(const MbsEval *e)
     }
 }
 
-/* x = S_i x_b: a vector in body i's axes in world axes */
-static void body_axes(const MbsEval *e, int i, const real *x_b, real *x)
-{
-    if (mbs_welded(e->m, i)) {
-        real x_c[3];
-        mv(body_work(e, i) + AB_R0C, x_b, x_c);
-        mv(body_work(e, mbs_body_i(e->m, i)->carrier) + W_S, x_c, x);
-    } else
-        mv(body_work(e, i) + W_S, x_b, x);
-}
-
 /* World position, velocity and J_T (3 × f, columns [lo, hi) of body i only; dense path) of a point fixed on
  * body i (r_b in the body frame); i < 0: a point of the world. */
 void mbs_point(const MbsEval *e, int i, const real *r_b, real *x, real *v, real *J)
@@ -412,148 +401,6 @@ void mbs_mass_matrix_and_bias(const MbsEval *e)
 #ifdef MBS_WITH_ELASTIC
     if (m->hdr[H_FEATURES] & F_ELASTIC) mbs_elastic_equations(e);
 #endif
-}
-
-/* World position, velocity and J_T of an attachment: a point on body i, or node P of an elastic body. */
-static void force_point(const MbsEval *e, int i, int node, const real *at, real *x, real *v, real *J)
-{
-#ifdef MBS_WITH_ELASTIC
-    if (node >= 0 && i >= 0) { mbs_elastic_node_point(e, i, node, x, v, J); return; }
-#else
-    (void)node;
-#endif
-    mbs_point(e, i, at, x, v, J);
-}
-
-/* A force F (sign ±1) at a point with Jacobian J on body i, or at its node (-1: none): q += sign JᵀF (dense path),
- * or onto the body's spatial force at x and at a node onto its modal coordinates (recursive path; x NULL: F is a
- * torque). */
-static void apply(const MbsEval *e, int i, int node, const real *J, const real *x, const real *F, double sign)
-{
-    if (e->m->dense) { mbs_add_JtF(e, i, J, F, sign, e->q); return; }
-    mbs_body_force(e, i, x, F, sign);
-#ifdef MBS_WITH_ELASTIC
-    if (node >= 0) mbs_elastic_node_force(e, i, node, F, !x, sign);
-#else
-    (void)node;
-#endif
-}
-
-/* q (generalized forces) from the force elements and the generalized-force inputs (tree.py: applied_forces); on
- * the recursive path the forces on bodies go to their spatial forces instead, never through Jacobians. */
-void mbs_applied_forces(const MbsEval *e)
-{
-    const MbsModel *m = e->m;
-    const int f = NVEL(m);
-    const real *y = e->x, *yd = e->x + NPOS(m);
-    real *q = e->q, *Ja = NULL, *Jb = NULL;
-    if (m->dense) { Ja = e->work + (size_t)NB(m) * W_SIZE(f); Jb = Ja + 3 * f; }
-    if (e->q_in) for (int c = 0; c < f; c++) q[c] += e->q_in[c];
-    for (int n = 0; n < m->hdr[H_NFORCE]; n++) {
-        const MbsForceI *fi = mbs_force_i(m, n);
-        const MbsForceD *fd = mbs_force_row(m, e->D, n);
-        switch (fi->type) {
-        case FE_JOINT_SPRING: {
-            int pi = fi->a, vi = fi->b;
-            q[vi] -= fd->k * (y[pi] - fd->l) + fd->d * yd[vi];
-            break;
-        }
-        case FE_SPRING: {
-            real xa[3], va[3], xb[3], vb[3], dx[3], dv[3];
-            force_point(e, fi->a, fi->node_a, fd->at_a, xa, va, Ja);
-            force_point(e, fi->b, fi->node_b, fd->at_b, xb, vb, Jb);
-            for (int r = 0; r < 3; r++) { dx[r] = xb[r] - xa[r]; dv[r] = vb[r] - va[r]; }
-            real l = r_sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
-            if (RE(l) < 1e-12) break; /* direction undefined at zero length: no force rather than NaN */
-            real e3[3] = {dx[0] / l, dx[1] / l, dx[2] / l};
-            real mag = fd->k * (l - fd->l) + fd->d * (e3[0] * dv[0] + e3[1] * dv[1] + e3[2] * dv[2]);
-            real F[3] = {mag * e3[0], mag * e3[1], mag * e3[2]}; /* pulls B toward A */
-            if (fi->a >= 0) apply(e, fi->a, fi->node_a, Ja, xa, F, 1.0);
-            if (fi->b >= 0) apply(e, fi->b, fi->node_b, Jb, xb, F, -1.0);
-            break;
-        }
-        case FE_FORCE:
-        case FE_TORQUE: {
-            int i = fi->a;
-            const real *wk = body_work(e, i), *src = fi->src >= 0 ? e->td + fi->src : fd->vec;
-            real vec[3], xp[3], vp[3];
-            if (src[0] == 0.0 && src[1] == 0.0 && src[2] == 0.0) break;
-            if (fi->frame) body_axes(e, i, src, vec);
-            else memcpy(vec, src, sizeof vec);
-            if (fi->type == FE_TORQUE) {
-#ifdef MBS_WITH_ELASTIC
-                if (fi->node_a >= 0 && m->dense) { mbs_elastic_node_J_R(e, i, fi->node_a, Ja); mbs_add_JtF(e, i, Ja, vec, 1.0, q); break; }
-#endif
-                apply(e, i, fi->node_a, wk + W_J, NULL, vec, 1.0);
-            } else {
-                force_point(e, i, fi->node_a, fd->at_a, xp, vp, Ja);
-                apply(e, i, fi->node_a, Ja, xp, vec, 1.0);
-            }
-            break;
-        }
-        }
-    }
-}
-
-/* M = L Lᵀ in place (row-major, L in the lower triangle). 0 on success, 1 if M is not positive definite. */
-int mbs_cholesky(int n, real *M)
-{
-    for (int j = 0; j < n; j++) {
-        real s = M[j * n + j];
-        for (int k = 0; k < j; k++) s -= M[j * n + k] * M[j * n + k];
-        if (RE(s) <= 0.0) return 1; /* NaN passes on as NaN: the integrator shrinks h */
-        real d = r_sqrt(s);
-        M[j * n + j] = d;
-        for (int i = j + 1; i < n; i++) {
-            real t = M[i * n + j];
-            for (int k = 0; k < j; k++) t -= M[i * n + k] * M[j * n + k];
-            M[i * n + j] = t / d;
-        }
-    }
-    return 0;
-}
-
-/* r ← (L Lᵀ)⁻¹ r with the factor of mbs_cholesky */
-void mbs_cholesky_apply(int n, const real *L, real *r)
-{
-    for (int i = 0; i < n; i++) {
-        real s = r[i];
-        for (int k = 0; k < i; k++) s -= L[i * n + k] * r[k];
-        r[i] = s / L[i * n + i];
-    }
-    for (int i = n - 1; i >= 0; i--) {
-        real s = r[i];
-        for (int k = i + 1; k < n; k++) s -= L[k * n + i] * r[k];
-        r[i] = s / L[i * n + i];
-    }
-}
-
-/* Solve M a = r in place (M overwritten by its Cholesky factor). 0 on success, 1 if M is not positive definite. */
-int mbs_cholesky_solve(int n, real *M, real *r)
-{
-    if (mbs_cholesky(n, M)) return 1;
-    mbs_cholesky_apply(n, M, r);
-    return 0;
-}
-
-/* ẋ = [Z(y) ẏ; M⁻¹(q − k)] into e->xdot, from the kinematics at e->x already in the workspace (mbs_kinematics):
- * M assembled and factored (dense path) or ÿ by the articulated-body algorithm (recursive path, dynamics.c).
- * Returns 0, or MBS_F_SINGULAR when M is not positive definite. */
-int mbs_eval_rhs(const MbsEval *e)
-{
-    const MbsModel *m = e->m;
-    const int f = NVEL(m), np = NPOS(m);
-    real *xd = e->xdot;
-    if (!m->dense) {
-        if (mbs_aba(e)) return MBS_F_SINGULAR;
-    } else {
-        mbs_mass_matrix_and_bias(e);
-        mbs_applied_forces(e);
-        for (int c = 0; c < f; c++) xd[np + c] = e->q[c] - e->k[c];
-        if (mbs_cholesky_solve(f, e->M, xd + np)) return MBS_F_SINGULAR;
-    }
-    mbs_position_rates(e);
-    return 0;
 }
 
 /* ẏ_pos = Z(y) ẏ into e->xdot: plain coordinates their velocities, quaternions ṗ = G(p) ω */
