@@ -90,12 +90,56 @@ def test_joint_table_row_is_the_layouts_and_the_kinematics(entry):
     """Each row's engine code is the header's, and its coordinate counts are the header's (which model.c checks a
     compiled body against), its default names' and units', and those of the numpy reference's joint object."""
     from mbsfmu.kinematics.joints import JOINTS
-    name, kind, param, npos, nvel = entry
+    name, kind, param, npos, nvel, naxes, rot, gimbal = entry
     row = JOINTS[(kind, param or None)]
     joint = row.make(axis=[0, 0, 1], axes=[[1, 0, 0], [0, 1, 0]])
     assert row.code == layout.CONSTANTS[name]
     assert (joint.npos, joint.nvel) == (row.npos, row.nvel) == (npos, nvel)
     assert (len(row.units), len(row.velocity_units)) == (npos, nvel)
+    # the engine's columns (mbs_derive, mbs_initial_state, the gimbal check) are the scene's fields and names
+    assert naxes == (1 if "axis" in row.fields else 2 if "axes" in row.fields else 0)
+    orientation = row.quaternion or row.cardan
+    assert rot == (orientation.start if orientation else -1)
+    assert gimbal == (row.cardan.start + 1 if row.cardan else -1)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def joint_code_missing(entry, tree_c=None, docs=None):
+    """What a row of MBS_JOINTS lacks, one place for all: the numpy reference's row (kinematics/joints.py), the
+    engine's motion (a `case` of tree.c's joint_motion; the fixed joint has none), the scene format's row
+    (docs/scene-format.md) and an example scene (docs/examples/<type>.yaml or <type>_<parameterization>.yaml)."""
+    from mbsfmu.kinematics.joints import JOINTS
+    name, kind, param = entry[:3]
+    tree_c = (ENGINE / "tree.c").read_text() if tree_c is None else tree_c
+    docs = (ROOT / "docs" / "scene-format.md").read_text() if docs is None else docs
+    motion = tree_c[tree_c.index("static void joint_motion("):]
+    motion = motion[:motion.index("\n}\n")]
+    missing = []
+    if (kind, param or None) not in JOINTS:
+        missing.append("a row in kinematics/joints.py's JOINTS")
+    if name != "J_FIXED" and f"case {name}:" not in motion:
+        missing.append(f"its motion in tree.c's joint_motion (case {name}:)")
+    if f"\n| {kind} |" not in docs:
+        missing.append(f"its row in docs/scene-format.md's joint table (| {kind} |)")
+    if not any((ROOT / "docs" / "examples" / f).exists() for f in (f"{kind}.yaml", f"{kind}_{param}.yaml")) \
+            and kind != "fixed":
+        missing.append(f"an example scene docs/examples/{kind}.yaml")
+    return missing
+
+
+@pytest.mark.parametrize("entry", layout.LISTS["MBS_JOINTS"], ids=lambda e: e[0])
+def test_every_joint_row_has_its_code(entry):
+    assert joint_code_missing(entry) == []
+
+
+def test_a_joint_row_without_its_code_fails_loudly():
+    """A joint type added to mbs_layout.h alone: the one check names every piece it lacks."""
+    entry = ("J_HELICAL", "helical", "", 1, 1, 1, -1, -1)
+    assert joint_code_missing(entry) == [
+        "a row in kinematics/joints.py's JOINTS", "its motion in tree.c's joint_motion (case J_HELICAL:)",
+        "its row in docs/scene-format.md's joint table (| helical |)", "an example scene docs/examples/helical.yaml"]
 
 
 @pytest.mark.parametrize("text, words", [

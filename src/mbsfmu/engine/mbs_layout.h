@@ -66,12 +66,15 @@ enum { MBS_HEADER(MBS_CODE) H_SIZE };
 enum { MBS_FEATURES(MBS_VALUE) };
 
 /* joint types: the scene's joint and, for spherical/free joints, their parametrization; position and velocity
- * coordinates (kinematics/joints.py's npos, nvel) */
+ * coordinates (kinematics/joints.py's npos, nvel); the axes it reads (0, 1: axis, 2: axes); where its orientation
+ * starts among its positions (-1: none; a quaternion's 4 or Cardan angles' 3); where its Cardan angle b is (the
+ * gimbal lock at b = ±90°; -1: no Cardan angles). model.c holds them as mbs_joints. */
 #define MBS_JOINTS(X) \
-    X(J_FIXED, "fixed", "", 0, 0) X(J_REVOLUTE, "revolute", "", 1, 1) X(J_PRISMATIC, "prismatic", "", 1, 1) \
-    X(J_CYLINDRICAL, "cylindrical", "", 2, 2) X(J_UNIVERSAL, "universal", "", 2, 2) X(J_PLANAR, "planar", "", 3, 3) \
-    X(J_SPH_QUAT, "spherical", "quaternion", 4, 3) X(J_SPH_CARDAN, "spherical", "cardan", 3, 3) \
-    X(J_FREE_QUAT, "free", "quaternion", 7, 6) X(J_FREE_CARDAN, "free", "cardan", 6, 6)
+    X(J_FIXED, "fixed", "", 0, 0, 0, -1, -1) X(J_REVOLUTE, "revolute", "", 1, 1, 1, -1, -1) \
+    X(J_PRISMATIC, "prismatic", "", 1, 1, 1, -1, -1) X(J_CYLINDRICAL, "cylindrical", "", 2, 2, 1, -1, -1) \
+    X(J_UNIVERSAL, "universal", "", 2, 2, 2, -1, -1) X(J_PLANAR, "planar", "", 3, 3, 2, -1, -1) \
+    X(J_SPH_QUAT, "spherical", "quaternion", 4, 3, 0, 0, -1) X(J_SPH_CARDAN, "spherical", "cardan", 3, 3, 0, 0, 1) \
+    X(J_FREE_QUAT, "free", "quaternion", 7, 6, 0, 3, -1) X(J_FREE_CARDAN, "free", "cardan", 6, 6, 0, 3, 4)
 enum { MBS_JOINTS(MBS_CODE) J_N };
 
 /* force element types (the scene's force `type`) */

@@ -224,6 +224,8 @@ size_t mbs_tangent_work_size(const MbsModel *m);
 int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work);
 
 /* model.c */
+typedef struct { int8_t npos, nvel, naxes, rot, gimbal; } MbsJointType;  /* a row of MBS_JOINTS (mbs_layout.h) */
+extern const MbsJointType mbs_joints[J_N];
 const char *mbs_var_name_of(const MbsModel *m, int kind, int index); /* name of variable (MBS_V_*, index), "?" none */
 /* expr.c: run the programs of one stage (0 bind: targets in D; 1 time: targets in td). NaN/Inf results
  * are left in place: callers check. */

@@ -35,11 +35,8 @@ static int in(int64_t v, int64_t lo, int64_t hi) { return v >= lo && v < hi; }
 /* The checks below return 1 with a message in err. Sums and products of file values are taken in 64 bits. */
 #define BAD(...) do { snprintf(err, errlen, __VA_ARGS__); return 1; } while (0)
 
-/* position and velocity coordinates each joint type moves (kinematics/joints.py) */
-#define JOINT_NPOS(code, kind, param, npos, nvel) npos,
-#define JOINT_NVEL(code, kind, param, npos, nvel) nvel,
-static const int8_t joint_npos[J_N] = {MBS_JOINTS(JOINT_NPOS)};
-static const int8_t joint_nvel[J_N] = {MBS_JOINTS(JOINT_NVEL)};
+#define JOINT_ROW(code, kind, param, npos, nvel, naxes, rot, gimbal) {npos, nvel, naxes, rot, gimbal},
+const MbsJointType mbs_joints[J_N] = {MBS_JOINTS(JOINT_ROW)};
 
 /* Header counts: non-negative and each bounded by bytes of the file. The body, force, output, coordinate and
  * parameter counts size the number layout of D, whose length the D section must match (so D's bytes bound
@@ -128,7 +125,7 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
         const int t = bi->jtype;
         if (!in(bi->parent, -1, i))
             BAD("corrupt body table (body %d: parent %d, valid -1..%d)", i, (int)bi->parent, i - 1);
-        if (!in(t, 0, J_N) || bi->npos != joint_npos[t] || bi->nvel != joint_nvel[t])
+        if (!in(t, 0, J_N) || bi->npos != mbs_joints[t].npos || bi->nvel != mbs_joints[t].nvel)
             BAD("corrupt body table (body %d: joint type %d with %d/%d coordinates)", i, t, (int)bi->npos,
                 (int)bi->nvel);
         if (!in(bi->rot, 0, 3) || !in(bi->irot, 0, 3)) BAD("corrupt body table (body %d: rotation code)", i);
@@ -138,7 +135,7 @@ static int check_bodies(const MbsModel *m, char *err, size_t errlen)
         }
         for (int k = 0; k < bi->nvel; k++)
             if (check_coordinate(i, bi->vel[k], bi->drv[k], nv, ndrv, "velocity", err, errlen)) return 1;
-        cardan += t == J_SPH_CARDAN || t == J_FREE_CARDAN;
+        cardan += mbs_joints[t].gimbal >= 0;
         if (bi->elastic < -1 || bi->node < -1 || (!elastic && (bi->elastic >= 0 || bi->node >= 0)))
             BAD("corrupt body table (body %d: elastic data %d, node %d in a scene %s elastic bodies)", i,
                 (int)bi->elastic, (int)bi->node, elastic ? "with" : "without");

@@ -119,7 +119,7 @@ int mbs_gimbal(const MbsModel *m, const double *x, const double *x_before, char 
     if (!m->hdr[H_NCARDAN]) return 0;
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
-        int k = bi->jtype == J_SPH_CARDAN ? 1 : bi->jtype == J_FREE_CARDAN ? 4 : -1;
+        const int k = mbs_joints[bi->jtype].gimbal;
         if (k < 0 || bi->pos[k] < 0) continue;
         int idx = bi->pos[k];
         double c = cos(x[idx]);

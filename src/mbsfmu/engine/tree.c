@@ -451,11 +451,9 @@ void mbs_derive(const MbsModel *m, double *D)
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
         MbsBodyD *bd = (MbsBodyD *)mbs_body_row(m, D, i);  /* mbs_derive writes the derived fields */
-        int t = bi->jtype;
-        if (t == J_REVOLUTE || t == J_PRISMATIC || t == J_CYLINDRICAL || t == J_UNIVERSAL || t == J_PLANAR)
-            unit(bd->a1_raw, bd->a1);
-        if (t == J_UNIVERSAL || t == J_PLANAR)
-            unit(bd->a2_raw, bd->a2);
+        const int naxes = mbs_joints[bi->jtype].naxes;
+        if (naxes >= 1) unit(bd->a1_raw, bd->a1);
+        if (naxes == 2) unit(bd->a2_raw, bd->a2);
         rotation(bi->rot, bd->rot_raw, bd->R0);
     }
 }
@@ -482,13 +480,15 @@ void mbs_initial_state(const MbsModel *m, const double *D, double *x0)
     for (int i = 0; i < NB(m); i++) {
         const MbsBodyI *bi = mbs_body_i(m, i);
         const MbsBodyD *bd = mbs_body_row(m, D, i);
-        int t = bi->jtype, off = (t == J_FREE_QUAT || t == J_FREE_CARDAN) ? 3 : 0;
+        const MbsJointType *jt = &mbs_joints[bi->jtype];
+        const int off = jt->rot;
         double S[9], p[4];
-        if (t == J_SPH_QUAT || t == J_FREE_QUAT) {
+        if (off < 0) continue;
+        if (jt->gimbal < 0) {  /* a quaternion */
             rotation(bi->irot, bd->irot_raw, S);
             matrix_to_quat(S, p);
             for (int k = 0; k < 4; k++) if (bi->pos[off + k] >= 0) x0[bi->pos[off + k]] = p[k];
-        } else if ((t == J_SPH_CARDAN || t == J_FREE_CARDAN) && bi->irot) {
+        } else if (bi->irot) {  /* Cardan angles */
             rotation(bi->irot, bd->irot_raw, S);
             double s02 = S[2] < -1.0 ? -1.0 : S[2] > 1.0 ? 1.0 : S[2];
             double ang[3] = {atan2(-S[5], S[8]), asin(s02), atan2(-S[1], S[0])};
