@@ -276,3 +276,28 @@ def test_no_source_branches_on_joint_types_by_hand():
             if len(named) > 1 or compared:
                 bad.append(f"{rel}:{n.lineno}")
     assert not bad, bad
+
+
+def test_variable_kinds_columns_are_the_fmu_variables():
+    """MBS_VAR_KINDS' columns (how a host sets a kind, whether it follows from the state, its role in directional
+    derivatives: what the engine and its FMI layers read) agree with the FMU variables the compiler declares, for
+    a scene with every kind (parameters, settings, inputs, states, outputs, derivatives, stresses)."""
+    import mbsfmu
+    from mbsfmu.compiler.model import Model
+    from mbsfmu.compiler.variables import variables
+    vs = []
+    for scene in ("fe_stress.yaml", "crane.yaml"):
+        spec = mbsfmu.load(ROOT / "models" / scene).spec
+        vs += variables(spec, Model(spec), derivatives=True)
+    rows = {layout.CONSTANTS[e[0]]: e for e in layout.LISTS["MBS_VAR_KINDS"]}
+    assert {v.kind for v in vs} == set(rows)  # the two scenes have every kind
+    for v in vs:
+        name, _, set_, state, role = rows[v.kind]
+        want = {0: {"output", "local"}, 1: {"parameter"}, 2: {"parameter"}, 3: {"input"}}[set_]
+        assert v.causality in want, (v.name, name)
+        if set_ == 2:
+            assert v.variability == "fixed", v.name
+        # follows from the state: exactly the states and what the ODE computes from them
+        assert state == (v.causality in {"output", "local"}), v.name
+        assert (role & 1) == (name in ("MBS_V_Y", "MBS_V_YD") or set_ == 3), v.name   # knowns: states, inputs
+        assert bool(role & 2) == (set_ == 0), v.name                                   # unknowns: what it computes

@@ -3,12 +3,11 @@ here (bodies/ffrf.invariants), and its node data, laid out for engine/elastic.c.
 
 S_ELASTIC_I (int32):  the EH header (NE, NFIX), then NE rows of EI fields, then NFIX parameter indices
                       (mbs_layout.h declares both).
-S_ELASTIC_D (double): per elastic body, at its EI_D offset, in this order (row-major, R components):
-                      m, S0 3, S_RR 3×3, J_sum 3×3, C_t 3×n, A 3×3×n, C_r0 3×n, JPsi 3×n,
-                      G 3×n×n as [i][l][k] = G_ikl, B 3×3×n×n as [i][j][l][k] = B_ijkl, M_ee, K, D n×n,
-                      (stiffening only) K_a, K_omega n×n, then per node R_RP 3, Φ_P 3×n, Ψ_P 3×n;
-                      after the bodies the NFIX parameter values the data were computed with.
-The inner index of G and B is the one contracted with q, so that G·q and B·q run along memory.
+S_ELASTIC_D (double): per elastic body, at its EI_D offset, the arrays of mbs_layout.h's MBS_ELASTIC_D in its
+                      order and sizes (m, S0, S_RR, J_sum, C_t, A, C_r0, JPsi, G, B, M_ee, K, D, with stiffening
+                      K_a, K_omega), then per node R_RP 3, Φ_P 3×n, Ψ_P 3×n; after the bodies the NFIX parameter
+                      values the data were computed with. The inner index of G and B is the one contracted
+                      with q, so that G·q and B·q run along memory.
 
 S_STRESS_I (int32):   per stress node (an FE body's `stress:`), its elastic data index (the EI row) and the
                       offset of its stress modes in S_STRESS_D; both sections only in scenes with stress nodes.
@@ -45,15 +44,20 @@ def structural_parameters(spec):
 
 
 def body_block(inv, nodal):
-    """One elastic body's doubles in the S_ELASTIC_D order."""
+    """One elastic body's doubles in the S_ELASTIC_D order (mbs_layout.h: MBS_ELASTIC_D, with the arrays' sizes)."""
     n = inv.n
-    G = np.transpose(inv.G, (0, 2, 1))            # [i][l][k]
-    B = np.transpose(inv.B, (0, 1, 3, 2))         # [i][j][l][k]
-    parts = [[inv.m], inv.S0, inv.S_RR, inv.J_sum, inv.C_t, inv.A, inv.C_r0, inv.JPsi, G, B, inv.M_ee, inv.K, inv.D]
-    if inv.K_a is not None:
-        parts += [inv.K_a, inv.K_omega]
+    arrays = {"ED_M": [inv.m], "ED_S0": inv.S0, "ED_S_RR": inv.S_RR, "ED_J_SUM": inv.J_sum, "ED_C_T": inv.C_t,
+              "ED_A": inv.A, "ED_C_R0": inv.C_r0, "ED_JPSI": inv.JPsi,
+              "ED_G": np.transpose(inv.G, (0, 2, 1)),          # [i][l][k]
+              "ED_B": np.transpose(inv.B, (0, 1, 3, 2)),       # [i][j][l][k]
+              "ED_M_EE": inv.M_ee, "ED_K": inv.K, "ED_D": inv.D, "ED_K_A": inv.K_a, "ED_K_W": inv.K_omega}
+    parts = []
+    for name, size in L.elastic_array_sizes(n, inv.K_a is not None).items():
+        a = np.ravel(np.asarray(arrays[name], float))
+        assert a.size == size, (name, a.size, size)  # the layout's size of this array
+        parts.append(a)
     nodes = np.concatenate([nodal.R_RP, nodal.Phi.reshape(-1, 3 * n), nodal.Psi.reshape(-1, 3 * n)], axis=1)
-    return np.concatenate([np.ravel(np.asarray(p, float)) for p in parts] + [nodes.ravel()])
+    return np.concatenate(parts + [nodes.ravel()])
 
 
 def elastic_sections(model, spec):

@@ -386,20 +386,24 @@ def carriers(model):
 
 
 def _pack(sections, guid):
-    """"MBSC", version, guid[64], nsec, section rows, then each section's data 8-byte aligned (little-endian),
+    """The file head (mbs_layout.h: MBS_FILE_HEAD), the section rows, then each section's data 8-byte aligned (little-endian),
     written once into one buffer (a 10,000-body scene is 7 MB: no copies of it per section)."""
-    head = 76 + 24 * len(sections)
+    head = L.FH_SIZE + L.SR_SIZE * len(sections)
     rows, parts, pos = [], [], (head + 7) // 8 * 8
     for sid, arr in sections:
         kind = L.LISTS["MBS_SECTIONS"][sid][1]
         data = np.ascontiguousarray(arr, dtype={0: "<i4", 1: "<f8", 2: "u1"}[kind])
-        rows.append(struct.pack("<iiqq", sid, kind, pos, data.size))
+        rows.append(struct.pack(L.SECTION_ROW, sid, kind, pos, data.size))
         parts.append((pos, data))
         pos += (data.nbytes + 7) // 8 * 8
-    g = guid.encode()[:63]
-    top = b"MBSC" + struct.pack("<i", L.MBS_FORMAT_VERSION) + g + b"\0" * (64 - len(g)) + struct.pack("<i", len(sections))
+    top = bytearray(L.FH_SIZE)
+    top[:4] = L.MBS_SCENE_MAGIC.encode()
+    struct.pack_into("<i", top, L.FH_VERSION, L.MBS_FORMAT_VERSION)
+    g = guid.encode()[:L.FH_NSEC - L.FH_GUID - 1]  # NUL-padded, at least one NUL
+    top[L.FH_GUID:L.FH_GUID + len(g)] = g
+    struct.pack_into("<i", top, L.FH_NSEC, len(sections))
     out = bytearray(pos)
-    out[:head] = top + b"".join(rows)
+    out[:head] = bytes(top) + b"".join(rows)
     for at, data in parts:
         out[at:at + data.nbytes] = memoryview(data.reshape(-1)).cast("B")
     return bytes(out)

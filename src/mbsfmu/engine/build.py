@@ -45,9 +45,9 @@ def features(blob):
     """Optional parts a compiled scene needs (from its header's feature bits)."""
     from . import layout as L
     import struct
-    nsec = struct.unpack_from("<i", blob, 72)[0]
+    nsec = struct.unpack_from("<i", blob, L.FH_NSEC)[0]
     for s in range(nsec):
-        sid, _, off, _ = struct.unpack_from("<iiqq", blob, 76 + 24 * s)
+        sid, _, off, _ = struct.unpack_from(L.SECTION_ROW, blob, L.FH_SIZE + L.SR_SIZE * s)
         if sid == L.S_HEADER:
             bits = struct.unpack_from("<i", blob, off + 4 * L.H_FEATURES)[0]
             return {name for name, bit in L.names("MBS_FEATURES", 2).items() if bits & bit}

@@ -32,28 +32,23 @@ ELASTIC_FIELD(qd, EI_QD); ELASTIC_FIELD(stiff, EI_STIFF); ELASTIC_FIELD(d, EI_D)
 MBS_VIEW_CHECK(elastic_size, sizeof(ElasticRow) == sizeof(int32_t) * EI);
 static const ElasticRow *row(const MbsModel *m, int e) { return (const ElasticRow *)(m->elastic_i + EH + EI * e); }
 
+#define ED_SIZE(code, size, per_mode, per_mode2) {size, per_mode, per_mode2},
+static const int ed_size[ED_N][3] = {MBS_ELASTIC_D(ED_SIZE)};  /* the arrays' sizes: c + b n + a n² */
+
 static Inv inv_of(const MbsModel *m, int e)
 {
     const ElasticRow *r = row(m, e);
-    const int n = r->n;
-    const double *p = m->elastic_d + r->d;
-    Inv v = {.n = n, .nodes = r->nodes, .q0 = r->q, .qd0 = r->qd, .stiff = r->stiff};
-    v.m = p;          p += 1;
-    v.S0 = p;         p += 3;
-    v.S_RR = p;       p += 9;
-    v.J_sum = p;      p += 9;
-    v.C_t = p;        p += 3 * n;
-    v.A = p;          p += 9 * n;
-    v.C_r0 = p;       p += 3 * n;
-    v.JPsi = p;       p += 3 * n;
-    v.G = p;          p += 3 * (size_t)n * n;
-    v.B = p;          p += 9 * (size_t)n * n;
-    v.M_ee = p;       p += (size_t)n * n;
-    v.K = p;          p += (size_t)n * n;
-    v.D = p;          p += (size_t)n * n;
-    v.K_a = v.K_w = NULL;
-    if (v.stiff) { v.K_a = p; p += (size_t)n * n; v.K_w = p; p += (size_t)n * n; }
-    v.node = p;
+    const size_t n = (size_t)r->n;
+    const double *p = m->elastic_d + r->d, *a[ED_N];
+    for (int k = 0; k < ED_N; k++) {  /* in MBS_ELASTIC_D's order; the stiffening pair only when the body has it */
+        const int absent = !r->stiff && (k == ED_K_A || k == ED_K_W);
+        a[k] = absent ? NULL : p;
+        if (!absent) p += ed_size[k][0] + ed_size[k][1] * n + ed_size[k][2] * n * n;
+    }
+    Inv v = {.n = r->n, .nodes = r->nodes, .q0 = r->q, .qd0 = r->qd, .stiff = r->stiff,
+             .m = a[ED_M], .S0 = a[ED_S0], .S_RR = a[ED_S_RR], .J_sum = a[ED_J_SUM], .C_t = a[ED_C_T], .A = a[ED_A],
+             .C_r0 = a[ED_C_R0], .JPsi = a[ED_JPSI], .G = a[ED_G], .B = a[ED_B], .M_ee = a[ED_M_EE], .K = a[ED_K],
+             .D = a[ED_D], .K_a = a[ED_K_A], .K_w = a[ED_K_W], .node = p};
     return v;
 }
 /* node P: R_RP (3), Φ_P (3×n), Ψ_P (3×n) */

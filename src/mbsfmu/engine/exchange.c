@@ -61,9 +61,9 @@ int mbs_derivatives(MbsInstance *s, double *xdot, size_t n)
 static const char *not_a(const MbsModel *m, unsigned vr, int known)
 {
     const int kind = vr < (unsigned)m->hdr[H_NVARS] ? m->vars[2 * vr] : -1;
-    if (kind == MBS_V_Y || kind == MBS_V_YD) return NULL;
-    if (known) return kind == MBS_V_QIN || kind == MBS_V_FIN ? NULL : "a continuous state or an input";
-    return kind == MBS_V_DER || kind == MBS_V_OUT || kind == MBS_V_VM ? NULL : "a derivative, an output or a state";
+    const int role = known ? VK_KNOWN : VK_UNKNOWN;
+    if (kind >= 0 && (mbs_var_kinds[kind].role & role)) return NULL;
+    return known ? "a continuous state or an input" : "a derivative, an output or a state";
 }
 
 static int check_refs(MbsInstance *s, const char *what, const unsigned *vr, size_t n, int known)

@@ -18,6 +18,7 @@ _DEFINE = re.compile(r"#define ([A-Z][A-Z0-9_]*) (-?\d+)")
 _LIST = re.compile(r"#define (MBS_[A-Z0-9_]+)\(X\)(.*)")
 _ENTRY = re.compile(r"\s*X\(([^()]*)\)")
 _ARG = re.compile(r'\s*([A-Za-z_][A-Za-z0-9_]*|-?\d+|"[a-z0-9_.]*")\s*')
+_TEXT = re.compile(r'#define ([A-Z][A-Z0-9_]*) "([A-Za-z0-9_.]*)"')
 _ENUM = re.compile(r"enum \{ (MBS_[A-Z0-9_]+)\((MBS_CODE|MBS_FIELD|MBS_VALUE)\)(?: ([A-Z][A-Z0-9_]*))? \};")
 _SKIP = re.compile(r"#ifndef MBS_LAYOUT_H|#define MBS_LAYOUT_H|#endif|#define (MBS_CODE|MBS_FIELD|MBS_VALUE)_?\(")
 
@@ -52,7 +53,7 @@ def _arg(text, where):
 
 
 def parse(text, source="mbs_layout.h"):
-    """(constants {name: int}, lists {list name: tuple of entry tuples}) of a layout header's text."""
+    """(constants {name: int or text}, lists {list name: tuple of entry tuples}) of a layout header's text."""
     consts, lists = {}, {}
 
     def define(name, value, where):
@@ -80,6 +81,8 @@ def parse(text, source="mbs_layout.h"):
             lists[m.group(1)] = tuple(entries)
         elif m := _DEFINE.fullmatch(line):
             define(m.group(1), int(m.group(2)), where)
+        elif m := _TEXT.fullmatch(line):
+            define(m.group(1), m.group(2), where)
         elif m := _ENUM.fullmatch(line):
             name, gen, total = m.groups()
             if name not in lists:
@@ -115,3 +118,10 @@ globals().update(CONSTANTS)
 METHODS = tuple(e[1] for e in LISTS["MBS_METHODS"])  # integrator names, in code order
 ADAPTIVE = tuple(e[1] for e in LISTS["MBS_METHODS"] if e[3] == "tolerance")  # accuracy from rtol, atol
 FIXED_STEP = tuple(e[1] for e in LISTS["MBS_METHODS"] if e[3] == "step")  # accuracy from integrator.step
+SECTION_ROW = "<" + "".join({4: "i", 8: "q"}[e[1]] for e in LISTS["MBS_SECTION_ROW"])  # struct format of a row
+
+
+def elastic_array_sizes(n, stiffening):
+    """{ED_* name: numbers} of one elastic body's arrays in S_ELASTIC_D, in their order, for n modes."""
+    return {e[0]: e[1] + e[2] * n + e[3] * n * n for e in LISTS["MBS_ELASTIC_D"]
+            if stiffening or e[0] not in ("ED_K_A", "ED_K_W")}

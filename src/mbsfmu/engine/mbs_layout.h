@@ -5,6 +5,7 @@
  *
  * Only four kinds of lines may appear (layout.py refuses anything else):
  *   #define NAME integer                      a constant
+ *   #define NAME "TEXT"                       a text constant (letters, digits, _ and .)
  *   #define MBS_LIST(X) X(NAME, args) ...     a list; args are integers, "strings" (Python's names for a code)
  *                                             or C identifiers
  *   enum { MBS_LIST(MBS_CODE) [TOTAL] };      codes 0, 1, ... (TOTAL: their count)
@@ -27,8 +28,17 @@
  * larger scene first, with its size) */
 #define MBS_MAX_WORKSPACE 1073741824
 
-/* "MBSC", int32 format version, char guid[64], int32 nsec, then nsec rows {int32 id, int32 kind (0 int32,
- * 1 double, 2 bytes), int64 byte offset, int64 count}, then the data (8-aligned). Section ids, with kind: */
+/* The file: its head, then FH_NSEC section rows, then the data (8-aligned, little-endian). Its head (bytes): */
+#define MBS_SCENE_MAGIC "MBSC"
+#define MBS_FILE_HEAD(X) X(FH_MAGIC, 4) X(FH_VERSION, 4) /* int32: MBS_FORMAT_VERSION */ \
+    X(FH_GUID, 64)   /* NUL-padded */ \
+    X(FH_NSEC, 4)    /* int32: the number of section rows, 1 .. MBS_MAX_SECTIONS */
+enum { MBS_FILE_HEAD(MBS_FIELD) FH_SIZE };
+#define MBS_MAX_SECTIONS 64
+/* a section row (bytes): int32 id, int32 kind (0 int32, 1 double, 2 bytes), int64 byte offset, int64 count */
+#define MBS_SECTION_ROW(X) X(SR_ID, 4) X(SR_KIND, 4) X(SR_OFFSET, 8) X(SR_COUNT, 8)
+enum { MBS_SECTION_ROW(MBS_FIELD) SR_SIZE };
+/* Section ids, with kind: */
 #define MBS_SECTIONS(X) \
     X(S_HEADER, 0)      /* H_SIZE: counts and D offsets (below) */ \
     X(S_BODY_I, 0)      /* nb × IB */ \
@@ -121,14 +131,18 @@ enum { MBS_INTEG_D(MBS_CODE) DI };
     X(MBS_GEN_ALPHA, "gen_alpha", gen_alpha, "step") X(MBS_AUTO, "auto", auto, "tolerance")
 enum { MBS_METHODS(MBS_CODE) MBS_NMETHODS };
 
-/* kinds of variables (S_VARS; value reference = row index); the second arg: the variable's name for the
- * settable integrator settings. MBS_V_DER: the time derivative of state entry `index` of [y; ẏ] (the FMUs
- * with model exchange declare them); MBS_V_VM: the von Mises stress of stress node `index` (S_STRESS_I) */
+/* kinds of variables (S_VARS; value reference = row index): the variable's name for the settable integrator
+ * settings; how a host sets it (0 not, 1 a tunable parameter, 2 a fixed one: before initialization, 3 an input);
+ * whether its value follows from the state (before initialization: from the initial state); its role in
+ * directional derivatives (1 a known, 2 an unknown, 3 both). MBS_V_DER: the time derivative of state entry
+ * `index` of [y; ẏ] (the FMUs with model exchange declare them); MBS_V_VM: the von Mises stress of stress node
+ * `index` (S_STRESS_I). model.c holds them as mbs_var_kinds. */
 #define MBS_VAR_KINDS(X) \
-    X(MBS_V_PARAM, "") X(MBS_V_METHOD, "integrator.method") X(MBS_V_RTOL, "integrator.rtol") \
-    X(MBS_V_ATOL, "integrator.atol") X(MBS_V_MAX_STEP, "integrator.max_step") X(MBS_V_STEP, "integrator.step") \
-    X(MBS_V_QIN, "") X(MBS_V_FIN, "") X(MBS_V_Y, "") X(MBS_V_YD, "") X(MBS_V_OUT, "") \
-    X(MBS_V_DER, "") X(MBS_V_VM, "")
+    X(MBS_V_PARAM, "", 1, 0, 0) X(MBS_V_METHOD, "integrator.method", 2, 0, 0) X(MBS_V_RTOL, "integrator.rtol", 2, 0, 0) \
+    X(MBS_V_ATOL, "integrator.atol", 2, 0, 0) X(MBS_V_MAX_STEP, "integrator.max_step", 2, 0, 0) \
+    X(MBS_V_STEP, "integrator.step", 2, 0, 0) X(MBS_V_QIN, "", 3, 0, 1) X(MBS_V_FIN, "", 3, 0, 1) \
+    X(MBS_V_Y, "", 0, 1, 3) X(MBS_V_YD, "", 0, 1, 3) X(MBS_V_OUT, "", 0, 1, 2) X(MBS_V_DER, "", 0, 1, 2) \
+    X(MBS_V_VM, "", 0, 1, 2)
 enum { MBS_VAR_KINDS(MBS_CODE) MBS_V_N };
 
 /* Domains (scene/domains.py declares them; the loader applies them to a scene's numbers, rules.c to a host's):
@@ -166,4 +180,13 @@ enum { MBS_ELASTIC_H(MBS_CODE) EH };
 #define MBS_ELASTIC_I(X) X(EI_BODY) X(EI_N) X(EI_NODES) X(EI_Q) X(EI_QD) X(EI_STIFF) X(EI_D)
 enum { MBS_ELASTIC_I(MBS_CODE) EI };
 
+/* S_ELASTIC_D: per elastic body at its EI_D offset these arrays in this order (compiler/elastic_tables.py), each of
+ * size + per_mode·n + per_mode2·n² numbers for n modes (row-major, R components; G as [i][l][k] = G_ikl, B as
+ * [i][j][l][k] = B_ijkl: the index contracted with q innermost); K_A, K_W (stiffening) only with EI_STIFF; then
+ * per node R_RP (3), Φ_P (3 × n), Ψ_P (3 × n); after the bodies the NFIX parameter values the data were computed with */
+#define MBS_ELASTIC_D(X) \
+    X(ED_M, 1, 0, 0) X(ED_S0, 3, 0, 0) X(ED_S_RR, 9, 0, 0) X(ED_J_SUM, 9, 0, 0) X(ED_C_T, 0, 3, 0) X(ED_A, 0, 9, 0) \
+    X(ED_C_R0, 0, 3, 0) X(ED_JPSI, 0, 3, 0) X(ED_G, 0, 0, 3) X(ED_B, 0, 0, 9) X(ED_M_EE, 0, 0, 1) X(ED_K, 0, 0, 1) \
+    X(ED_D, 0, 0, 1) X(ED_K_A, 0, 0, 1) X(ED_K_W, 0, 0, 1)
+enum { MBS_ELASTIC_D(MBS_CODE) ED_N };
 #endif

@@ -63,7 +63,7 @@ typedef double real;
  * declares (compiler/scene_file.py writes it from the same declaration) ---- */
 
 struct MbsModel {
-    char guid[64];
+    char guid[FH_GUID_END_ - FH_GUID + 1];  /* the file's FH_GUID bytes, NUL-terminated */
     int32_t hdr[H_SIZE];
     const int32_t *ib, *iforce, *quat, *plain, *vars, *out, *prog, *code, *elastic_i, *stress_i;
     const double *D, *elastic_d, *stress_d;  /* defaults: the instance copies D */
@@ -226,6 +226,9 @@ int mbs_tangent(const MbsModel *m, const MbsTangent *t, void *work);
 /* model.c */
 typedef struct { int8_t npos, nvel, naxes, rot, gimbal; } MbsJointType;  /* a row of MBS_JOINTS (mbs_layout.h) */
 extern const MbsJointType mbs_joints[J_N];
+typedef struct { int8_t set, state, role; } MbsVarKind;  /* a row of MBS_VAR_KINDS: VK_* below */
+enum { VK_READ = 0, VK_TUNABLE = 1, VK_FIXED = 2, VK_INPUT = 3, VK_KNOWN = 1, VK_UNKNOWN = 2 };
+extern const MbsVarKind mbs_var_kinds[MBS_V_N];
 const char *mbs_var_name_of(const MbsModel *m, int kind, int index); /* name of variable (MBS_V_*, index), "?" none */
 /* expr.c: run the programs of one stage (0 bind: targets in D; 1 time: targets in td). NaN/Inf results
  * are left in place: callers check. */

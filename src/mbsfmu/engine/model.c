@@ -1,6 +1,7 @@
 /* Loading the compiled scene: every count, offset and index is checked here, once, so that a corrupt or
  * foreign file ends in a message instead of a crash, and the per-step code can trust the tables. */
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -12,7 +13,12 @@
 
 #define FAIL(...) do { snprintf(err, errlen, __VA_ARGS__); goto fail; } while (0)
 
-typedef struct { int32_t id, kind; int64_t offset, count; } Section;
+typedef struct { int32_t id, kind; int64_t offset, count; } Section;  /* a section row (MBS_SECTION_ROW) */
+MBS_VIEW_CHECK(section_id, offsetof(Section, id) == SR_ID);
+MBS_VIEW_CHECK(section_kind, offsetof(Section, kind) == SR_KIND);
+MBS_VIEW_CHECK(section_offset, offsetof(Section, offset) == SR_OFFSET);
+MBS_VIEW_CHECK(section_count, offsetof(Section, count) == SR_COUNT);
+MBS_VIEW_CHECK(section_size, sizeof(Section) == SR_SIZE);
 
 static const void *section(const unsigned char *b, size_t len, const Section *tab, int nsec, int id, int kind,
                            int64_t want, int *count)
@@ -37,6 +43,8 @@ static int in(int64_t v, int64_t lo, int64_t hi) { return v >= lo && v < hi; }
 
 #define JOINT_ROW(code, kind, param, npos, nvel, naxes, rot, gimbal) {npos, nvel, naxes, rot, gimbal},
 const MbsJointType mbs_joints[J_N] = {MBS_JOINTS(JOINT_ROW)};
+#define VAR_KIND_ROW(code, name, set, state, role) {set, state, role},
+const MbsVarKind mbs_var_kinds[MBS_V_N] = {MBS_VAR_KINDS(VAR_KIND_ROW)};
 
 /* Header counts: non-negative and each bounded by bytes of the file. The body, force, output, coordinate and
  * parameter counts size the number layout of D, whose length the D section must match (so D's bytes bound
@@ -183,15 +191,14 @@ static int check_tables(const MbsModel *m, char *err, size_t errlen)
             if (!in(m->quat[7 * j + k], 0, k < 4 ? np : nv)) BAD("corrupt quaternion table (quaternion %d)", j);
     for (int k = 0; k < H[H_NPLAIN]; k++)
         if (!in(m->plain[k], 0, np) || !in(m->plain[H[H_NPLAIN] + k], 0, nv)) BAD("corrupt coordinate table (entry %d)", k);
+    const int64_t count[MBS_V_N] = {  /* the indices of each kind of variable (an integrator setting: one) */
+        [MBS_V_PARAM] = H[H_NPARAM], [MBS_V_METHOD] = 1, [MBS_V_RTOL] = 1, [MBS_V_ATOL] = 1, [MBS_V_MAX_STEP] = 1,
+        [MBS_V_STEP] = 1, [MBS_V_QIN] = nv, [MBS_V_FIN] = 3 * (int64_t)H[H_NINPUT], [MBS_V_Y] = np, [MBS_V_YD] = nv,
+        [MBS_V_OUT] = 6 * (int64_t)H[H_NOUT], [MBS_V_DER] = (int64_t)np + nv, [MBS_V_VM] = m->nstress};
     for (int k = 0; k < H[H_NVARS]; k++) {
         const int kind = m->vars[2 * k], idx = m->vars[2 * k + 1];
-        static const int hi_of[MBS_V_N] = {0, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0};
-        const int64_t hi = kind == MBS_V_PARAM ? H[H_NPARAM] : kind == MBS_V_QIN || kind == MBS_V_YD ? nv :
-                           kind == MBS_V_Y ? np : kind == MBS_V_FIN ? 3 * (int64_t)H[H_NINPUT] :
-                           kind == MBS_V_OUT ? 6 * (int64_t)H[H_NOUT] : kind == MBS_V_DER ? (int64_t)np + nv :
-                           kind == MBS_V_VM ? m->nstress :
-                           in(kind, 0, MBS_V_N) ? hi_of[kind] : 0;
-        if (!in(idx, 0, hi)) BAD("corrupt variable table (row %d: kind %d, index %d)", k, kind, idx);
+        if (!in(kind, 0, MBS_V_N) || !in(idx, 0, count[kind]))
+            BAD("corrupt variable table (row %d: kind %d, index %d)", k, kind, idx);
     }
     for (int k = 0; k < H[H_NOUT]; k++) {
         const int32_t *o = m->out + 3 * k;
@@ -258,9 +265,9 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     MbsModel *m = calloc(1, sizeof *m);
     unsigned char *b = NULL;
     if (!m) { snprintf(err, errlen, "out of memory"); return NULL; }
-    if (!bytes || len < 76 || memcmp(bytes, "MBSC", 4)) FAIL("not a compiled mbsfmu scene (bad magic)");
+    if (!bytes || len < FH_SIZE || memcmp(bytes, MBS_SCENE_MAGIC, 4)) FAIL("not a compiled mbsfmu scene (bad magic)");
     int32_t version, nsec;
-    memcpy(&version, (const char *)bytes + 4, 4);
+    memcpy(&version, (const char *)bytes + FH_VERSION, 4);
     if (version != MBS_FORMAT_VERSION)
         FAIL("compiled scene has format version %d, this engine reads version %d: rebuild the FMU with the "
              "same mbsfmu version as its engine", (int)version, MBS_FORMAT_VERSION);
@@ -268,12 +275,12 @@ MbsModel *mbs_model_load(const void *bytes, size_t len, char *err, size_t errlen
     if (!b) FAIL("out of memory");
     memcpy(b, bytes, len);
     m->blob = b;
-    memcpy(m->guid, b + 8, 63);
-    m->guid[63] = 0;
-    memcpy(&nsec, b + 72, 4);
-    if (nsec < 1 || nsec > 64 || 76 + (size_t)nsec * sizeof(Section) > len) FAIL("corrupt section table");
-    Section tab[64];
-    memcpy(tab, b + 76, (size_t)nsec * sizeof(Section));
+    memcpy(m->guid, b + FH_GUID, sizeof m->guid - 1);
+    m->guid[sizeof m->guid - 1] = 0;
+    memcpy(&nsec, b + FH_NSEC, 4);
+    if (nsec < 1 || nsec > MBS_MAX_SECTIONS || FH_SIZE + (size_t)nsec * SR_SIZE > len) FAIL("corrupt section table");
+    Section tab[MBS_MAX_SECTIONS];
+    memcpy(tab, b + FH_SIZE, (size_t)nsec * SR_SIZE);
     const int32_t *h = section(b, len, tab, nsec, S_HEADER, 0, H_SIZE, NULL);
     if (!h) FAIL("missing header");
     memcpy(m->hdr, h, sizeof m->hdr);

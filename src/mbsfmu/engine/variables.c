@@ -38,6 +38,12 @@ static int set_parameters(MbsInstance *s, const unsigned *vr, size_t n, const do
                   !derived ? ":" : count > 1 ? " make" : " makes", why);
 }
 
+/* the integrator setting a Real kind of VK_FIXED variable holds */
+static double *setting(MbsInstance *s, int kind)
+{
+    return kind == MBS_V_RTOL ? &s->rtol : kind == MBS_V_ATOL ? &s->atol : kind == MBS_V_MAX_STEP ? &s->max_step : &s->step;
+}
+
 int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *value, size_t *bad)
 {
     REFUSED_WHILE_OBSERVING(s, "mbs_set_reals");
@@ -48,29 +54,21 @@ int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *va
         const int kind = vr[i] < (unsigned)m->hdr[H_NVARS] ? m->vars[2 * vr[i]] : -1;
         const double *d = kind >= MBS_V_PARAM && kind <= MBS_V_STEP ? m->vdom + 3 * kind : NULL;
         if (bad) *bad = i;
-        switch (kind) {
-        case MBS_V_RTOL: case MBS_V_ATOL: case MBS_V_MAX_STEP: case MBS_V_STEP:
-            if (s->initialized)
-                return mbs_report(s, MBS_ERROR, "%s is a fixed parameter: set it before initialization", m->var_name[vr[i]]);
-            /* fall through */
-        case MBS_V_PARAM:
-            if (!mbs_in_domain(d, value[i])) {
-                const double old = kind == MBS_V_PARAM ? s->D[m->vars[2 * vr[i] + 1]] : kind == MBS_V_RTOL ? s->rtol :
-                                   kind == MBS_V_ATOL ? s->atol : kind == MBS_V_MAX_STEP ? s->max_step : s->step;
-                mbs_domain_text(d, valid, sizeof valid);
-                return mbs_report(s, MBS_ERROR, "%s = %g is %s (valid: %s); %s keeps %g", m->var_name[vr[i]], value[i],
-                              isfinite(value[i]) ? "outside its domain" : "not finite", valid, m->var_name[vr[i]], old);
-            }
-            nparam += kind == MBS_V_PARAM;
-            break;
-        case MBS_V_QIN: case MBS_V_FIN:  /* a non-finite input is refused by the next step (fmi2Discard) */
-            break;
-        case -1:
-            return mbs_report(s, MBS_ERROR, "unknown value reference %u", vr[i]);
-        default:
+        if (kind < 0) return mbs_report(s, MBS_ERROR, "unknown value reference %u", vr[i]);
+        const int set = mbs_var_kinds[kind].set;
+        if (set == VK_READ || kind == MBS_V_METHOD)
             return mbs_report(s, MBS_ERROR, "value reference %u is %s, not a Real input or parameter", vr[i],
-                          kind == MBS_V_METHOD ? "a String" : "an output");
+                              kind == MBS_V_METHOD ? "a String" : "an output");
+        if (set == VK_FIXED && s->initialized)
+            return mbs_report(s, MBS_ERROR, "%s is a fixed parameter: set it before initialization", m->var_name[vr[i]]);
+        if (set == VK_INPUT) continue;  /* a non-finite input is refused by the next step (fmi2Discard) */
+        if (!mbs_in_domain(d, value[i])) {
+            const double old = kind == MBS_V_PARAM ? s->D[m->vars[2 * vr[i] + 1]] : *setting(s, kind);
+            mbs_domain_text(d, valid, sizeof valid);
+            return mbs_report(s, MBS_ERROR, "%s = %g is %s (valid: %s); %s keeps %g", m->var_name[vr[i]], value[i],
+                              isfinite(value[i]) ? "outside its domain" : "not finite", valid, m->var_name[vr[i]], old);
         }
+        nparam += kind == MBS_V_PARAM;
     }
     if (bad) *bad = n;  /* from here on a refusal is the combination's */
     if (nparam && set_parameters(s, vr, n, value)) return MBS_ERROR;
@@ -81,7 +79,7 @@ int mbs_set_reals(MbsInstance *s, const unsigned *vr, size_t n, const double *va
             s->inputs_dirty = 1;
             s->der_valid = 0;
         } else if (kind != MBS_V_PARAM)
-            *(kind == MBS_V_RTOL ? &s->rtol : kind == MBS_V_ATOL ? &s->atol : kind == MBS_V_MAX_STEP ? &s->max_step : &s->step) = value[i];
+            *setting(s, kind) = value[i];
     }
     return MBS_OK;
 }
@@ -128,15 +126,12 @@ int mbs_von_mises(MbsInstance *s, int k, const double *x, double *out)
 MBS_NOINLINE int mbs_get_real(MbsInstance *s, int vr, double *value)  /* apart from mbs_get_reals' fast loop */
 {
     int idx = 0, kind = var(s, vr, &idx), rc;
-    if ((kind == MBS_V_Y || kind == MBS_V_YD || kind == MBS_V_OUT || kind == MBS_V_DER || kind == MBS_V_VM) && !s->initialized &&
+    if (kind >= 0 && mbs_var_kinds[kind].state && !s->initialized &&
         !s->initial_valid && (rc = mbs_start_state(s)))
         return rc;
     switch (kind) {
     case MBS_V_PARAM: *value = s->D[idx]; return MBS_OK;
-    case MBS_V_RTOL: *value = s->rtol; return MBS_OK;
-    case MBS_V_ATOL: *value = s->atol; return MBS_OK;
-    case MBS_V_MAX_STEP: *value = s->max_step; return MBS_OK;
-    case MBS_V_STEP: *value = s->step; return MBS_OK;
+    case MBS_V_RTOL: case MBS_V_ATOL: case MBS_V_MAX_STEP: case MBS_V_STEP: *value = *setting(s, kind); return MBS_OK;
     case MBS_V_QIN: *value = s->u[idx]; return MBS_OK;
     case MBS_V_FIN: *value = s->u[NVEL(s->m) + idx]; return MBS_OK;
     case MBS_V_Y: *value = s->x[idx]; return MBS_OK;
