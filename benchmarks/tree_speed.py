@@ -94,7 +94,7 @@ def load_robot(file):
 def chain_scene(n, seed=0):
     """A random revolute chain of n bodies under gravity: random axes, 0.1 m links, masses 0.5–2 kg, physical
     inertias; it starts at rest from random angles (in ±0.5). Few numbers per body: a scene holds at most
-    400,000 (scene/limits.py), and 10,000 bodies must fit."""
+    400,000 (limits.py), and 10,000 bodies must fit."""
     import mbsfmu
     rng = np.random.default_rng(seed)
     lines = ["mbsfmu: 1", f"name: chain{n}", "gravity: [0, 0, -9.81]", "bodies:"]

@@ -13,7 +13,7 @@ import pytest
 import mbsfmu
 from mbsfmu.animation.mesh import read_mesh
 from mbsfmu.errors import ModelError
-from mbsfmu.scene import limits
+from mbsfmu import limits
 
 ROBOTS = Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
 

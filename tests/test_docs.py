@@ -245,10 +245,10 @@ def test_native_fmu_validates_and_has_the_same_variables(tmp_path):
 
 
 def test_limits_are_quoted_from_scene_limits(capsys):
-    """`simulate --help`, docs/cli.md and the README state the table rows and result points of scene/limits.py
+    """`simulate --help`, docs/cli.md and the README state the table rows and result points of limits.py
     (one source), and the table shows at most that many rows."""
     from mbsfmu.cli import _print_table
-    from mbsfmu.scene import limits
+    from mbsfmu import limits
     with pytest.raises(SystemExit):
         parse(["simulate", "--help"])
     helptext = " ".join(capsys.readouterr().out.split())

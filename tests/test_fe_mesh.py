@@ -444,7 +444,7 @@ FORGED = {   # file: a few hundred bytes whose headers declare 10⁹..10¹² ent
 def test_forged_counts_and_bombs_bounded(tmp_path, monkeypatch, name):
     """The foreign parser runs in a child under limits.FE_PARSE_BYTES (here lowered to 512 MiB, so that the 1 GiB
     zlib bomb fails fast): a declared 10¹² nodes or a decompression bomb is one ModelError line, within seconds."""
-    from mbsfmu.scene import limits
+    from mbsfmu import limits
     monkeypatch.setattr(limits, "FE_PARSE_BYTES", 512 * 2**20)
     (tmp_path / name).write_text(_vtu_bomb(16) if name == "bomb.vtu" else FORGED[name])
     t0 = time.perf_counter()
@@ -455,7 +455,7 @@ def test_forged_counts_and_bombs_bounded(tmp_path, monkeypatch, name):
 
 
 def test_too_many_dofs_refused(monkeypatch):
-    from mbsfmu.scene import limits
+    from mbsfmu import limits
     monkeypatch.setattr(limits, "FE_DOFS", 100)
     p, t = box_tets(0.2, 0.1, 0.1, 2, 1, 1)
     _refused(lambda: assemble_solid(meshio.Mesh(p, [("tetra", t)]), E, NU, RHO, element="tet10"), "DOFs", "100")
@@ -504,10 +504,10 @@ def test_overcurved_tet10_refused():
 
 
 def test_docs_quote_the_limits():
-    """docs/scene-format.md states the mesh limits of scene/limits.py (the one source)."""
+    """docs/scene-format.md states the mesh limits of limits.py (the one source)."""
     from pathlib import Path
 
-    from mbsfmu.scene import limits
+    from mbsfmu import limits
     text = (Path(__file__).resolve().parents[1] / "docs" / "scene-format.md").read_text(encoding="utf-8")
     for quoted in (f"`FE_MESH_BYTES` ({limits.FE_MESH_BYTES // 2**20} MiB)",
                    f"`FE_PARSE_BYTES` ({limits.FE_PARSE_BYTES // 2**30} GiB)",

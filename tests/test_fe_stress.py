@@ -20,7 +20,7 @@ from mbsfmu.bodies.fe_mesh import assemble_solid  # noqa: E402
 from mbsfmu.engine import build  # noqa: E402
 from mbsfmu.engine import layout as L  # noqa: E402
 from mbsfmu.errors import ModelError  # noqa: E402
-from mbsfmu.scene import limits  # noqa: E402
+from mbsfmu import limits  # noqa: E402
 from mbsfmu.simulation import Simulation, compiled, simulate  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -22,7 +22,7 @@ from mbsfmu.fmu import native
 REPO = Path(__file__).resolve().parents[1]
 KINDS = ("pythonfmu", "native")
 SCENE = {"pythonfmu": "mbsfmu_scene.bin", "native": "scene.bin"}
-LIMIT = 1 << 30   # fmi/fmu_files.h MBS_SCENE_FILE_LIMIT
+LIMIT = 1 << 30   # engine/fmu_files.h MBS_SCENE_FILE_LIMIT
 
 pytestmark = pytest.mark.skipif(native.compiler() is None or not sysconfig.get_config_var("Py_ENABLE_SHARED"),
                                 reason="needs a C compiler and a shared libpython")
@@ -221,7 +221,7 @@ def test_a_reused_instance_is_a_fresh_one(fmus, tmp_path):
 
 
 def test_resource_path_decodes_as_pythons_uri_parser():
-    """fmi/fmu_files.c's parser (both kinds) against urllib's RFC 3986 parsing on 2,000 random folder names
+    """engine/fmu_files.c's parser (both kinds) against urllib's RFC 3986 parsing on 2,000 random folder names
     (UTF-8, spaces, '#', '?', '%', reserved characters) written as pathlib's file URIs in every allowed form and with
     the characters RFC 3986 allows in a path left unescaped."""
     import ctypes

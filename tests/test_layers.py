@@ -11,7 +11,7 @@ PACKAGE = SRC / "mbsfmu"
 
 # (floor, module prefixes): a module belongs to the floor of its longest matching prefix
 LAYERS = [
-    ("base", ["mbsfmu.errors", "mbsfmu.expr", "mbsfmu.files", "mbsfmu.version", "mbsfmu.scene.limits", "mbsfmu.scene.datafile",
+    ("base", ["mbsfmu.errors", "mbsfmu.expr", "mbsfmu.files", "mbsfmu.version", "mbsfmu.limits", "mbsfmu.datafile",
               "mbsfmu.engine.layout"]),  # the C engine's tables (mbs_layout.h), which C and Python share
     ("kinematics", ["mbsfmu.kinematics"]),
     ("scene", ["mbsfmu.scene", "mbsfmu.bodies"]),  # reading and checking a scene; reducing its elastic bodies

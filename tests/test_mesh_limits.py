@@ -19,7 +19,7 @@ import pytest
 
 import mbsfmu
 from mbsfmu.animation import mesh
-from mbsfmu.scene import limits
+from mbsfmu import limits
 
 REPO = Path(__file__).resolve().parents[1]
 GiB = 2**30

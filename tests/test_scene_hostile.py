@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import mbsfmu
-from mbsfmu.scene import limits
+from mbsfmu import limits
 
 MEMORY = 2**30          # address space of the worker (numpy and scipy take about 0.35 GiB of it)
 CPU_SECONDS = 1.0       # per hostile case (the audit measured 16-49 s for some of them)

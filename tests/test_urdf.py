@@ -767,7 +767,7 @@ def test_a_chain_of_the_documented_10000_links_loads_and_one_more_is_refused(tmp
     child process whose CPU time and peak memory are bounded; 10,001 links are refused by their count."""
     import subprocess
     import sys
-    from mbsfmu.scene import limits
+    from mbsfmu import limits
     link = ('<link name="l{i}"><inertial><origin xyz="0 0 0.05"/><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.001" '
             'ixy="0" ixz="0" iyz="0"/></inertial></link>')
     joint = ('<joint name="j{i}" type="revolute"><origin xyz="0 0 0.1"/><parent link="l{p}"/><child link="l{i}"/>'

@@ -16,7 +16,7 @@ from . import __version__, files
 from .engine.layout import METHODS
 from .errors import IntegrationError, ModelError, printable
 from .inputs import INTERPOLATIONS
-from .scene.limits import RESULT_POINTS, TABLE_ROWS
+from .limits import RESULT_POINTS, TABLE_ROWS
 from .scene.urdf import BASES
 
 EPILOG = """examples:

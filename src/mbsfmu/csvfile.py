@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from .scene import limits
+from . import limits
 
 
 def read_csv(path, what):

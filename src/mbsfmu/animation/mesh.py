@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelError
-from ..scene import limits
+from .. import limits
 
 _SPACE = bytes.maketrans(b"\t\r\v\f", b"    ")  # OBJ and ASCII STL separate fields by any blank: a space
 _CHUNK = 1 << 16                                # tokens converted to numbers at a time (bounded lists)

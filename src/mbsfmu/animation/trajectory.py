@@ -54,7 +54,7 @@ def fmu_spec(path):
 
 def _read_member(z, name):
     """A zip member's bytes, at most limits.DRAWING_BYTES whatever its header claims (no zip bomb unpacks)."""
-    from ..scene.limits import DRAWING_BYTES
+    from ..limits import DRAWING_BYTES
     with z.open(name) as f:
         data = f.read(DRAWING_BYTES + 1)
     if len(data) > DRAWING_BYTES:

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.linalg import eigh
 
 from ..errors import ModelError
-from ..scene import limits
+from .. import limits
 from .nodal import MassPoints, NodalData, damping_from_ratio, skew
 
 GAUSS_XI, GAUSS_W = np.polynomial.legendre.leggauss(4)   # exact for the degree-6 mass integrands

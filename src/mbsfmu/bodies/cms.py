@@ -48,7 +48,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator, eigsh, splu
 
 from ..errors import ModelError
-from ..scene import datafile, limits
+from .. import datafile, limits
 from . import fe
 from .nodal import MassMoments, NodalData, _symmetric_psd, damping_from_ratio
 

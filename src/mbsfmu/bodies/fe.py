@@ -8,7 +8,7 @@ A solid FE model has translational node DOFs only, ordered node-major: [u1x u1y 
   equation numbers (node-major over the `.inp`'s *NODE order by default, or the DOF map); with the nodes and
   node sets (`*NODE`, `*NSET`) of the `.inp` file.
 A matrix given as one triangle (the other empty) is mirrored; given whole, it must be symmetric.  Every file
-is bounded (scene/limits.py) before it is parsed: sizes and counts in headers are checked before any entry is
+is bounded (limits.py) before it is parsed: sizes and counts in headers are checked before any entry is
 read.  The consistent mass of a solid is the same scalar mass matrix for x, y and z (M = M_s ⊗ E); check()
 requires that, since the floating-frame invariants (cms.py) are quadratic forms of M_s.
 """
@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ModelError
-from ..scene import limits
+from .. import limits
 from .fe_model import FEModel
 
 DIRECTIONS = {"x": 0, "y": 1, "z": 2, "1": 0, "2": 1, "3": 2}

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelError
-from ..scene import datafile, limits
+from .. import datafile, limits
 from .fe_model import FEModel
 
 ELEMENTS = ("tet4", "tet10", "hex8")

@@ -12,7 +12,8 @@ import numpy as np
 
 from .model import Model
 from ..expr import CONSTANTS, parse
-from ..scene import domains, limits
+from .. import limits
+from ..scene import domains
 from ..engine import layout as L
 from .variables import fmi3_variables
 from .elastic_tables import elastic_sections, stress_sections

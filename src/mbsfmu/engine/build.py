@@ -20,17 +20,17 @@ from pathlib import Path
 from ..errors import EngineUnavailable
 
 HERE = Path(__file__).parent
-FMI = HERE.parent / "fmi"  # the FMI layers (fmi2.c, fmi3.c) and what they share; the engine reads scene files with fmu_files.c
+FMI = HERE.parent / "fmi"  # the FMI layers (fmi2.c, fmi3.c) and what they share
 INCLUDE_DIRS = (HERE, FMI, FMI / "fmi2", FMI / "fmi3")  # where the engine's and FMI layers' #include "..." are found
 # (folder, file): the engine's own files, then the FMI parts the in-process library carries too (scene files, the
 # state header check, and the layers' shared code, which ctypes hosts in the tests call)
 INSTANCE = ("instance.c", "rules.c", "ode.c", "run.c", "variables.c", "exchange.c", "state_bytes.c")  # instance.h
-CORE = tuple((HERE, n) for n in ("model.c", "tree.c", "forces.c", "dynamics.c", "cholesky.c", "forward.c", "deriv.c", *INSTANCE, "linalg.c")) \
-    + tuple((FMI, n) for n in ("fmu_files.c", "call_guard.c", "fmi_services.c", "fmi_calls.c")) \
+CORE = tuple((HERE, n) for n in ("fmu_files.c", "state_header.c", "model.c", "tree.c", "forces.c", "dynamics.c", "cholesky.c", "forward.c", "deriv.c", *INSTANCE, "linalg.c")) \
+    + tuple((FMI, n) for n in ("call_guard.c", "fmi_services.c", "fmi_calls.c")) \
     + tuple((HERE, p.name) for p in sorted(HERE.glob("integ_*.c")))
 HEADERS = tuple((HERE, n) for n in ("mbs_engine.h", "mbs_integrator.h", "mbs_model.h", "mbs_layout.h", "mbs_vec3.h",
-                                    "integ_base.h", "linalg.h", "instance.h", "rules.h")) \
-    + tuple((FMI, n) for n in ("fmu_files.h", "call_guard.h", "fmi_services.h", "fmi_calls.h"))
+                                    "integ_base.h", "linalg.h", "instance.h", "rules.h", "fmu_files.h", "state_header.h")) \
+    + tuple((FMI, n) for n in ("call_guard.h", "fmi_services.h", "fmi_calls.h"))
 # optional parts: their files (elastic bodies: the equations and their complex twin for directional derivatives) and
 # the switch that turns them on
 OPTIONAL = {"expr": (("expr.c",), "-DMBS_WITH_EXPR"), "elastic": (("elastic.c", "deriv_elastic.c"), "-DMBS_WITH_ELASTIC")}

@@ -19,7 +19,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "call_guard.h"
 #include "mbs_integrator.h"
 #include "mbs_model.h"
 #include "rules.h"

@@ -1,8 +1,9 @@
 /* FMU state bytes: save and load the instance's state (checked, all or nothing). */
 #include "instance.h"
+#include "state_header.h"
 
 /* ------------------------------------------------------------------------------------------ state bytes
- * header (call_guard.h, which both FMU kinds check too): "MBSS", uint32 version, char guid[64], uint64 payload
+ * header (state_header.h, which both FMU kinds check too): "MBSS", uint32 version, char guid[64], uint64 payload
  * length, uint64 FNV-1a checksum of the payload;
  * payload: Head, parameters (nparam), u, u_applied, x (n), then the integrator snapshot (initialized only). */
 #define HEADER_SIZE MBS_STATE_HEADER

@@ -4,8 +4,8 @@
  *   - the phases of the FMI 2.0 state machines as bit masks, their names and the "allowed in" check with its
  *     message,
  *   - the registries of the instances and FMU states a library handed out (a host's pointer is compared with
- *     them, never followed unless found),
- *   - the check of an FMU state's header (the byte layout of state_bytes.c's mbs_state_save, whose loader runs it too).
+ *     them, never followed unless found).
+ * (The FMU state header both kinds check is the engine's: engine/state_header.h.)
  */
 #ifndef MBS_CALL_GUARD_H
 #define MBS_CALL_GUARD_H
@@ -36,14 +36,5 @@ int mbs_reg_drop(MbsRegistry *r, const void *p);
 void *mbs_reg_first(MbsRegistry *r, int (*match)(void *item, void *ctx), void *ctx);
 /* drop every item with match(item, ctx) and release it */
 void mbs_reg_drop_all(MbsRegistry *r, int (*match)(void *item, void *ctx), void *ctx, void (*release)(void *item));
-
-/* FMU state bytes: "MBSS", uint32 format version, char guid[64], uint64 payload length, uint64 FNV-1a-64 of the
- * payload, then the payload (state_bytes.c) */
-#define MBS_STATE_VERSION 1u
-#define MBS_STATE_HEADER (4 + 4 + 64 + 8 + 8)
-uint64_t mbs_state_checksum(const unsigned char *payload, size_t n);
-/* NULL if bytes[0..n) carry the header of a state of the model `guid` (magic, version, GUID, length, checksum)
- * with at least `min_payload` bytes of payload; else why not */
-const char *mbs_state_header_problem(const void *bytes, size_t n, size_t min_payload, const char *guid);
 
 #endif

@@ -38,9 +38,9 @@ SCENE_FILE = "mbsfmu_scene.bin"
 TEMPLATE = Path(__file__).with_name("slave.py.in")
 SHIM_SOURCE = Path(__file__).with_name("shim.c")
 # engine sources the shim shares with native FMUs: the resource-location parser and file reader, the FMI 2.0 guard
-SHIM_SHARED = ("fmu_files.c", "call_guard.c")
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # src/mbsfmu
-FMI_DIR = PACKAGE_ROOT / "fmi"  # SHIM_SHARED's folder
+SHIM_SHARED = (PACKAGE_ROOT / "engine" / "fmu_files.c", PACKAGE_ROOT / "engine" / "state_header.c",
+               PACKAGE_ROOT / "fmi" / "call_guard.c")
 
 # The module pythonfmu imports (named in slavemodule.txt). pythonfmu 0.7.0 also compiles and runs this file's text
 # again in every fmi2Instantiate, in a fresh namespace, to find the slave class, and never releases what that
@@ -325,8 +325,9 @@ def compile_shim(out: Path, real_library: str, model_description: bytes, runtime
         + shim_model_defines(model_description)
         + f"#define MBSFMU_RESOURCE_FILES {', '.join(map(_c_string, resource_files)) or _c_string('')}\n"
         + SHIM_SOURCE.read_text(encoding="utf-8"), encoding="utf-8")
-    shared = [str(FMI_DIR / f) for f in SHIM_SHARED]
-    cmd = [cc, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-fvisibility=hidden", f"-I{FMI_DIR}", "-o", str(out),
+    shared = [str(f) for f in SHIM_SHARED]
+    cmd = [cc, "-shared", "-fPIC", "-O2", "-Wall", "-Wextra", "-fvisibility=hidden",
+           *(f"-I{f.parent}" for f in SHIM_SHARED), "-o", str(out),
            str(src), *shared, "-ldl", "-lpthread"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:

@@ -71,7 +71,7 @@ def drawing_resource(spec: dict) -> dict[str, bytes]:
     """{member: bytes} of the drawing description: the normalized scene (the kinematics and shapes the page
     draws), read back bounded and checked against the compiled scene by `mbsfmu animate`. Nothing when it is
     larger than limits.DRAWING_BYTES (large nodal data): such FMUs are animated with --scene."""
-    from ..scene.limits import DRAWING_BYTES
+    from ..limits import DRAWING_BYTES
     data = json.dumps(spec, separators=(",", ":")).encode("utf-8")
     if len(data) > DRAWING_BYTES:
         warnings.warn(f"{spec['name']}: no drawing description in the FMU ({len(data)} bytes, at most "

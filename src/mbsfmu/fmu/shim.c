@@ -27,7 +27,7 @@
  *     hidden String variable, value reference MBSFMU_NVARS (not in modelDescription.xml), which the shim
  *     reads after those calls (and after fmi2Instantiate and fmi2Reset: a slave that cannot load its scene);
  *   - after one fmi2Fatal from pythonfmu the instance is never passed to pythonfmu again;
- *   - the resource location (fmi/fmu_files.c, the native FMU's parser) and the files the FMU reads: regular
+ *   - the resource location (engine/fmu_files.c, the native FMU's parser) and the files the FMU reads: regular
  *     files of bounded size only, checked before pythonfmu or Python opens them;
  *   - memory: freed instances' pythonfmu components are reused (see "pythonfmu components, reused").
  */
@@ -48,6 +48,7 @@
 
 #include "call_guard.h"
 #include "fmu_files.h"
+#include "state_header.h"
 #ifndef MBSFMU_RESOURCE_FILES
 #define MBSFMU_RESOURCE_FILES ""
 #endif
@@ -410,7 +411,7 @@ static int special_file(const char* dir, int depth, int* budget, char* err, size
     return bad;
 }
 
-/* The resources folder of fmuResourceLocation `uri` (fmi/fmu_files.c: the parser of the native FMU too) as the
+/* The resources folder of fmuResourceLocation `uri` (engine/fmu_files.c: the parser of the native FMU too) as the
    plain path pythonfmu 0.7.0 is given, into dir; NULL, else why not. Every file the FMU reads at run time
    (MBSFMU_RESOURCE_FILES, from the FMU's resources/) must be a regular file of bounded size first: pythonfmu and
    Python read them with blocking opens (a FIFO hangs the host), and pythonfmu calls a NULL class object when its
@@ -995,7 +996,7 @@ EXPORT fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byt
     return done(owner, __func__, R.serialize(owner->real, s, bytes, need));  /* pythonfmu copies n bytes */
 }
 
-/* The engine's state bytes (state_bytes.c, mbs_state_save): the header of call_guard.h, then the payload, which starts
+/* The engine's state bytes (state_bytes.c, mbs_state_save): the header of state_header.h, then the payload, which starts
    with its Head {double time, rtol, atol, max_step, step; int32 initialized, method, q_in_active, params_dirty}. */
 #define STATE_HEAD (5 * 8 + 4 * 4)
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..engine import layout as _layout
 from ..expr import Expr, parse
-from . import limits
+from .. import limits
 
 _GOLDEN = (math.sqrt(5) - 1) / 2
 

@@ -17,7 +17,8 @@ from ..engine.layout import LISTS, METHODS  # the engine's integrators (mbs_layo
 from ..errors import ModelError
 from ..expr import FUNCTIONS, ExprError, parse
 from ..kinematics.joints import PARAMETERIZATIONS, TYPES as JOINT_TYPES, joint_type  # the joint table
-from . import datafile, domains, limits, names, urdf
+from .. import datafile, limits
+from . import domains, names, urdf
 from .shapes import check_shapes
 from .wording import brief, shown, suggest
 from .yaml_lines import FLOAT_LITERAL, Date, Map, Seq, read_yaml

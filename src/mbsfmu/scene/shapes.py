@@ -12,7 +12,7 @@ import re
 from pathlib import Path
 
 from ..errors import ModelError
-from . import datafile, limits
+from .. import datafile, limits
 from .wording import shown, suggest
 from .yaml_lines import Map, Seq
 

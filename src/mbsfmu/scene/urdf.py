@@ -20,7 +20,8 @@ from defusedxml import DefusedXmlException
 from defusedxml.expatreader import DefusedExpatParser
 
 from ..errors import ModelError
-from . import datafile, domains, limits
+from .. import datafile, limits
+from . import domains
 from .shapes import MESH_SUFFIXES, PACKAGE, package_path
 from .wording import suggest
 from .yaml_lines import Map, Seq

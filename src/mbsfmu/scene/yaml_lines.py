@@ -16,7 +16,7 @@ from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 from yaml.resolver import Resolver
 
 from ..errors import ModelError
-from . import limits
+from .. import limits
 
 try:  # libyaml's event parser (not its composer, whose recursion has no depth limit) when it is there
     from yaml._yaml import CParser as _Parser

@@ -200,7 +200,7 @@ def _times(info, stop, step):
         raise ValueError(f"step must be positive, got {step}")
     import numpy as np
     n = math.ceil((stop - t0) / step - 1e-9)
-    from ..scene.limits import RESULT_POINTS  # bounded work and memory per case
+    from ..limits import RESULT_POINTS  # bounded work and memory per case
     if n > RESULT_POINTS:
         raise ValueError(f"{n} communication points per case (stop {stop}, step {step}); at most {RESULT_POINTS:,}")
     return np.linspace(t0, stop, n + 1)

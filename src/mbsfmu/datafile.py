@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from numpy.lib import format as npy
 
-from ..errors import ModelError
+from .errors import ModelError
 from . import limits
 
 NODAL_ARRAYS = ("R_RP", "mass", "Phi", "Psi", "inertia", "stiffness", "damping")
