@@ -32,8 +32,8 @@ ELASTIC_FIELD(qd, EI_QD); ELASTIC_FIELD(stiff, EI_STIFF); ELASTIC_FIELD(d, EI_D)
 MBS_VIEW_CHECK(elastic_size, sizeof(ElasticRow) == sizeof(int32_t) * EI);
 static const ElasticRow *row(const MbsModel *m, int e) { return (const ElasticRow *)(m->elastic_i + EH + EI * e); }
 
-#define ED_SIZE(code, size, per_mode, per_mode2) {size, per_mode, per_mode2},
-static const int ed_size[ED_N][3] = {MBS_ELASTIC_D(ED_SIZE)};  /* the arrays' sizes: c + b n + a n² */
+#define ED_SIZE(code, size, per_mode, per_mode2, stiff) {size, per_mode, per_mode2, stiff},
+static const int ed_size[ED_N][4] = {MBS_ELASTIC_D(ED_SIZE)};  /* the arrays' sizes c + b n + a n², stiffening only */
 
 static Inv inv_of(const MbsModel *m, int e)
 {
@@ -41,7 +41,7 @@ static Inv inv_of(const MbsModel *m, int e)
     const size_t n = (size_t)r->n;
     const double *p = m->elastic_d + r->d, *a[ED_N];
     for (int k = 0; k < ED_N; k++) {  /* in MBS_ELASTIC_D's order; the stiffening pair only when the body has it */
-        const int absent = !r->stiff && (k == ED_K_A || k == ED_K_W);
+        const int absent = !r->stiff && ed_size[k][3];
         a[k] = absent ? NULL : p;
         if (!absent) p += ed_size[k][0] + ed_size[k][1] * n + ed_size[k][2] * n * n;
     }

@@ -123,5 +123,4 @@ SECTION_ROW = "<" + "".join({4: "i", 8: "q"}[e[1]] for e in LISTS["MBS_SECTION_R
 
 def elastic_array_sizes(n, stiffening):
     """{ED_* name: numbers} of one elastic body's arrays in S_ELASTIC_D, in their order, for n modes."""
-    return {e[0]: e[1] + e[2] * n + e[3] * n * n for e in LISTS["MBS_ELASTIC_D"]
-            if stiffening or e[0] not in ("ED_K_A", "ED_K_W")}
+    return {e[0]: e[1] + e[2] * n + e[3] * n * n for e in LISTS["MBS_ELASTIC_D"] if stiffening or not e[4]}

@@ -182,11 +182,11 @@ enum { MBS_ELASTIC_I(MBS_CODE) EI };
 
 /* S_ELASTIC_D: per elastic body at its EI_D offset these arrays in this order (compiler/elastic_tables.py), each of
  * size + per_mode·n + per_mode2·n² numbers for n modes (row-major, R components; G as [i][l][k] = G_ikl, B as
- * [i][j][l][k] = B_ijkl: the index contracted with q innermost); K_A, K_W (stiffening) only with EI_STIFF; then
+ * [i][j][l][k] = B_ijkl: the index contracted with q innermost); the last column 1: only with EI_STIFF; then
  * per node R_RP (3), Φ_P (3 × n), Ψ_P (3 × n); after the bodies the NFIX parameter values the data were computed with */
 #define MBS_ELASTIC_D(X) \
-    X(ED_M, 1, 0, 0) X(ED_S0, 3, 0, 0) X(ED_S_RR, 9, 0, 0) X(ED_J_SUM, 9, 0, 0) X(ED_C_T, 0, 3, 0) X(ED_A, 0, 9, 0) \
-    X(ED_C_R0, 0, 3, 0) X(ED_JPSI, 0, 3, 0) X(ED_G, 0, 0, 3) X(ED_B, 0, 0, 9) X(ED_M_EE, 0, 0, 1) X(ED_K, 0, 0, 1) \
-    X(ED_D, 0, 0, 1) X(ED_K_A, 0, 0, 1) X(ED_K_W, 0, 0, 1)
+    X(ED_M, 1, 0, 0, 0) X(ED_S0, 3, 0, 0, 0) X(ED_S_RR, 9, 0, 0, 0) X(ED_J_SUM, 9, 0, 0, 0) X(ED_C_T, 0, 3, 0, 0) \
+    X(ED_A, 0, 9, 0, 0) X(ED_C_R0, 0, 3, 0, 0) X(ED_JPSI, 0, 3, 0, 0) X(ED_G, 0, 0, 3, 0) X(ED_B, 0, 0, 9, 0) \
+    X(ED_M_EE, 0, 0, 1, 0) X(ED_K, 0, 0, 1, 0) X(ED_D, 0, 0, 1, 0) X(ED_K_A, 0, 0, 1, 1) X(ED_K_W, 0, 0, 1, 1)
 enum { MBS_ELASTIC_D(MBS_CODE) ED_N };
 #endif
